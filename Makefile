@@ -1,0 +1,34 @@
+# Quick start: `make demo` (set up + fly the default mission), `make test` (set up + run the tests).
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: setup fmu demo test test-slow lint bench clean
+
+setup: $(STAMP) fmu
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+fmu: $(STAMP)
+	$(PY) -m fmus.build
+
+demo: setup
+	$(VENV)/bin/cosim run scenarios/mambo_seed_track.toml --out runs/demo
+
+test: setup
+	$(VENV)/bin/ruff check .
+	$(PY) -m pytest -m "not slow"
+
+test-slow: setup
+	$(PY) -m pytest -m slow
+
+bench: setup
+	$(VENV)/bin/cosim bench
+
+clean:
+	rm -rf build runs

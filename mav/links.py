@@ -1,0 +1,109 @@
+"""Byte links between the parts: the same MAVLink bytes over UDP (SIL) or memory (MIL).
+
+A link moves whole datagrams. `send` never blocks; `recv` returns one datagram or None.
+MIL uses `MemoryLink.pair()`; SIL uses `UdpLink`. Both carry identical bytes, which is
+what makes MIL and SIL runs bit-identical.
+"""
+
+from __future__ import annotations
+
+import socket
+from collections import deque
+from typing import Protocol
+
+
+class Link(Protocol):
+    def send(self, data: bytes) -> None: ...
+
+    def recv(self) -> bytes | None: ...
+
+    def close(self) -> None: ...
+
+
+class MemoryLink:
+    """One end of an in-memory datagram pipe. Create both ends with `MemoryLink.pair()`."""
+
+    __slots__ = ("_inbox", "_peer", "sent_bytes", "on_send")
+
+    def __init__(self) -> None:
+        self._inbox: deque[bytes] = deque()
+        self._peer: MemoryLink | None = None
+        self.sent_bytes = 0
+
+    @classmethod
+    def pair(cls) -> tuple[MemoryLink, MemoryLink]:
+        a, b = cls(), cls()
+        a._peer, b._peer = b, a
+        return a, b
+
+    def send(self, data: bytes) -> None:
+        self.sent_bytes += len(data)
+        self._peer._inbox.append(bytes(data))  # type: ignore[union-attr]
+
+    def recv(self) -> bytes | None:
+        inbox = self._inbox
+        return inbox.popleft() if inbox else None
+
+    def close(self) -> None:
+        self._inbox.clear()
+
+
+class UdpLink:
+    """A non-blocking UDP endpoint.
+
+    bind: local (host, port); port 0 picks a free one (see `local_address`).
+    remote: where to send. If None, replies go to whoever sent last (like mavutil `udpin:`);
+    sending before anyone has sent is a silent drop, counted in `dropped_sends`.
+    """
+
+    def __init__(
+        self, bind: tuple[str, int] = ("127.0.0.1", 0), remote: tuple[str, int] | None = None
+    ) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        self.sock.bind(bind)
+        self.sock.setblocking(False)
+        self.remote = remote
+        self._fixed_remote = remote is not None
+        self.dropped_sends = 0
+
+    @property
+    def local_address(self) -> tuple[str, int]:
+        return self.sock.getsockname()
+
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def send(self, data: bytes) -> None:
+        if self.remote is None:
+            self.dropped_sends += 1
+            return
+        try:
+            self.sock.sendto(data, self.remote)
+        except (BlockingIOError, ConnectionRefusedError, OSError):
+            self.dropped_sends += 1
+
+    def recv(self) -> bytes | None:
+        try:
+            data, addr = self.sock.recvfrom(65535)
+        except (BlockingIOError, ConnectionRefusedError, InterruptedError):
+            return None
+        if not self._fixed_remote:
+            self.remote = addr
+        return data
+
+    def recv_blocking(self, timeout: float) -> bytes | None:
+        """Wait up to `timeout` seconds (wall clock) for one datagram."""
+        self.sock.settimeout(timeout)
+        try:
+            data, addr = self.sock.recvfrom(65535)
+        except (TimeoutError, ConnectionRefusedError):
+            return None
+        finally:
+            self.sock.setblocking(False)
+        if not self._fixed_remote:
+            self.remote = addr
+        return data
+
+    def close(self) -> None:
+        self.sock.close()
