@@ -1,0 +1,19 @@
+"""Errors users see. Each names the part or field at fault."""
+
+from __future__ import annotations
+
+
+class ScenarioError(ValueError):
+    """A scenario (or world) file is malformed. `field` is the dotted path, e.g. 'camera.vfov_deg'."""
+
+    def __init__(self, field: str, value: object, allowed: str) -> None:
+        self.field, self.value, self.allowed = field, value, allowed
+        super().__init__(f"{field}: got {value!r}; allowed: {allowed}")
+
+
+class ComponentError(RuntimeError):
+    """A part of the co-simulation failed; `part` is e.g. 'plant', 'onboard', 'app'."""
+
+    def __init__(self, part: str, message: str) -> None:
+        self.part = part
+        super().__init__(f"{part}: {message}")
