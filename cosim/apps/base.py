@@ -1,0 +1,137 @@
+"""The offboard app contract: what the master calls, and what an app may use.
+
+An app is the software under test, a companion-computer program. It sees the vehicle only
+through MAVLink (`ctx.client`, an `mav.client.OffboardClient` on the API link) and, if the
+scenario has a camera, through frames. The master calls it synchronously in the tick order of
+ARCHITECTURE.md: `on_frame` on camera ticks (before `on_tick`), then `on_tick` every tick.
+Neither may block.
+
+Write your own as a class with this shape and name it in a scenario as `app.name =
+"package.module:Class"`; it is constructed as `Class(params: dict)` and should reject unknown
+parameters with ValueError.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+NAN = math.nan
+
+
+@dataclass
+class AppContext:
+    client: Any                     # mav.client.OffboardClient (the API link)
+    tick_s: float                   # s, master tick (5 ms)
+    frame_period_s: float | None    # s, time between camera frames, None without camera
+    rng: np.random.Generator        # seeded from the scenario seed: use it, not global random
+    home_ned: tuple[float, float, float]   # m, start position (world NED); apps may know it
+
+
+@runtime_checkable
+class OffboardApp(Protocol):
+    phase: str                      # current phase name, recorded every tick
+    done: bool                      # the app considers its mission finished
+    events: list[tuple[float, str]]  # (t s, name): 'takeoff_command', 'following', 'land_command'
+    setpoint: list[float]           # [x, y, z] m NED, last position setpoint sent (NaN: none)
+
+    def on_start(self, ctx: AppContext) -> None: ...
+
+    def on_frame(self, t: float, image: np.ndarray) -> None: ...
+
+    def on_tick(self, t: float) -> None: ...
+
+    def metrics(self) -> dict[str, float]: ...
+
+
+def check_params(params: dict[str, Any], defaults: dict[str, Any], app: str) -> dict[str, Any]:
+    """Merge `params` over `defaults`; unknown names and wrong types raise ValueError."""
+    out = dict(defaults)
+    for k, v in params.items():
+        if k not in defaults:
+            raise ValueError(
+                f"app.params.{k}: unknown parameter for {app}; known: {', '.join(sorted(defaults))}"
+            )
+        d = defaults[k]
+        if isinstance(d, bool) != isinstance(v, bool) or (
+            isinstance(d, int | float) and not isinstance(v, int | float)
+        ):
+            raise ValueError(f"app.params.{k}: got {v!r}; expected a value like {d!r}")
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(f"app.params.{k}: got {v!r}; expected a finite number")
+        out[k] = v
+    return out
+
+
+@dataclass
+class FlightSequencer:
+    """The PX4-style prelude and ending every offboard app needs.
+
+    arm -> AUTO.TAKEOFF to `takeoff_alt_m` -> stream setpoints for `stream_before_s` -> OFFBOARD
+    -> (the app flies) -> `land()` -> AUTO.LAND -> disarmed. Commands that get no answer are
+    retried every `retry_s`. All timing is on the simulation clock `t`.
+    """
+
+    takeoff_alt_m: float = 1.0
+    stream_before_s: float = 1.2
+    retry_s: float = 1.0
+    state: str = "idle"
+    _t_sent: float = -1e9
+    _t_stream: float = NAN
+    events: list[tuple[float, str]] = field(default_factory=list)
+
+    def step(self, t: float, client: Any, hold: tuple[float, float, float]) -> bool:
+        """Advance the prelude; True once the vehicle is in OFFBOARD and the app may fly.
+
+        `hold` is the setpoint streamed while waiting to enter OFFBOARD.
+        """
+        st = self.state
+        if st == "flying":
+            return True
+        retry = t - self._t_sent >= self.retry_s
+        if st == "idle":
+            if client.heartbeat_seen:
+                self.state = "arming"
+        elif st == "arming":
+            if client.armed:
+                self.state = "takeoff"
+                self._t_sent = -1e9
+            elif retry:
+                client.arm()
+                self._t_sent = t
+        elif st == "takeoff":
+            if retry and client.mode != "AUTO.TAKEOFF" and client.landed_state != "IN_AIR":
+                client.takeoff(self.takeoff_alt_m)
+                if not self.events or self.events[-1][1] != "takeoff_command":
+                    self.events.append((t, "takeoff_command"))
+                self._t_sent = t
+            if client.landed_state == "IN_AIR" and client.mode == "AUTO.LOITER":
+                self.state = "streaming"
+                self._t_stream = t
+        elif st == "streaming":
+            client.set_position_target(*hold)
+            if t - self._t_stream >= self.stream_before_s:
+                if client.mode == "OFFBOARD":
+                    self.state = "flying"
+                    self.events.append((t, "offboard"))
+                    return True
+                if retry:
+                    client.set_mode("OFFBOARD")
+                    self._t_sent = t
+        elif st == "landing":
+            if not client.armed:
+                self.state = "landed"
+            elif retry and client.mode != "AUTO.LAND":
+                client.land()
+                self._t_sent = t
+        return False
+
+    def land(self, t: float, client: Any) -> None:
+        if self.state not in ("landing", "landed"):
+            client.land()
+            self._t_sent = t
+            self.state = "landing"
+            self.events.append((t, "land_command"))

@@ -1,0 +1,326 @@
+"""Scenario files: typed records, loaded from TOML and validated field by field.
+
+A malformed file raises `ScenarioError(field, value, allowed)`; `cosim` turns it into a
+one-line message and exit status 2. Unknown keys are errors too (a typo must not be ignored).
+The schema is documented in scenarios/README.md.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from cosim.errors import ScenarioError
+from cosim.vehicles import PRESETS, VehicleParams, get_vehicle
+
+BUILTIN_APPS = ("line_follower", "scripted", "none")
+MODES = ("mil", "sil")
+
+
+# --------------------------------------------------------------------------- field helpers
+def _table(d: dict, key: str, where: str, required: bool = False) -> dict:
+    if key not in d:
+        if required:
+            raise ScenarioError(f"{where}.{key}".lstrip("."), None, "a table (section) is required")
+        return {}
+    v = d[key]
+    if not isinstance(v, dict):
+        raise ScenarioError(f"{where}.{key}".lstrip("."), v, "a table")
+    return v
+
+
+def _number(
+    d: dict, key: str, where: str, default: float | None = None, *, lo: float = -math.inf,
+    hi: float = math.inf, lo_open: bool = False,
+) -> float:
+    path = f"{where}.{key}".lstrip(".")
+    if key not in d:
+        if default is None:
+            raise ScenarioError(path, None, "a number is required")
+        return float(default)
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise ScenarioError(path, v, "a finite number")
+    ok = (v > lo if lo_open else v >= lo) and v <= hi
+    if not ok:
+        lb = "(" if lo_open else "["
+        raise ScenarioError(path, v, f"a number in {lb}{lo}, {hi}]")
+    return float(v)
+
+
+def _int(d: dict, key: str, where: str, default: int, *, lo: int, hi: int) -> int:
+    path = f"{where}.{key}".lstrip(".")
+    v = d.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        raise ScenarioError(path, v, f"an integer in [{lo}, {hi}]")
+    return v
+
+
+def _str(d: dict, key: str, where: str, default: str | None, choices: tuple[str, ...] = ()) -> str:
+    path = f"{where}.{key}".lstrip(".")
+    if key not in d:
+        if default is None:
+            raise ScenarioError(path, None, "a string is required")
+        return default
+    v = d[key]
+    if not isinstance(v, str) or (choices and v not in choices):
+        raise ScenarioError(path, v, f"one of {', '.join(choices)}" if choices else "a string")
+    return v
+
+
+def _bool(d: dict, key: str, where: str, default: bool) -> bool:
+    v = d.get(key, default)
+    if not isinstance(v, bool):
+        raise ScenarioError(f"{where}.{key}".lstrip("."), v, "true or false")
+    return v
+
+
+def _no_unknown(d: dict, known: set[str], where: str) -> None:
+    for k in d:
+        if k not in known:
+            raise ScenarioError(
+                f"{where}.{k}".lstrip("."), d[k], f"known keys: {', '.join(sorted(known))}"
+            )
+
+
+# --------------------------------------------------------------------------- records
+@dataclass(frozen=True)
+class Timing:
+    tick_s: float = 0.005          # s, HIL / onboard control period (fixed at 5 ms)
+    camera_every: int = 40         # ticks between camera frames (Mambo: 40 -> 5 Hz)
+    t_final_s: float = 100.0       # s, time limit (the template's TFinal)
+
+
+@dataclass(frozen=True)
+class Start:
+    n: float = 0.0                 # m, world NED north of the start (on the floor, z = 0)
+    e: float = 0.0                 # m
+    yaw_deg: float = 0.0           # deg, heading at start (0 = facing north)
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    pos_std_m: float = 0.0         # m, white noise on ODOMETRY position
+    vel_std_mps: float = 0.0       # m/s, on velocity
+    att_std_rad: float = 0.0       # rad, small-angle noise on attitude
+    rate_std_radps: float = 0.0    # rad/s, on body rates
+
+    @property
+    def any(self) -> bool:
+        return any(v > 0 for v in (self.pos_std_m, self.vel_std_mps, self.att_std_rad,
+                                   self.rate_std_radps))
+
+
+@dataclass(frozen=True)
+class Criteria:
+    """Pass criteria; None means not checked."""
+
+    must_complete: bool = True               # the app reports its mission complete and landed
+    landing_error_max_m: float | None = None
+    path_rms_max_m: float | None = None
+    path_max_m: float | None = None
+    mission_time_max_s: float | None = None
+    position_error_max_m: float | None = None  # scripted apps: max distance to reached waypoints
+
+
+@dataclass(frozen=True)
+class AppSpec:
+    name: str = "none"             # built-in name or 'package.module:Class'
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    seed: int
+    vehicle: VehicleParams
+    start: Start
+    timing: Timing
+    world: dict[str, Any]                    # validated by cosim.world.World.from_dict
+    camera: dict[str, Any] | None            # validated by cosim.camera.CameraConfig.from_dict
+    app: AppSpec
+    noise: SensorNoise
+    wind_ned_mps: tuple[float, float, float]
+    criteria: Criteria
+    source: str = ""                          # path of the file, for the summary
+    raw: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def with_set(self, assignments: dict[str, Any]) -> Scenario:
+        """A copy with dotted-path overrides applied to the raw TOML and re-validated.
+
+        `{"app.params.alpha": 0.005, "seed": 3}`: the path names keys of the file; for the app's
+        parameters `app.X` is accepted as a short form of `app.params.X`.
+        """
+        raw = copy.deepcopy(self.raw)
+        for path, value in assignments.items():
+            keys = path.split(".")
+            if keys[0] == "app" and len(keys) == 2 and keys[1] not in ("name", "params"):
+                keys = ["app", "params", keys[1]]
+            node = raw
+            for k in keys[:-1]:
+                node = node.setdefault(k, {})
+                if not isinstance(node, dict):
+                    raise ScenarioError(path, value, "a path through tables of the scenario")
+            node[keys[-1]] = value
+        return parse_scenario(raw, source=self.source, base_dir=Path(self.source).parent)
+
+
+# --------------------------------------------------------------------------- parsing
+TOP_KEYS = {"name", "description", "seed", "vehicle", "timing", "world", "camera", "app",
+            "sensors", "wind", "faults", "criteria"}
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file."""
+    p = Path(path)
+    if not p.is_file():
+        raise ScenarioError("scenario", str(p), "an existing .toml file")
+    try:
+        raw = tomllib.loads(p.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError("scenario", str(p), f"valid TOML ({exc})") from None
+    return parse_scenario(raw, source=str(p), base_dir=p.parent)
+
+
+def _load_world(raw: dict, base_dir: Path) -> dict:
+    w = _table(raw, "world", "", required=True)
+    w = dict(w)
+    if "file" in w:
+        f = w.pop("file")
+        if not isinstance(f, str):
+            raise ScenarioError("world.file", f, "a path to a world TOML file")
+        fp = (base_dir / f) if not Path(f).is_absolute() else Path(f)
+        if not fp.is_file():
+            raise ScenarioError("world.file", f, f"an existing file (looked for {fp})")
+        try:
+            base = tomllib.loads(fp.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ScenarioError("world.file", f, f"valid TOML ({exc})") from None
+        base = base.get("world", base)
+        base.update(w)  # keys given in the scenario override the file's
+        w = base
+    return w
+
+
+def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None) -> Scenario:
+    base_dir = base_dir or Path(".")
+    _no_unknown(raw, TOP_KEYS, "")
+    name = _str(raw, "name", "", Path(source).stem or "scenario")
+    description = _str(raw, "description", "", "")
+    seed = _int(raw, "seed", "", 0, lo=0, hi=2**63 - 1)
+
+    # vehicle
+    v = _table(raw, "vehicle", "", required=True)
+    _no_unknown(v, {"preset", "overrides", "start"}, "vehicle")
+    preset = _str(v, "preset", "vehicle", None, tuple(sorted(PRESETS)))
+    vehicle = get_vehicle(preset)
+    ov = _table(v, "overrides", "vehicle")
+    fields = set(vehicle.fmu_parameters())
+    _no_unknown(ov, fields, "vehicle.overrides")
+    if ov:
+        vehicle = vehicle.with_overrides(
+            **{k: _number(ov, k, "vehicle.overrides", lo=0.0, lo_open=k != "drag_rot")
+               for k in ov}
+        )
+    st = _table(v, "start", "vehicle")
+    _no_unknown(st, {"n", "e", "yaw_deg"}, "vehicle.start")
+    start = Start(
+        n=_number(st, "n", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
+        e=_number(st, "e", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
+        yaw_deg=_number(st, "yaw_deg", "vehicle.start", 0.0, lo=-180.0, hi=360.0),
+    )
+
+    # timing
+    tm = _table(raw, "timing", "")
+    _no_unknown(tm, {"tick_s", "camera_every", "t_final_s"}, "timing")
+    tick = _number(tm, "tick_s", "timing", 0.005, lo=0.005, hi=0.005)
+    timing = Timing(
+        tick_s=tick,
+        camera_every=_int(tm, "camera_every", "timing", 40, lo=1, hi=10_000),
+        t_final_s=_number(tm, "t_final_s", "timing", 100.0, lo=0.0, hi=86_400.0, lo_open=True),
+    )
+
+    world = _load_world(raw, base_dir)
+    camera = _table(raw, "camera", "") if "camera" in raw else None
+
+    # app
+    a = _table(raw, "app", "")
+    _no_unknown(a, {"name", "params"}, "app")
+    app_name = _str(a, "name", "app", "none")
+    if app_name not in BUILTIN_APPS and ":" not in app_name:
+        raise ScenarioError(
+            "app.name", app_name, f"one of {', '.join(BUILTIN_APPS)} or 'package.module:Class'"
+        )
+    app = AppSpec(name=app_name, params=dict(_table(a, "params", "app")))
+
+    # sensors / wind / faults
+    s = _table(raw, "sensors", "")
+    _no_unknown(s, {"odometry_noise"}, "sensors")
+    n = _table(s, "odometry_noise", "sensors")
+    _no_unknown(n, {"pos_std_m", "vel_std_mps", "att_std_rad", "rate_std_radps"},
+                "sensors.odometry_noise")
+    w = "sensors.odometry_noise"
+    noise = SensorNoise(
+        pos_std_m=_number(n, "pos_std_m", w, 0.0, lo=0.0, hi=10.0),
+        vel_std_mps=_number(n, "vel_std_mps", w, 0.0, lo=0.0, hi=10.0),
+        att_std_rad=_number(n, "att_std_rad", w, 0.0, lo=0.0, hi=1.0),
+        rate_std_radps=_number(n, "rate_std_radps", w, 0.0, lo=0.0, hi=10.0),
+    )
+    wd = _table(raw, "wind", "")
+    _no_unknown(wd, {"n_mps", "e_mps", "d_mps"}, "wind")
+    wind = tuple(
+        _number(wd, k, "wind", 0.0, lo=-30.0, hi=30.0) for k in ("n_mps", "e_mps", "d_mps")
+    )
+    faults = _table(raw, "faults", "")
+    if faults:
+        raise ScenarioError("faults", faults, "an empty table (fault injection is reserved)")
+
+    # criteria
+    c = _table(raw, "criteria", "")
+    known = {"must_complete", "landing_error_max_m", "path_rms_max_m", "path_max_m",
+             "mission_time_max_s", "position_error_max_m"}
+    _no_unknown(c, known, "criteria")
+
+    def opt(key: str) -> float | None:
+        return _number(c, key, "criteria", lo=0.0, lo_open=True) if key in c else None
+
+    criteria = Criteria(
+        must_complete=_bool(c, "must_complete", "criteria", True),
+        landing_error_max_m=opt("landing_error_max_m"),
+        path_rms_max_m=opt("path_rms_max_m"),
+        path_max_m=opt("path_max_m"),
+        mission_time_max_s=opt("mission_time_max_s"),
+        position_error_max_m=opt("position_error_max_m"),
+    )
+
+    sc = Scenario(
+        name=name, description=description, seed=seed, vehicle=vehicle, start=start,
+        timing=timing, world=world, camera=camera, app=app, noise=noise,
+        wind_ned_mps=wind, criteria=criteria, source=source, raw=raw,
+    )
+    # validate the parts owned by other modules now, so `cosim validate` catches everything
+    build_world(sc)
+    if sc.camera is not None:
+        build_camera_config(sc)
+    return sc
+
+
+def build_world(sc: Scenario):
+    from cosim.world import World
+
+    return World.from_dict(sc.world, "world")
+
+
+def build_camera_config(sc: Scenario):
+    from cosim.camera import CameraConfig
+
+    return CameraConfig.from_dict(sc.camera or {}, "camera")
+
+
+def with_seed(sc: Scenario, seed: int) -> Scenario:
+    return replace(sc, seed=seed)
