@@ -4,7 +4,7 @@ from __future__ import annotations
 
 
 class ScenarioError(ValueError):
-    """A scenario (or world) file is malformed. `field` is the dotted path, e.g. 'camera.vfov_deg'."""
+    """A scenario or world file is malformed; `field` is the dotted path ('camera.vfov_deg')."""
 
     def __init__(self, field: str, value: object, allowed: str) -> None:
         self.field, self.value, self.allowed = field, value, allowed

@@ -1,0 +1,83 @@
+"""Mission metrics and pass criteria, computed from a run's recorded series.
+
+Definitions (also in the README):
+- mission_time_s: from the app's take-off command to the final touchdown (s).
+- path error while following: horizontal distance from the vehicle to the nearest point of
+  the track centreline, over the ticks in the app's 'following' phase: RMS, max, per track part.
+- landing_error_m: horizontal distance from the touchdown point to the end-marker centre.
+- line_in_view_s: camera frames in which the app saw the line, times the frame period.
+- speed_mean_mps / speed_max_mps: horizontal speed while following.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from cosim.master import SERIES_COLUMNS, ExitReason, RunResult
+from cosim.scenario import Criteria
+
+COL = {name: i for i, name in enumerate(SERIES_COLUMNS)}
+
+
+def compute_metrics(res: RunResult, world) -> dict[str, Any]:
+    s = res.series
+    m: dict[str, Any] = {}
+    ev = {}
+    for t, name in res.events:
+        ev.setdefault(name, t)
+    t_takeoff = ev.get("takeoff_command")
+    if res.touchdown is not None and t_takeoff is not None:
+        m["mission_time_s"] = res.touchdown[0] - t_takeoff
+    if "following" in res.phases and len(s):
+        mask = s[:, COL["phase"]] == res.phases.index("following")
+        if mask.any():
+            xy = s[mask][:, [COL["x"], COL["y"]]]
+            d, part = world.distance_to_track(xy)
+            m["path_error_rms_m"] = float(np.sqrt(np.mean(d**2)))
+            m["path_error_max_m"] = float(d.max())
+            m["path_error_rms_by_part_m"] = {
+                str(int(p)): float(np.sqrt(np.mean(d[part == p] ** 2))) for p in np.unique(part)
+            }
+            vh = np.hypot(s[mask, COL["vx"]], s[mask, COL["vy"]])
+            m["speed_mean_mps"] = float(vh.mean())
+            m["speed_max_mps"] = float(vh.max())
+            m["following_time_s"] = float(mask.sum() * res.scenario.timing.tick_s)
+    marker = getattr(world, "marker", None)
+    if res.touchdown is not None and marker is not None:
+        cn, ce = marker.center
+        m["landing_error_m"] = math.hypot(res.touchdown[1] - cn, res.touchdown[2] - ce)
+    if res.frame_log:
+        period = res.scenario.timing.camera_every * res.scenario.timing.tick_s
+        m["line_in_view_s"] = sum(1 for r in res.frame_log if r[1]) * period
+    for k, v in res.app_metrics.items():
+        m.setdefault(k, v)
+    return m
+
+
+def evaluate(criteria: Criteria, metrics: dict[str, Any], exit_reason: ExitReason
+             ) -> dict[str, dict[str, Any]]:
+    """Each criterion: {'value', 'limit', 'passed'}; a metric that is missing fails."""
+    out: dict[str, dict[str, Any]] = {}
+    if criteria.must_complete:
+        out["must_complete"] = {
+            "value": exit_reason.value, "limit": ExitReason.MISSION_COMPLETE.value,
+            "passed": exit_reason is ExitReason.MISSION_COMPLETE,
+        }
+    limits = {
+        "landing_error_max_m": "landing_error_m",
+        "path_rms_max_m": "path_error_rms_m",
+        "path_max_m": "path_error_max_m",
+        "mission_time_max_s": "mission_time_s",
+        "position_error_max_m": "position_error_max_m",
+    }
+    for crit, metric in limits.items():
+        limit = getattr(criteria, crit)
+        if limit is None:
+            continue
+        v = metrics.get(metric)
+        out[crit] = {"value": v, "limit": limit,
+                     "passed": v is not None and math.isfinite(v) and v <= limit}
+    return out

@@ -1,0 +1,66 @@
+"""Run plots (PNG): top view over the track, altitude, velocities, path error."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from cosim.metrics import COL  # noqa: E402
+
+
+def plot_run(res, world, out: Path) -> list[Path]:
+    s = res.series
+    t = s[:, COL["t"]]
+    paths = []
+
+    fig, ax = plt.subplots(figsize=(6.5, 6.5))
+    for i, line in enumerate(world.centreline()):
+        ax.plot(line[:, 1], line[:, 0], "-", color="tab:red", lw=3, alpha=0.5,
+                label="track centreline" if i == 0 else None)
+    marker = getattr(world, "marker", None)
+    if marker is not None:
+        c = plt.Circle((marker.center[1], marker.center[0]), marker.radius, color="tab:red",
+                       alpha=0.3, label="end marker")
+        ax.add_patch(c)
+    ax.plot(s[:, COL["y"]], s[:, COL["x"]], "-", color="tab:blue", lw=1.2, label="vehicle")
+    if res.touchdown is not None:
+        ax.plot(res.touchdown[2], res.touchdown[1], "kx", ms=9, label="touchdown")
+    ax.set_xlabel("East (m)")
+    ax.set_ylabel("North (m)")
+    ax.set_aspect("equal")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"{res.scenario.name}: {res.exit_reason.value}")
+    paths.append(_save(fig, out / "trajectory.png"))
+
+    fig, axs = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    axs[0].plot(t, -s[:, COL["z"]], label="altitude")
+    sp = -s[:, COL["sp_z"]]
+    axs[0].plot(t, sp, "--", label="setpoint")
+    axs[0].set_ylabel("altitude (m)")
+    axs[0].legend(fontsize=8)
+    for name in ("vx", "vy", "vz"):
+        axs[1].plot(t, s[:, COL[name]], label=name)
+    axs[1].plot(t, np.hypot(s[:, COL["vx"]], s[:, COL["vy"]]), "k", lw=0.8, label="|v_h|")
+    axs[1].set_ylabel("velocity NED (m/s)")
+    axs[1].legend(fontsize=8, ncol=4)
+    d, _ = world.distance_to_track(s[:, [COL["x"], COL["y"]]])
+    axs[2].plot(t, d, label="distance to track")
+    axs[2].set_ylabel("path error (m)")
+    axs[2].set_xlabel("time (s)")
+    for a in axs:
+        a.grid(True, alpha=0.3)
+    paths.append(_save(fig, out / "timeseries.png"))
+    return paths
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,136 @@
+"""Writes a run folder: summary.json, timeseries.csv, frames.csv, flight.tlog, plots, video."""
+
+from __future__ import annotations
+
+import json
+import platform
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cosim.master import SERIES_COLUMNS, RunResult
+from cosim.metrics import COL, compute_metrics, evaluate
+from cosim.scenario import build_world
+
+
+def versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("cosim", "fmpy", "pymavlink", "numpy", "opencv-python-headless", "control"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def summarize(res: RunResult) -> dict[str, Any]:
+    world = build_world(res.scenario)
+    metrics = compute_metrics(res, world)
+    crit = evaluate(res.scenario.criteria, metrics, res.exit_reason)
+    sc = res.scenario
+    return {
+        "scenario": sc.name,
+        "source": sc.source,
+        "description": sc.description,
+        "vehicle": sc.vehicle.name,
+        "app": sc.app.name,
+        "seed": sc.seed,
+        "mode": res.mode,
+        "exit_reason": res.exit_reason.value,
+        "message": res.message,
+        "sim_time_s": res.t_end_s,
+        "wall_time_s": res.wall_s,
+        "real_time_factor": res.real_time_factor,
+        "ticks": res.ticks,
+        "metrics": metrics,
+        "criteria": crit,
+        "passed": all(c["passed"] for c in crit.values()),
+        "events": [[t, name] for t, name in res.events],
+        "onboard_stats": res.onboard_stats,
+        "versions": versions(),
+        "platform": f"{platform.system()} {platform.machine()}, {sys.implementation.name}",
+    }
+
+
+def write_run(res: RunResult, out: Path, *, plots: bool = True) -> dict[str, Any]:
+    """Write everything the run recorded into `out`; returns the summary dict."""
+    out.mkdir(parents=True, exist_ok=True)
+    summary = summarize(res)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+    write_series(res, out / "timeseries.csv")
+    if res.frame_log:
+        with open(out / "frames.csv", "w") as f:
+            f.write("t,flag_track,flag_marker,e_x_px,e_y_px\n")
+            for r in res.frame_log:
+                f.write(",".join(repr(float(v)) for v in r) + "\n")
+    res.tlog.write(out / "flight.tlog")
+    if plots and res.ticks > 1:
+        from cosim.plots import plot_run
+
+        plot_run(res, build_world(res.scenario), out)
+    if res.frames:
+        from cosim.camera import save_video
+
+        fps = 1.0 / (res.scenario.timing.camera_every * res.scenario.timing.tick_s)
+        save_video(res.frames, out / "camera.mp4", fps)
+    if res.png_frames:
+        import cv2
+
+        d = out / "frames"
+        d.mkdir(exist_ok=True)
+        for t, img in res.png_frames:
+            cv2.imwrite(str(d / f"frame_{t:08.3f}.png"), img[:, :, ::-1])
+    return summary
+
+
+def write_series(res: RunResult, path: Path) -> None:
+    s = res.series
+    phase_names = np.array(res.phases + ["?"], dtype=object)
+    with open(path, "w") as f:
+        f.write(",".join(SERIES_COLUMNS) + ",phase_name\n")
+        pcol = COL["phase"]
+        for row in s:
+            f.write(",".join(repr(float(v)) for v in row))
+            f.write("," + phase_names[int(row[pcol])] + "\n")
+
+
+def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
+    m = summary["metrics"]
+    lines = [
+        f"scenario  {summary['scenario']}  ({summary['vehicle']}, app {summary['app']}, "
+        f"{summary['mode'].upper()}, seed {summary['seed']})",
+        f"exit      {summary['exit_reason']}: {summary['message']}",
+        f"sim time  {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall "
+        f"({summary['real_time_factor']:.0f}x real time)",
+    ]
+    fmt = {
+        "mission_time_s": ("mission time", "{:.2f} s"),
+        "path_error_rms_m": ("path error RMS", "{:.3f} m"),
+        "path_error_max_m": ("path error max", "{:.3f} m"),
+        "landing_error_m": ("landing error", "{:.3f} m"),
+        "line_in_view_s": ("line in view", "{:.1f} s"),
+        "speed_mean_mps": ("speed mean", "{:.2f} m/s"),
+        "speed_max_mps": ("speed max", "{:.2f} m/s"),
+        "position_error_max_m": ("waypoint error max", "{:.3f} m"),
+    }
+    for key, (label, f) in fmt.items():
+        if key in m and m[key] is not None:
+            lines.append(f"  {label:<20s}{f.format(m[key])}")
+    for name, c in summary["criteria"].items():
+        v = c["value"]
+        vs = f"{v:.3f}" if isinstance(v, float) else str(v)
+        lines.append(f"  [{'PASS' if c['passed'] else 'FAIL'}] {name}: {vs} (limit {c['limit']})")
+    lines.append(f"result    {'PASSED' if summary['passed'] else 'FAILED'}"
+                 + (f"   outputs in {out}" if out else ""))
+    return "\n".join(lines)
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.integer | np.floating):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    return str(o)

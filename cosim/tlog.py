@@ -1,0 +1,73 @@
+"""MAVLink telemetry logs (.tlog): every datagram with an 8-byte big-endian microsecond stamp.
+
+pymavlink's `setup_logfile` writes nothing on UDP links, so the master taps the links itself.
+Stamps are simulation time (us since t = 0), so the log of a run is deterministic.
+`mavlogdump.py flight.tlog` and MAVExplorer read the result.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+_STAMP = struct.Struct(">Q")
+
+
+class Tlog:
+    __slots__ = ("buf", "t_us", "count")
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.t_us = 0
+        self.count = 0
+
+    def add(self, data: bytes) -> None:
+        self.buf += _STAMP.pack(self.t_us)
+        self.buf += data
+        self.count += 1
+
+    def write(self, path: Path) -> None:
+        path.write_bytes(bytes(self.buf))
+
+
+class TapLink:
+    """Wraps a link; every datagram sent or received is appended to a Tlog."""
+
+    __slots__ = ("inner", "log")
+
+    def __init__(self, inner, log: Tlog) -> None:
+        self.inner = inner
+        self.log = log
+
+    def send(self, data: bytes) -> None:
+        self.log.add(data)
+        self.inner.send(data)
+
+    def recv(self) -> bytes | None:
+        data = self.inner.recv()
+        if data is not None:
+            self.log.add(data)
+        return data
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+def read_tlog(path: Path) -> list[tuple[int, bytes]]:
+    """Split a tlog into (t_us, datagram) records (for tests and tools)."""
+    raw = Path(path).read_bytes()
+    out = []
+    i = 0
+    while i + 8 <= len(raw):
+        (t,) = _STAMP.unpack_from(raw, i)
+        i += 8
+        # a MAVLink 2 frame: 0xFD, len, ..., or MAVLink 1: 0xFE, len
+        if raw[i] == 0xFD:
+            n = 12 + raw[i + 1] + (13 if raw[i + 2] & 1 else 0)
+        elif raw[i] == 0xFE:
+            n = 8 + raw[i + 1]
+        else:
+            raise ValueError(f"{path}: not a MAVLink frame at byte {i}")
+        out.append((t, raw[i:i + n]))
+        i += n
+    return out
