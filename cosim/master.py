@@ -67,6 +67,10 @@ class RunOptions:
     out_dir: Path | None = None       # where the SIL onboard log goes (None: a temp dir)
     hil_timeout_s: float = 2.0        # s wall clock without a HIL answer -> onboard failed
     app_override: Any = None          # an app object to use instead of the scenario's
+    # sitl: the onboard stack's API and GCS links are real UDP sockets for outside clients,
+    # {'gcs': ((bind_host, port), (remote_host, port)), 'api': (...)}; MIL only
+    external_links: dict[str, tuple[tuple[str, int], tuple[str, int]]] | None = None
+    sitl: bool = False                # no mission exit conditions (landed/complete)
 
 
 @dataclass
@@ -119,14 +123,21 @@ class _Vehicle:
     def __init__(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path) -> None:
         self.mode = opts.mode
         self.proc = None
+        self._own: tuple = ()
         vname = sc.vehicle.name
         if opts.mode == "mil":
             from mav.onboard import Onboard, OnboardConfig
 
             hil_m, hil_v = MemoryLink.pair()
-            api_app, api_v = MemoryLink.pair()
-            gcs_m, gcs_v = MemoryLink.pair()
+            if opts.external_links:
+                api_app = gcs_m = MemoryLink()  # nothing of the master's on these links
+                api_v = UdpLink(*opts.external_links["api"])
+                gcs_v = UdpLink(*opts.external_links["gcs"])
+            else:
+                api_app, api_v = MemoryLink.pair()
+                gcs_m, gcs_v = MemoryLink.pair()
             self.onboard = Onboard(OnboardConfig(vehicle=vname), hil_v, api_v, gcs_v)
+            self._own = (api_v, gcs_v) if opts.external_links else ()
             if sc.vehicle != _preset(vname):
                 self.onboard.set_vehicle_params(sc.vehicle)
             self.hil = hil_m
@@ -185,7 +196,7 @@ class _Vehicle:
         return {}
 
     def close(self) -> None:
-        for link in (self.hil, self.api, self.gcs):
+        for link in (self.hil, self.api, self.gcs, *self._own):
             try:
                 link.close()
             except Exception:
@@ -344,7 +355,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                     f"left the arena at N {x_:.2f} E {y_:.2f} D {z_:.2f} m")
                 k += 1
                 break
-            if airborne and ground_ticks > 0:
+            if airborne and ground_ticks > 0 and not opts.sitl:
                 disarmed = u1 == 0.0 and u2 == 0.0 and u3 == 0.0 and u4 == 0.0
                 app_done = app is not None and app.done
                 if disarmed and (app is None or app_done):

@@ -1,0 +1,214 @@
+"""`cosim`: run, validate, sweep, sitl, onboard, tune, bench."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from cosim.errors import ScenarioError
+
+EPILOG = """examples:
+  cosim run scenarios/mambo_seed_track.toml                 fly the seed mission (MIL)
+  cosim run scenarios/mambo_seed_track.toml --mode sil      onboard stack as its own process
+  cosim run scenarios/mambo_seed_track.toml --realtime --speed 2 --video
+  cosim run scenarios/scripted_square.toml --set seed=3 --out runs/sq3
+  cosim validate scenarios/*.toml
+  cosim sweep scenarios/mambo_seed_track.toml --set app.alpha=0.002,0.003,0.0038,0.005,0.006
+  cosim sitl --vehicle mambo                                 fly it from QGroundControl
+  cosim onboard --vehicle mambo --hil-bind 127.0.0.1:4560   the flight stack alone
+  cosim tune mambo                                           loop margins (python-control)
+  cosim bench --quick                                        speed of every part
+exit status: 0 pass, 1 a pass criterion failed or the run ended in error, 2 bad input."""
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="cosim", description="Co-simulation of vision-based quadrotor flight.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    r = sub.add_parser("run", help="fly one scenario", epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("scenario")
+    r.add_argument("--mode", choices=("mil", "sil"), default="mil")
+    r.add_argument("--realtime", action="store_true", help="pace against the wall clock")
+    r.add_argument("--speed", type=float, default=1.0, help="real-time speed factor (--realtime)")
+    r.add_argument("--out", type=Path, help="run folder (default runs/<scenario>-<mode>)")
+    r.add_argument("--video", action="store_true", help="save the camera frames as camera.mp4")
+    r.add_argument("--png-every", type=int, default=0, metavar="N",
+                   help="save every Nth camera frame as PNG")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario field, e.g. app.alpha=0.005 or seed=3")
+    r.add_argument("--no-plots", action="store_true")
+    r.add_argument("--quiet", action="store_true", help="no progress display")
+
+    v = sub.add_parser("validate", help="check scenario files")
+    v.add_argument("scenarios", nargs="+")
+
+    s = sub.add_parser("sweep", help="many runs of one scenario over parameter values")
+    s.add_argument("scenario")
+    s.add_argument("--set", action="append", required=True, metavar="KEY=V1,V2,...")
+    s.add_argument("--mode", choices=("mil", "sil"), default="mil")
+    s.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    s.add_argument("--executor", choices=("local", "serial"), default="local")
+    s.add_argument("--out", type=Path, help="sweep folder (default runs/sweep-<scenario>)")
+
+    t = sub.add_parser("sitl", help="a vehicle in a world, real time, for ground stations")
+    t.add_argument("--vehicle", choices=("mambo", "bebop2"), default="mambo")
+    t.add_argument("--world", default="seed", help="a world file or built-in name (seed, ...)")
+    t.add_argument("--speed", type=float, default=1.0)
+    t.add_argument("--duration", type=float, default=86_400.0, help="s of simulated time")
+    t.add_argument("--gcs-remote", default="127.0.0.1:14550")
+    t.add_argument("--gcs-bind", default="127.0.0.1:18570")
+    t.add_argument("--api-remote", default="127.0.0.1:14540")
+    t.add_argument("--api-bind", default="127.0.0.1:14580")
+
+    sub.add_parser("onboard", help="the onboard flight stack process (see --help)",
+                   add_help=False)
+    tu = sub.add_parser("tune", help="controller loop margins and step responses")
+    tu.add_argument("vehicle", choices=("mambo", "bebop2"))
+
+    b = sub.add_parser("bench", help="measure the speed of every part")
+    b.add_argument("--quick", action="store_true", help="fewer repeats (a smoke test)")
+    b.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "onboard":
+        from mav.onboard import main as onboard_main
+
+        return onboard_main(argv[1:])
+    args = _parser().parse_args(argv)
+    try:
+        return _dispatch(args)
+    except ScenarioError as exc:
+        print(f"cosim: error in scenario: {exc}", file=sys.stderr)
+        return 2
+
+
+def _dispatch(args) -> int:
+    if args.cmd == "validate":
+        from cosim.scenario import load_scenario
+
+        for path in args.scenarios:
+            sc = load_scenario(path)
+            print(f"{path}: ok ({sc.name}: vehicle {sc.vehicle.name}, app {sc.app.name}, "
+                  f"t_final {sc.timing.t_final_s:g} s)")
+        return 0
+    if args.cmd == "run":
+        return _run(args)
+    if args.cmd == "sweep":
+        return _sweep(args)
+    if args.cmd == "sitl":
+        return _sitl(args)
+    if args.cmd == "tune":
+        from mav.tune import main as tune_main
+
+        return tune_main([args.vehicle])
+    if args.cmd == "bench":
+        from cosim.bench import main as bench_main
+
+        return bench_main(quick=args.quick, json_path=args.json)
+    raise AssertionError(args.cmd)
+
+
+def _run(args) -> int:
+    from cosim.master import ExitReason, RunOptions, run_scenario
+    from cosim.report import one_screen, write_run
+    from cosim.scenario import load_scenario
+    from cosim.sweep import parse_sets
+
+    sc = load_scenario(args.scenario)
+    if args.set:
+        sc = sc.with_set({k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
+    if args.speed <= 0:
+        raise ScenarioError("--speed", args.speed, "a number > 0")
+    out = args.out or Path("runs") / f"{sc.name}-{args.mode}"
+    opts = RunOptions(mode=args.mode, realtime=args.realtime, speed=args.speed,
+                      video=args.video, png_every=args.png_every,
+                      progress=not args.quiet and sys.stderr.isatty(), out_dir=out)
+    res = run_scenario(sc, opts)
+    summary = write_run(res, out, plots=not args.no_plots)
+    print(one_screen(summary, out))
+    if res.exit_reason is ExitReason.COMPONENT_ERROR:
+        print(f"cosim: run failed: {res.message}", file=sys.stderr)
+    return 0 if summary["passed"] else 1
+
+
+def _sweep(args) -> int:
+    from cosim.scenario import load_scenario
+    from cosim.sweep import EXECUTORS, make_jobs, parse_sets, plot_sweep, run_job, write_table
+
+    sc = load_scenario(args.scenario)
+    grid = parse_sets(args.set, multi=True)
+    for key, values in grid.items():  # validate every value before starting any run
+        for v in values:
+            sc.with_set({key: v})
+    out = args.out or Path("runs") / f"sweep-{sc.name}"
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = make_jobs(args.scenario, grid, out, args.mode)
+    print(f"sweep: {len(jobs)} runs of {sc.name} ({args.executor} executor)", file=sys.stderr)
+    results = EXECUTORS[args.executor](args.workers).map(run_job, jobs)
+    keys = list(grid)
+    table = write_table(results, keys, out)
+    plot_sweep(results, keys[0], out)
+    print(table.read_text())
+    print(f"sweep outputs in {out}")
+    return 0 if all(r["passed"] for r in results) else 1
+
+
+def _sitl(args) -> int:
+    from cosim.master import RunOptions, run_scenario
+    from cosim.report import one_screen, write_run
+    from cosim.scenario import parse_scenario
+
+    def hp(s: str, name: str) -> tuple[str, int]:
+        host, _, port = s.rpartition(":")
+        if not host or not port.isdigit():
+            raise ScenarioError(name, s, "HOST:PORT")
+        return host, int(port)
+
+    world = _world_table(args.world)
+    sc = parse_scenario({
+        "name": f"sitl-{args.vehicle}",
+        "vehicle": {"preset": args.vehicle, "start": _world_start(args.world)},
+        "world": world,
+        "timing": {"t_final_s": args.duration},
+        "criteria": {"must_complete": False},
+    }, source=str(Path.cwd() / "sitl.toml"))
+    links = {"gcs": (hp(args.gcs_bind, "--gcs-bind"), hp(args.gcs_remote, "--gcs-remote")),
+             "api": (hp(args.api_bind, "--api-bind"), hp(args.api_remote, "--api-remote"))}
+    out = Path("runs") / sc.name
+    print(f"cosim sitl: {args.vehicle} in world {args.world}; GCS link -> {args.gcs_remote}, "
+          f"API link -> {args.api_remote}; Ctrl-C to stop", file=sys.stderr, flush=True)
+    res = run_scenario(sc, RunOptions(mode="mil", realtime=True, speed=args.speed, out_dir=out,
+                                      external_links=links, sitl=True))
+    summary = write_run(res, out, plots=False)
+    print(one_screen(summary, out))
+    return 0
+
+
+def _world_table(world: str) -> dict:
+    p = Path(world)
+    if not p.suffix:
+        p = Path(__file__).resolve().parent.parent / "scenarios" / "worlds" / f"{world}.toml"
+    return {"file": str(p.resolve())}
+
+
+def _world_start(world: str) -> dict:
+    import tomllib
+
+    p = Path(_world_table(world)["file"])
+    if not p.is_file():
+        raise ScenarioError("--world", world, "a world file or a built-in world name")
+    raw = tomllib.loads(p.read_text())
+    start = raw.get("start") or raw.get("world", {}).get("start")
+    return dict(start) if isinstance(start, dict) else {}
+
+
+if __name__ == "__main__":
+    sys.exit(main())
