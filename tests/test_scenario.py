@@ -1,0 +1,79 @@
+"""Scenario loading: every shipped file validates; malformed input names the field."""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from cosim.errors import ScenarioError
+from cosim.scenario import load_scenario, parse_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENARIOS = sorted((ROOT / "scenarios").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
+def test_shipped_scenarios_validate(path):
+    sc = load_scenario(path)
+    assert sc.vehicle.name in ("mambo", "bebop2")
+    assert sc.timing.tick_s == 0.005
+
+
+def _raw():
+    p = ROOT / "scenarios" / "scripted_square.toml"
+    return tomllib.loads(p.read_text()), p.parent
+
+
+@pytest.mark.parametrize(
+    "mutate, field",
+    [
+        (lambda r: r["vehicle"].__setitem__("preset", "crazyflie"), "vehicle.preset"),
+        (lambda r: r["vehicle"]["start"].__setitem__("yaw_deg", "north"), "vehicle.start.yaw_deg"),
+        (lambda r: r.setdefault("timing", {}).__setitem__("camera_every", 0),
+         "timing.camera_every"),
+        (lambda r: r.setdefault("timing", {}).__setitem__("tick_s", 0.01), "timing.tick_s"),
+        (lambda r: r["timing"].__setitem__("t_final_s", -1.0), "timing.t_final_s"),
+        (lambda r: r.__setitem__("colour", "red"), "colour"),
+        (lambda r: r["app"].__setitem__("name", "nonexistent"), "app.name"),
+        (lambda r: r.setdefault("criteria", {}).__setitem__("path_rms_max_m", 0),
+         "criteria.path_rms_max_m"),
+        (lambda r: r.setdefault("criteria", {}).__setitem__("must_complete", "yes"),
+         "criteria.must_complete"),
+        (lambda r: r.__setitem__("faults", {"motor_1": "dead"}), "faults"),
+        (lambda r: r["vehicle"].__setitem__("overrides", {"mass": -0.1}),
+         "vehicle.overrides.mass"),
+        (lambda r: r["vehicle"].__setitem__("overrides", {"mass_kg": 0.1}),
+         "vehicle.overrides.mass_kg"),
+        (lambda r: r.setdefault("sensors", {}).__setitem__(
+            "odometry_noise", {"pos_std_m": float("nan")}), "sensors.odometry_noise.pos_std_m"),
+        (lambda r: r["world"].__setitem__("file", "worlds/missing.toml"), "world.file"),
+        (lambda r: r.pop("vehicle"), "vehicle"),
+    ],
+)
+def test_bad_field_is_named(mutate, field):
+    raw, base = _raw()
+    raw = copy.deepcopy(raw)
+    mutate(raw)
+    with pytest.raises(ScenarioError) as ei:
+        parse_scenario(raw, source=str(base / "x.toml"), base_dir=base)
+    assert ei.value.field == field
+    assert field in str(ei.value) and "allowed" in str(ei.value)
+
+
+def test_with_set_overrides_and_revalidates():
+    sc = load_scenario(ROOT / "scenarios" / "scripted_square.toml")
+    sc2 = sc.with_set({"seed": 7, "app.tolerance_m": 0.2})
+    assert sc2.seed == 7 and sc2.app.params["tolerance_m"] == 0.2
+    assert sc.seed == 0 and sc.app.params["tolerance_m"] == 0.10  # original untouched
+    with pytest.raises(ScenarioError, match="timing.camera_every"):
+        sc.with_set({"timing.camera_every": -3})
+
+
+def test_invalid_toml_is_reported(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text("name = \n")
+    with pytest.raises(ScenarioError, match="valid TOML"):
+        load_scenario(p)
