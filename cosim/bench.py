@@ -1,0 +1,239 @@
+"""`cosim bench`: the cost of every part, and the real-time factor of the seed mission.
+
+Each figure is measured in this one run, on this machine, repeated `repeats` times; we report
+the median and the spread (min..max) of the per-repeat figures. Ratios (e.g. our codec vs
+pymavlink) come from the same run. No figure here is a pass/fail test: machines are shared
+and noisy; the targets are printed beside the figures for the reader.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+SEED = ROOT / "scenarios" / "mambo_seed_track.toml"
+
+
+def _per_call_us(fn: Callable[[], Any], n: int, repeats: int) -> list[float]:
+    out = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        out.append((time.perf_counter() - t0) / n * 1e6)
+    return out
+
+
+def _stat(samples: list[float], unit: str, target: float | None = None,
+          higher_is_better: bool = False) -> dict[str, Any]:
+    d = {"median": statistics.median(samples), "min": min(samples), "max": max(samples),
+         "n": len(samples), "unit": unit}
+    if target is not None:
+        d["target"] = target
+        d["meets_target"] = (d["median"] >= target) if higher_is_better else (
+            d["median"] <= target)
+    return d
+
+
+def machine() -> dict[str, Any]:
+    cpu = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
+            "system": f"{platform.system()} {platform.release()} {platform.machine()}"}
+
+
+def bench_plant(n: int, repeats: int) -> dict[str, Any]:
+    from cosim.plant import Plant
+    from cosim.vehicles import MAMBO
+
+    with Plant(MAMBO, x0=0.0, y0=0.0) as plant:
+        u = MAMBO.u_hover
+
+        def step():
+            plant.step(u, u, u, u)
+        return _stat(_per_call_us(step, n, repeats), "us/tick", 5.0)
+
+
+def bench_controller(n: int, repeats: int) -> dict[str, Any]:
+    from cosim.vehicles import MAMBO
+    from mav.control import make_controller
+    from mav.types import Setpoint, VehicleState
+
+    ctl = make_controller(MAMBO)
+    s, sp, out = VehicleState(), Setpoint(), [0.0] * 4
+    s.z = -1.0
+    sp.x, sp.y, sp.z, sp.yaw, sp.armed = 0.1, -0.1, -1.1, 0.0, True
+    return _stat(_per_call_us(lambda: ctl.update(s, sp, out), n, repeats), "us/tick")
+
+
+def bench_codec(n: int, repeats: int) -> dict[str, Any]:
+    """Encode + decode of the per-tick messages, our codec and pymavlink's, in one run."""
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    from mav.hil import HilSimulatorCodec
+
+    codec = HilSimulatorCodec()
+    meas = (57.0, 95.0, -1.1, 1.0, 0.0, 0.0, 0.0, 0.1, 0.2, 0.0, 0.01, 0.02, 0.0)
+    pm = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    nan21 = [math.nan] + [0.0] * 20
+    out: dict[str, Any] = {}
+    out["odometry_encode_ours"] = _stat(
+        _per_call_us(lambda: codec.encode_odometry(5000, meas), n, repeats), "us/msg")
+
+    def pm_encode():
+        return pm.odometry_encode(5000, 1, 1, 57.0, 95.0, -1.1, [1, 0, 0, 0], 0.1, 0.2, 0.0,
+                                  0.01, 0.02, 0.0, nan21, nan21, 0, 1, 100).pack(pm)
+    out["odometry_encode_pymavlink"] = _stat(_per_call_us(pm_encode, n, repeats), "us/msg")
+    data = pm_encode()
+    pm2 = mavlink2.MAVLink(None)
+    out["odometry_decode_pymavlink"] = _stat(
+        _per_call_us(lambda: pm2.decode(bytearray(data)), n, repeats), "us/msg")
+    act = pm.hil_actuator_controls_encode(5000, [0.5] * 4 + [0.0] * 12, 0, 1).pack(pm)
+    out["actuators_decode_ours"] = _stat(
+        _per_call_us(lambda: codec.decode_actuators(act), n, repeats), "us/msg")
+    out["actuators_decode_pymavlink"] = _stat(
+        _per_call_us(lambda: pm2.decode(bytearray(act)), n, repeats), "us/msg")
+    for a, b in (("odometry_encode_pymavlink", "odometry_encode_ours"),
+                 ("actuators_decode_pymavlink", "actuators_decode_ours")):
+        out[f"ratio_{b}"] = out[a]["median"] / out[b]["median"]
+    return out
+
+
+def bench_udp_roundtrip(n: int, repeats: int) -> dict[str, Any]:
+    """ODOMETRY -> HIL_ACTUATOR_CONTROLS through the onboard process over loopback UDP."""
+    import tempfile
+
+    from cosim.sil import OnboardProcess
+    from mav.hil import HilSimulatorCodec
+    from mav.links import UdpLink
+
+    codec = HilSimulatorCodec()
+    api, gcs, hil = UdpLink(), UdpLink(), UdpLink()
+    with tempfile.TemporaryDirectory() as d, OnboardProcess(
+            "mambo", api.local_address, gcs.local_address, Path(d) / "onboard.log") as proc:
+        hil.remote = ("127.0.0.1", proc.ports["hil"])
+        hil.sock.setblocking(True)
+        hil.sock.settimeout(5.0)
+        meas = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        k = [0]
+
+        def rt():
+            k[0] += 1
+            hil.sock.sendto(codec.encode_odometry(k[0] * 5000, meas), hil.remote)
+            hil.sock.recv(65535)
+            while api.recv() is not None or gcs.recv() is not None:
+                pass
+        samples = _per_call_us(rt, n, repeats)
+    for link in (api, gcs, hil):
+        link.close()
+    return _stat(samples, "us/tick")
+
+
+def bench_render_ips(n: int, repeats: int) -> dict[str, Any]:
+    from cosim.apps.ips import ImageProcessor
+    from cosim.camera import DownwardCamera
+    from cosim.scenario import build_camera_config, build_world, load_scenario
+
+    sc = load_scenario(SEED)
+    cam = DownwardCamera(build_world(sc), build_camera_config(sc), seed=0)
+    p_W = [56.5, 95.0, -1.1]
+    q = [0.9990482, 0.0, 0.0436194, 0.0]  # 5 deg nose up
+    img = cam.render(p_W, q)
+    ips = ImageProcessor()
+    return {
+        "render": _stat(_per_call_us(lambda: cam.render(p_W, q), n, repeats), "us/frame",
+                        1000.0),
+        "ips": _stat(_per_call_us(lambda: ips.process(img), n, repeats), "us/frame", 200.0),
+    }
+
+
+def bench_mission(mode: str, repeats: int) -> dict[str, Any]:
+    from cosim.master import RunOptions, run_scenario
+    from cosim.scenario import load_scenario
+
+    sc = load_scenario(SEED)
+    rtf, sim = [], []
+    reason = ""
+    for _ in range(repeats):
+        res = run_scenario(sc, RunOptions(mode=mode))
+        rtf.append(res.real_time_factor)
+        sim.append(res.t_end_s)
+        reason = res.exit_reason.value
+    d = _stat(rtf, "x real time", 300.0 if mode == "mil" else 60.0, higher_is_better=True)
+    d["sim_time_s"] = sim[0]
+    d["exit_reason"] = reason
+    d["us_per_tick"] = 1e6 * 0.005 / d["median"]
+    return d
+
+
+def run(quick: bool = False) -> dict[str, Any]:
+    n, r = (2000, 3) if quick else (20000, 7)
+    res: dict[str, Any] = {"machine": machine(), "quick": quick}
+    res["plant_step"] = bench_plant(n, r)
+    res["controller_update"] = bench_controller(n, r)
+    res["codec"] = bench_codec(n, r)
+    res["udp_hil_roundtrip"] = bench_udp_roundtrip(n // 4, r)
+    res.update(bench_render_ips(max(200, n // 20), r))
+    mr = 1 if quick else 3
+    res["mission_mil"] = bench_mission("mil", mr)
+    res["mission_sil"] = bench_mission("sil", mr)
+    res["sil_over_mil_time"] = res["mission_mil"]["median"] / res["mission_sil"]["median"]
+    return res
+
+
+def format_report(res: dict[str, Any]) -> str:
+    m = res["machine"]
+    lines = [f"machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, {m['system']}",
+             f"{'figure':<34s}{'median':>10s}{'min':>10s}{'max':>10s}  unit         target"]
+
+    def row(name: str, d: dict[str, Any]) -> None:
+        tgt = ""
+        if "target" in d:
+            op = ">=" if d["unit"].startswith("x") else "<="
+            tgt = f"{op} {d['target']:g}  {'ok' if d['meets_target'] else 'MISSED'}"
+        lines.append(f"{name:<34s}{d['median']:>10.2f}{d['min']:>10.2f}{d['max']:>10.2f}  "
+                     f"{d['unit']:<12s} {tgt}")
+
+    row("plant step (set+doStep+get)", res["plant_step"])
+    row("controller update", res["controller_update"])
+    for k, v in res["codec"].items():
+        if isinstance(v, dict):
+            row(k.replace("_", " "), v)
+    row("UDP HIL round trip (SIL)", res["udp_hil_roundtrip"])
+    row("render 160x120 frame", res["render"])
+    row("image processing per frame", res["ips"])
+    row("seed mission MIL", res["mission_mil"])
+    row("seed mission SIL", res["mission_sil"])
+    c = res["codec"]
+    lines.append(f"ratios (same run): ODOMETRY encode pymavlink/ours "
+                 f"{c['ratio_odometry_encode_ours']:.1f}x, actuator decode pymavlink/ours "
+                 f"{c['ratio_actuators_decode_ours']:.1f}x; SIL time / MIL time "
+                 f"{res['sil_over_mil_time']:.2f}")
+    lines.append(f"seed mission: {res['mission_mil']['sim_time_s']:.1f} s simulated, exit "
+                 f"{res['mission_mil']['exit_reason']}; MIL {res['mission_mil']['us_per_tick']:.1f}"
+                 f" us/tick, SIL {res['mission_sil']['us_per_tick']:.1f} us/tick")
+    return "\n".join(lines)
+
+
+def main(quick: bool = False, json_path: Path | None = None) -> int:
+    res = run(quick)
+    print(format_report(res))
+    path = json_path or Path("runs") / "bench.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(res, indent=2))
+    print(f"figures written to {path}")
+    return 0
