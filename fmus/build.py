@@ -1,0 +1,277 @@
+"""Build the Quadrotor FMU from source: ``python -m fmus.build``.
+
+Compiles ``fmus/quadrotor/*.c`` with gcc against the FMI 2.0 headers shipped in the fmpy wheel
+and packs ``build/Quadrotor.fmu`` (modelDescription.xml, binaries/linux64/Quadrotor.so,
+sources/). The archive is deterministic (sorted entries, fixed timestamps and permissions), so
+two builds of the same sources give the same bytes. A build is skipped when a hash of the
+sources, the headers and the compiler flags matches the one recorded next to the FMU.
+
+Examples::
+
+    python -m fmus.build            # build if the sources changed, print the path
+    python -m fmus.build --force    # always rebuild
+    python -m fmus.build --golden   # regenerate fmus/quadrotor/Quadrotor_out.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import io
+import os
+import pathlib
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import zipfile
+
+PACKAGE_DIR = pathlib.Path(__file__).resolve().parent
+SOURCE_DIR = PACKAGE_DIR / "quadrotor"
+REPO_ROOT = PACKAGE_DIR.parent
+BUILD_DIR = REPO_ROOT / "build"
+MODEL_IDENTIFIER = "Quadrotor"
+C_SOURCES = ("model.c", "fmi2.c")
+HEADERS = ("config.h",)
+CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99", "-Wall", "-Wextra", "-fvisibility=hidden")
+LIBS = ("-lm",)
+GOLDEN_CSV = SOURCE_DIR / "Quadrotor_out.csv"
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+class BuildError(RuntimeError):
+    """The FMU could not be built (missing compiler, compile error, unsupported platform)."""
+
+
+def _fmi_headers_dir() -> pathlib.Path:
+    import fmpy
+
+    d = pathlib.Path(os.path.dirname(fmpy.__file__)) / "c-code"
+    if not (d / "fmi2Functions.h").is_file():
+        raise BuildError(f"FMI 2.0 headers not found in {d} (is fmpy installed?)")
+    return d
+
+
+def _platform_dir() -> str:
+    if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64"):
+        return "linux64"
+    raise BuildError(
+        f"building the FMU is supported on linux x86_64 only, not {sys.platform}/"
+        f"{platform.machine()}"
+    )
+
+
+def source_hash() -> str:
+    """SHA-256 over the FMU sources, the FMI headers, the compiler flags and gcc's version."""
+    h = hashlib.sha256()
+    for name in (*C_SOURCES, *HEADERS, "modelDescription.xml"):
+        h.update(name.encode() + b"\0" + (SOURCE_DIR / name).read_bytes() + b"\0")
+    hdr = _fmi_headers_dir()
+    for name in ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"):
+        h.update((hdr / name).read_bytes())
+    h.update(" ".join(CFLAGS + LIBS).encode())
+    h.update(_gcc_version().encode())
+    return h.hexdigest()
+
+
+def _gcc() -> str:
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        raise BuildError("gcc not found: install it with `apt-get install gcc`")
+    return gcc
+
+
+def _gcc_version() -> str:
+    out = subprocess.run([_gcc(), "--version"], capture_output=True, text=True, check=False)
+    return out.stdout.splitlines()[0] if out.stdout else ""
+
+
+def _zip_bytes(files: dict[str, bytes]) -> bytes:
+    """A zip archive of `files` (archive name -> content) that depends on nothing else."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name in sorted(files):
+            info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.create_system = 3  # unix
+            mode = 0o755 if name.endswith(".so") else 0o644
+            info.external_attr = (0o100000 | mode) << 16
+            zf.writestr(info, files[name], compresslevel=9)
+    return buf.getvalue()
+
+
+def build(force: bool = False, out_dir: pathlib.Path | None = None) -> pathlib.Path:
+    """Compile and pack the FMU; returns the path of ``Quadrotor.fmu``.
+
+    Skips the work when the recorded source hash matches (unless `force`). Safe to run from
+    several processes at once: everything is written to temporary files and moved into place
+    with ``os.replace``.
+    """
+    out_dir = BUILD_DIR if out_dir is None else pathlib.Path(out_dir)
+    fmu = out_dir / f"{MODEL_IDENTIFIER}.fmu"
+    stamp = out_dir / f"{MODEL_IDENTIFIER}.fmu.sha256"
+    digest = source_hash()
+    if not force and fmu.is_file() and stamp.is_file() and stamp.read_text().strip() == digest:
+        return fmu
+
+    plat = _platform_dir()
+    gcc = _gcc()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out_dir, prefix=".build-") as tmp:
+        so = pathlib.Path(tmp) / f"{MODEL_IDENTIFIER}.so"
+        cmd = [
+            gcc, *CFLAGS, f"-I{_fmi_headers_dir()}", f"-I{SOURCE_DIR}",
+            *(str(SOURCE_DIR / c) for c in C_SOURCES), "-o", str(so), *LIBS,
+        ]
+        # compile from a fixed directory so no path of the temp dir ends up in the binary
+        res = subprocess.run(cmd, capture_output=True, text=True, cwd=SOURCE_DIR, check=False)
+        if res.returncode != 0:
+            raise BuildError(f"gcc failed ({res.returncode}):\n{' '.join(cmd)}\n{res.stderr}")
+        files = {
+            "modelDescription.xml": (SOURCE_DIR / "modelDescription.xml").read_bytes(),
+            f"binaries/{plat}/{MODEL_IDENTIFIER}.so": so.read_bytes(),
+        }
+        for name in (*C_SOURCES, *HEADERS):
+            files[f"sources/{name}"] = (SOURCE_DIR / name).read_bytes()
+        data = _zip_bytes(files)
+        tmp_fmu = pathlib.Path(tmp) / "out.fmu"
+        tmp_fmu.write_bytes(data)
+        os.replace(tmp_fmu, fmu)
+        tmp_stamp = pathlib.Path(tmp) / "out.sha256"
+        tmp_stamp.write_text(digest + "\n")
+        os.replace(tmp_stamp, stamp)
+    return fmu
+
+
+def fmu_path(build_if_needed: bool = True) -> pathlib.Path:
+    """Path of ``<repo>/build/Quadrotor.fmu``, built (or rebuilt) first if `build_if_needed`."""
+    if build_if_needed:
+        return build()
+    return BUILD_DIR / f"{MODEL_IDENTIFIER}.fmu"
+
+
+# ---- golden output ------------------------------------------------------------------------
+
+GOLDEN_STEP = 0.005  # s, communication step (the co-simulation base tick)
+GOLDEN_EVERY = 4  # record every 4th step: 50 Hz
+GOLDEN_STOP = 5.0  # s
+GOLDEN_OUTPUTS = (
+    "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "p", "q", "r",
+    "ax", "ay", "az", "omega1", "omega2", "omega3", "omega4", "on_ground",
+)
+
+
+def golden_inputs(t: float, u_hover: float) -> tuple[float, ...]:
+    """Input sequence of the golden run (Mambo defaults), held over each 5 ms step.
+
+    Returns (u1, u2, u3, u4, wind_n, wind_e, wind_d); see readme.md "Golden output".
+    """
+    d = 0.02
+    wind = (0.0, 0.0, 0.0)
+    if t < 0.5:  # on the floor, motors off
+        u = (0.0, 0.0, 0.0, 0.0)
+    elif t < 1.5:  # climb
+        u = (0.75, 0.75, 0.75, 0.75)
+    elif t < 2.5:  # hover thrust, 1 m/s north wind from here on
+        u = (u_hover,) * 4
+        wind = (1.0, 0.0, 0.0)
+    elif t < 2.6:  # left rotors (2, 3) faster: roll right
+        u = (u_hover - d, u_hover + d, u_hover + d, u_hover - d)
+        wind = (1.0, 0.0, 0.0)
+    elif t < 2.7:  # and back
+        u = (u_hover + d, u_hover - d, u_hover - d, u_hover + d)
+        wind = (1.0, 0.0, 0.0)
+    elif t < 2.8:  # front rotors (1, 3) faster: pitch up
+        u = (u_hover + d, u_hover - d, u_hover + d, u_hover - d)
+        wind = (1.0, 0.0, 0.0)
+    elif t < 2.9:
+        u = (u_hover - d, u_hover + d, u_hover - d, u_hover + d)
+        wind = (1.0, 0.0, 0.0)
+    elif t < 3.5:  # CCW rotors (1, 2) faster: yaw right
+        u = (u_hover + d, u_hover + d, u_hover - d, u_hover - d)
+        wind = (1.0, 0.0, 0.0)
+    else:  # descend and land
+        u = (0.6, 0.6, 0.6, 0.6)
+    return (*u, *wind)
+
+
+def golden_run(fmu: pathlib.Path | None = None) -> list[list[float]]:
+    """Run the golden input sequence through the FMU (Co-Simulation); rows of time + outputs."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    fmu = fmu_path() if fmu is None else fmu
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    unzipdir = extract(str(fmu))
+    slave = FMU2Slave(
+        guid=md.guid, unzipDirectory=unzipdir,
+        modelIdentifier=md.coSimulation.modelIdentifier, instanceName="golden",
+    )
+    try:
+        slave.instantiate()
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        mass, k_thrust, omega_max, g = slave.getReal(
+            [vr["mass"], vr["k_thrust"], vr["omega_max"], vr["g"]]
+        )
+        u_hover = (mass * g / (4.0 * k_thrust)) ** 0.5 / omega_max
+        in_vr = [vr[n] for n in ("u1", "u2", "u3", "u4", "wind_n", "wind_e", "wind_d")]
+        real_vr = [vr[n] for n in GOLDEN_OUTPUTS[:-1]]
+        rows = []
+        n_steps = round(GOLDEN_STOP / GOLDEN_STEP)
+        for k in range(n_steps + 1):
+            t = k * GOLDEN_STEP
+            if k % GOLDEN_EVERY == 0:
+                y = slave.getReal(real_vr)
+                on = slave.getBoolean([vr["on_ground"]])[0]
+                rows.append([t, *y, 1.0 if on else 0.0])
+            if k == n_steps:
+                break
+            slave.setReal(in_vr, list(golden_inputs(t, u_hover)))
+            slave.doStep(currentCommunicationPoint=t, communicationStepSize=GOLDEN_STEP)
+        slave.terminate()
+    finally:
+        slave.freeInstance()
+        shutil.rmtree(unzipdir, ignore_errors=True)
+    return rows
+
+
+def write_golden(path: pathlib.Path = GOLDEN_CSV) -> pathlib.Path:
+    rows = golden_run()
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(["time", *GOLDEN_OUTPUTS])
+        for row in rows:
+            w.writerow([f"{row[0]:.3f}"] + [repr(float(v)) for v in row[1:]])
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m fmus.build",
+        description="Build build/Quadrotor.fmu from fmus/quadrotor (gcc, FMI 2.0 headers "
+        "from fmpy).",
+        epilog="examples:\n  python -m fmus.build\n  python -m fmus.build --force\n"
+        "  python -m fmus.build --golden   # rewrite fmus/quadrotor/Quadrotor_out.csv",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--force", action="store_true", help="rebuild even if nothing changed")
+    ap.add_argument("--golden", action="store_true", help="regenerate the golden output CSV")
+    args = ap.parse_args(argv)
+    try:
+        path = build(force=args.force)
+    except BuildError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    print(path)
+    if args.golden:
+        print(write_golden())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
