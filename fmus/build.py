@@ -168,32 +168,31 @@ def golden_inputs(t: float, u_hover: float) -> tuple[float, ...]:
 
     Returns (u1, u2, u3, u4, wind_n, wind_e, wind_d); see readme.md "Golden output".
     """
-    d = 0.02
-    wind = (0.0, 0.0, 0.0)
-    if t < 0.5:  # on the floor, motors off
+    d = 0.01
+    h = u_hover
+    wind = (1.0, 0.5, 0.0) if 1.0 <= t < 3.0 else (0.0, 0.0, 0.0)
+    if t < 0.3:  # on the floor, motors off
         u = (0.0, 0.0, 0.0, 0.0)
-    elif t < 1.5:  # climb
+    elif t < 1.0:  # take off and climb
         u = (0.75, 0.75, 0.75, 0.75)
-    elif t < 2.5:  # hover thrust, 1 m/s north wind from here on
-        u = (u_hover,) * 4
-        wind = (1.0, 0.0, 0.0)
-    elif t < 2.6:  # left rotors (2, 3) faster: roll right
-        u = (u_hover - d, u_hover + d, u_hover + d, u_hover - d)
-        wind = (1.0, 0.0, 0.0)
-    elif t < 2.7:  # and back
-        u = (u_hover + d, u_hover - d, u_hover - d, u_hover + d)
-        wind = (1.0, 0.0, 0.0)
-    elif t < 2.8:  # front rotors (1, 3) faster: pitch up
-        u = (u_hover + d, u_hover - d, u_hover + d, u_hover - d)
-        wind = (1.0, 0.0, 0.0)
-    elif t < 2.9:
-        u = (u_hover - d, u_hover + d, u_hover - d, u_hover + d)
-        wind = (1.0, 0.0, 0.0)
-    elif t < 3.5:  # CCW rotors (1, 2) faster: yaw right
-        u = (u_hover + d, u_hover + d, u_hover - d, u_hover - d)
-        wind = (1.0, 0.0, 0.0)
-    else:  # descend and land
+    elif t < 1.5:  # hover thrust, in wind
+        u = (h, h, h, h)
+    elif t < 1.55:  # left rotors (2, 3) faster: roll right, then back
+        u = (h - d, h + d, h + d, h - d)
+    elif t < 1.6:
+        u = (h + d, h - d, h - d, h + d)
+    elif t < 1.65:  # front rotors (1, 3) faster: pitch up, then back
+        u = (h + d, h - d, h + d, h - d)
+    elif t < 1.7:
+        u = (h - d, h + d, h - d, h + d)
+    elif t < 2.2:  # CCW rotors (1, 2) faster: yaw right
+        u = (h + d, h + d, h - d, h - d)
+    elif t < 3.0:  # hover thrust
+        u = (h, h, h, h)
+    elif t < 4.2:  # descend onto the floor
         u = (0.6, 0.6, 0.6, 0.6)
+    else:  # motors off, resting on the floor
+        u = (0.0, 0.0, 0.0, 0.0)
     return (*u, *wind)
 
 

@@ -443,9 +443,11 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     ModelData *m;
     double hsub, t0, h;
     long n, i;
-    CHECK("fmi2DoStep", ST_STEP_COMPLETE)
+    Instance *inst = (Instance *)c;
+    if (inst == NULL) return fmi2Error;
     (void)noSetFMUStatePriorToCurrentPoint;
     if (bad_type(inst, "fmi2DoStep", fmi2CoSimulation)) return fmi2Error;
+    if (bad_state(inst, "fmi2DoStep", ST_STEP_COMPLETE)) return fmi2Error;
     m = &inst->md;
     t0 = currentCommunicationPoint;
     h = communicationStepSize;

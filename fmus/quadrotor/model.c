@@ -54,7 +54,7 @@ void model_set_start_values(ModelData *m) {
     P(m, drag_rot) = 1.0e-6;
     P(m, g) = 9.81;
     P(m, contact_omega) = 200.0;
-    P(m, contact_zeta) = 1.0;
+    P(m, contact_zeta) = 2.0;
     P(m, contact_friction) = 50.0;
     P(m, contact_omega_att) = 50.0;
     P(m, x0) = 0.0;
