@@ -1,0 +1,178 @@
+"""The onboard parameter table: the controller's parameters plus the vehicle's own.
+
+One flat, name-sorted table (like PX4's) served over the MAVLink parameter protocol as
+MAV_PARAM_TYPE_REAL32. Every entry has a spec (name <= 16 chars, default, min, max, unit, doc)
+and a getter/setter; setting checks finiteness and range here, then the owner (controller or
+onboard) may still refuse with ValueError. A set takes effect at once.
+
+Parameter files (`--params FILE`): one `NAME VALUE` per line; QGroundControl's `.params`
+export (`sysid compid NAME VALUE TYPE`, tab separated) is read too. `#` starts a comment.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+_F32 = struct.Struct("<f")
+
+
+def f32(v: float) -> float:
+    """`v` rounded to IEEE single precision, as PARAM_VALUE carries it."""
+    return _F32.unpack(_F32.pack(v))[0]
+
+
+@dataclass(frozen=True)
+class OnboardParam:
+    """The onboard stack's own parameters; same fields as the controller's ParamSpec."""
+
+    name: str          # <= 16 characters, PX4 style
+    default: float
+    min: float
+    max: float
+    unit: str
+    doc: str
+
+
+# The vehicle's own parameters (PX4 names where PX4 has the same meaning).
+ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
+    OnboardParam("MIS_TAKEOFF_ALT", 1.0, 0.2, 10.0, "m",
+                 "AUTO.TAKEOFF height above home when MAV_CMD_NAV_TAKEOFF gives none"),
+    OnboardParam("MPC_TKO_SPEED", 0.8, 0.1, 3.0, "m/s", "climb speed of AUTO.TAKEOFF"),
+    OnboardParam("MPC_LAND_SPEED", 0.4, 0.1, 2.0, "m/s", "descent speed of AUTO.LAND"),
+    OnboardParam("COM_DISARM_LAND", 0.5, 0.0, 20.0, "s",
+                 "time on the ground after a landing before the motors are disarmed"),
+    OnboardParam("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s",
+                 "offboard setpoint silence that triggers the failsafe (hold position)"),
+    OnboardParam("COM_FAIL_ACT_T", 5.0, 0.0, 60.0, "s",
+                 "failsafe hold time before the vehicle lands if offboard does not resume"),
+    OnboardParam("MOT_IDLE_RATIO", 0.3, 0.0, 0.9, "1",
+                 "armed-on-ground motor command as a fraction of the hover command"),
+    OnboardParam("BAT1_CAPACITY", -1.0, -1.0, 100000.0, "mAh",
+                 "battery capacity (-1: the vehicle preset's)"),
+    OnboardParam("BAT1_R_INTERNAL", -1.0, -1.0, 1.0, "Ohm",
+                 "battery internal resistance (-1: the vehicle preset's)"),
+    OnboardParam("BAT_LOW_THR", 0.15, 0.05, 0.5, "1", "remaining charge that warns"),
+    OnboardParam("BAT_CRIT_THR", 0.07, 0.01, 0.5, "1", "remaining charge that warns critically"),
+)
+
+
+class ParamError(ValueError):
+    """A parameter name or value was refused; the message names the parameter."""
+
+
+class _Entry:
+    __slots__ = ("spec", "get", "set")
+
+    def __init__(self, spec, get: Callable[[], float], set_: Callable[[float], None]) -> None:
+        self.spec = spec
+        self.get = get
+        self.set = set_
+
+
+class ParamTable:
+    """Name-sorted parameters with MAVLink indices (0..count-1)."""
+
+    def __init__(self) -> None:
+        self._entries: list[_Entry] = []
+        self._by_name: dict[str, int] = {}
+
+    def add(self, spec, get: Callable[[], float], set_: Callable[[float], None]) -> None:
+        """Register one parameter (`spec` has name, default, min, max, unit, doc)."""
+        name = spec.name
+        if not name or len(name) > 16 or not name.isascii():
+            raise ValueError(f"parameter name {name!r}: need 1..16 ASCII characters")
+        if name in self._by_name:
+            raise ValueError(f"parameter {name!r} registered twice")
+        self._entries.append(_Entry(spec, get, set_))
+        self._entries.sort(key=lambda e: e.spec.name)
+        self._by_name = {e.spec.name: i for i, e in enumerate(self._entries)}
+
+    def add_store(self, specs: Iterable, store: dict[str, float]) -> None:
+        """Register plain stored parameters; `store` holds the values (filled with defaults)."""
+        for spec in specs:
+            store[spec.name] = float(spec.default)
+
+            def _get(n=spec.name) -> float:
+                return store[n]
+
+            def _set(v: float, n=spec.name) -> None:
+                store[n] = v
+
+            self.add(spec, _get, _set)
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def names(self) -> list[str]:
+        return [e.spec.name for e in self._entries]
+
+    def index(self, name: str) -> int:
+        """Index of `name`, or -1."""
+        return self._by_name.get(name, -1)
+
+    def name_at(self, index: int) -> str:
+        return self._entries[index].spec.name
+
+    def spec(self, name: str):
+        i = self._by_name.get(name)
+        if i is None:
+            raise ParamError(f"unknown parameter {name!r}")
+        return self._entries[i].spec
+
+    def get(self, name: str) -> float:
+        i = self._by_name.get(name)
+        if i is None:
+            raise ParamError(f"unknown parameter {name!r}")
+        return float(self._entries[i].get())
+
+    def set(self, name: str, value: float) -> float:
+        """Set and return the value now in effect; ParamError (a ValueError) names the fault."""
+        i = self._by_name.get(name)
+        if i is None:
+            raise ParamError(f"unknown parameter {name!r}")
+        e = self._entries[i]
+        v = float(value)
+        lo, hi = e.spec.min, e.spec.max
+        if not math.isfinite(v):
+            raise ParamError(f"{name}: got {v!r}; must be finite")
+        # compare in single precision: a GCS echoes the float32 it was sent
+        if v < lo and f32(v) < f32(lo) or v > hi and f32(v) > f32(hi):
+            raise ParamError(f"{name}: got {v:g}; allowed {lo:g}..{hi:g} {e.spec.unit}".rstrip())
+        v = min(max(v, lo), hi)
+        try:
+            e.set(v)
+        except ValueError as exc:
+            raise ParamError(f"{name}: {exc}") from None
+        return float(e.get())
+
+
+def read_param_file(path: str | Path) -> list[tuple[str, float]]:
+    """Parse a parameter file into (name, value) pairs, in file order.
+
+    Lines: `NAME VALUE` or QGC's `SYSID COMPID NAME VALUE TYPE`; blank lines and `#` comments
+    are skipped. A line that fits neither raises ValueError naming the file and line.
+    """
+    out: list[tuple[str, float]] = []
+    text = Path(path).read_text()
+    for lineno, raw in enumerate(text.splitlines(), 1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        tok = line.replace(",", " ").split()
+        if len(tok) == 2:
+            name, val = tok
+        elif len(tok) >= 4 and tok[0].isdigit() and tok[1].isdigit():
+            name, val = tok[2], tok[3]
+        else:
+            raise ValueError(f"{path}:{lineno}: expected 'NAME VALUE' or "
+                             f"'SYSID COMPID NAME VALUE TYPE', got {raw.strip()!r}")
+        try:
+            v = float(val)
+        except ValueError:
+            raise ValueError(f"{path}:{lineno}: {name}: value {val!r} is not a number") from None
+        out.append((name, v))
+    return out

@@ -1,0 +1,351 @@
+"""MAVLink on the wire: a fast codec for the per-tick messages, framing, and wire units.
+
+Everything here produces and accepts exactly the bytes pymavlink (dialect `common`, MAVLink 2)
+does; pymavlink stays the reference and handles every other message. The fast path exists
+because each HIL tick costs at least one ODOMETRY decode and one HIL_ACTUATOR_CONTROLS encode,
+and offboard apps send SET_POSITION_TARGET_LOCAL_NED at up to 200 Hz.
+
+Fast messages: ODOMETRY (331), HIL_ACTUATOR_CONTROLS (93), SET_POSITION_TARGET_LOCAL_NED (84),
+LOCAL_POSITION_NED (32), ATTITUDE (30). Their layouts (field order, struct format, CRC_EXTRA)
+are taken from pymavlink's generated classes at import, so they cannot drift from it.
+
+Encoding shares state with a pymavlink `MAVLink` object (`mav`): the sequence number,
+srcSystem/srcComponent and the signing state, so fast and generic sends on one link interleave
+with one seq counter and one signing timestamp, exactly as `mav.send` would.
+Decoding returns the fields in pymavlink's wire order (`ordered_fieldnames`, arrays
+flattened) or None for anything that is not a well-formed, CRC-correct frame of that type.
+
+Wire units live here and in `mav/` only: geodetic positions (degE7, mm), cm/s, cdeg.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import struct
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+try:  # pymavlink itself uses fastcrc when it is installed; so do we
+    from fastcrc.crc16 import mcrf4xx as _mcrf4xx
+except ImportError:  # pragma: no cover - the project pins fastcrc
+    _mcrf4xx = None
+
+MAGIC_V2 = 0xFD
+MAGIC_V1 = 0xFE
+HEADER_LEN_V2 = 10
+HEADER_LEN_V1 = 6
+SIGNATURE_LEN = 13
+IFLAG_SIGNED = 0x01
+
+
+def _crc16_py(data: bytes, crc: int = 0xFFFF) -> int:
+    """CRC-16/MCRF4XX (X.25) as MAVLink uses it (pure Python fallback)."""
+    for b in data:  # pragma: no cover - fallback, same algorithm as pymavlink's
+        tmp = b ^ (crc & 0xFF)
+        tmp = (tmp ^ (tmp << 4)) & 0xFF
+        crc = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
+    return crc
+
+
+crc16 = _mcrf4xx if _mcrf4xx is not None else _crc16_py
+
+
+class FastMsg:
+    """Layout of one message type, derived from pymavlink's generated class."""
+
+    __slots__ = ("cls", "id", "name", "crc_extra", "extra", "st", "size", "id3", "zeros")
+
+    def __init__(self, cls: type) -> None:
+        self.cls = cls
+        self.id = cls.id
+        self.name = cls.msgname
+        self.crc_extra = cls.crc_extra
+        self.extra = bytes((cls.crc_extra,))
+        self.st = cls.unpacker            # struct.Struct in wire order
+        self.size = cls.unpacker.size
+        self.id3 = struct.pack("<I", cls.id)[:3]
+        self.zeros = bytes(self.size)
+
+
+ODOMETRY = FastMsg(mavlink2.MAVLink_odometry_message)
+HIL_ACTUATOR_CONTROLS = FastMsg(mavlink2.MAVLink_hil_actuator_controls_message)
+SET_POSITION_TARGET_LOCAL_NED = FastMsg(mavlink2.MAVLink_set_position_target_local_ned_message)
+LOCAL_POSITION_NED = FastMsg(mavlink2.MAVLink_local_position_ned_message)
+ATTITUDE = FastMsg(mavlink2.MAVLink_attitude_message)
+# telemetry streamed at >= 1 Hz: encoded with `pack(mav, MSG, *wire_order_values)`
+HEARTBEAT = FastMsg(mavlink2.MAVLink_heartbeat_message)
+SYS_STATUS = FastMsg(mavlink2.MAVLink_sys_status_message)
+GLOBAL_POSITION_INT = FastMsg(mavlink2.MAVLink_global_position_int_message)
+EXTENDED_SYS_STATE = FastMsg(mavlink2.MAVLink_extended_sys_state_message)
+POSITION_TARGET_LOCAL_NED = FastMsg(mavlink2.MAVLink_position_target_local_ned_message)
+VFR_HUD = FastMsg(mavlink2.MAVLink_vfr_hud_message)
+FAST_BY_ID: dict[int, FastMsg] = {
+    m.id: m
+    for m in (ODOMETRY, HIL_ACTUATOR_CONTROLS, SET_POSITION_TARGET_LOCAL_NED, LOCAL_POSITION_NED,
+              ATTITUDE, HEARTBEAT, SYS_STATUS, GLOBAL_POSITION_INT, EXTENDED_SYS_STATE,
+              POSITION_TARGET_LOCAL_NED, VFR_HUD)
+}
+
+# Field positions in the decoded (wire-order, arrays flattened) tuples.
+# ODOMETRY: time_usec, x, y, z, q[4], vx, vy, vz, rollspeed, pitchspeed, yawspeed,
+#           pose_covariance[21], velocity_covariance[21], frame_id, child_frame_id, ...
+ODO_FRAME_ID = 1 + 3 + 4 + 3 + 3 + 42      # = 56
+ODO_CHILD_FRAME_ID = ODO_FRAME_ID + 1
+# SET_POSITION_TARGET_LOCAL_NED: time_boot_ms, x, y, z, vx, vy, vz, afx, afy, afz, yaw,
+#           yaw_rate, type_mask, target_system, target_component, coordinate_frame
+
+_HDR = struct.Struct("<BBBBBBB")           # magic, len, incompat, compat, seq, sysid, compid
+_HDR6 = struct.Struct("<BBBBBB")           # the same without the magic byte
+_CRC = struct.Struct("<H")
+_SIGN_TS = struct.Struct("<BQ")
+# time_usec, flags, controls[0..3], controls[4..15] = 0 (pad bytes), mode
+_HIL_CTRL = struct.Struct("<QQ4f48xB")
+assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
+
+
+# ----------------------------------------------------------------------------------- encoding
+def frame(mav, m: FastMsg, payload: bytes) -> bytes:
+    """Frame a packed payload as MAVLink 2, as `mav.send(msg)` would (and advance mav.seq).
+
+    Trailing zero bytes of the payload are trimmed (at least one byte stays), the header
+    carries mav's seq/srcSystem/srcComponent, the CRC includes CRC_EXTRA, and if
+    `mav.signing.sign_outgoing` the packet is signed with mav's key, link id and timestamp.
+    """
+    p = payload.rstrip(b"\x00") or payload[:1]
+    seq = mav.seq
+    mav.seq = (seq + 1) & 0xFF
+    signing = mav.signing
+    if signing.sign_outgoing:
+        buf = _HDR.pack(MAGIC_V2, len(p), IFLAG_SIGNED, 0, seq, mav.srcSystem, mav.srcComponent)
+        buf += m.id3 + p
+        buf += _CRC.pack(crc16(buf[1:] + m.extra))
+        buf += _SIGN_TS.pack(signing.link_id, signing.timestamp)[:7]
+        buf += hashlib.sha256(signing.secret_key + buf).digest()[:6]
+        signing.timestamp += 1
+        return buf
+    core = _HDR6.pack(len(p), 0, 0, seq, mav.srcSystem, mav.srcComponent) + m.id3 + p
+    return b"\xfd" + core + _CRC.pack(crc16(m.extra, crc16(core)))
+
+
+def pack(mav, m: FastMsg, *values) -> bytes:
+    """Encode message `m` from its field values in WIRE order (`m.cls.ordered_fieldnames`,
+    arrays flattened), e.g. HEARTBEAT: custom_mode, type, autopilot, base_mode,
+    system_status, mavlink_version."""
+    return frame(mav, m, m.st.pack(*values))
+
+
+def encode_hil_actuator_controls(mav, time_usec: int, u1: float, u2: float, u3: float,
+                                 u4: float, mode: int, flags: int = 1) -> bytes:
+    """HIL_ACTUATOR_CONTROLS with controls[0..3] = u1..u4 and controls[4..15] = 0."""
+    return frame(mav, HIL_ACTUATOR_CONTROLS, _HIL_CTRL.pack(time_usec, flags, u1, u2, u3, u4, mode))
+
+
+def encode_odometry(mav, time_usec: int, x: float, y: float, z: float, qw: float, qx: float,
+                    qy: float, qz: float, vx: float, vy: float, vz: float, p: float, q: float,
+                    r: float, frame_id: int = 1, child_frame_id: int = 1,
+                    pose_cov0: float = math.nan, vel_cov0: float = math.nan,
+                    reset_counter: int = 0, estimator_type: int = 0, quality: int = 0) -> bytes:
+    """ODOMETRY; covariances are [pose_cov0, 0...] and [vel_cov0, 0...] (NaN = unknown)."""
+    pl = ODOMETRY.st.pack(time_usec, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r,
+                          pose_cov0, *_Z20, vel_cov0, *_Z20, frame_id, child_frame_id,
+                          reset_counter, estimator_type, quality)
+    return frame(mav, ODOMETRY, pl)
+
+
+_Z20 = (0.0,) * 20
+
+
+def encode_set_position_target_local_ned(mav, time_boot_ms: int, target_system: int,
+                                         target_component: int, coordinate_frame: int,
+                                         type_mask: int, x: float, y: float, z: float, vx: float,
+                                         vy: float, vz: float, afx: float, afy: float,
+                                         afz: float, yaw: float, yaw_rate: float) -> bytes:
+    pl = SET_POSITION_TARGET_LOCAL_NED.st.pack(
+        time_boot_ms, x, y, z, vx, vy, vz, afx, afy, afz, yaw, yaw_rate, type_mask,
+        target_system, target_component, coordinate_frame)
+    return frame(mav, SET_POSITION_TARGET_LOCAL_NED, pl)
+
+
+def encode_local_position_ned(mav, time_boot_ms: int, x: float, y: float, z: float,
+                              vx: float, vy: float, vz: float) -> bytes:
+    return frame(mav, LOCAL_POSITION_NED, LOCAL_POSITION_NED.st.pack(time_boot_ms, x, y, z,
+                                                                     vx, vy, vz))
+
+
+def encode_attitude(mav, time_boot_ms: int, roll: float, pitch: float, yaw: float,
+                    rollspeed: float, pitchspeed: float, yawspeed: float) -> bytes:
+    return frame(mav, ATTITUDE, ATTITUDE.st.pack(time_boot_ms, roll, pitch, yaw, rollspeed,
+                                                 pitchspeed, yawspeed))
+
+
+def send_msg(mav, msg) -> bytes:
+    """Pack any pymavlink message on `mav` (seq advanced like `mav.send`); returns the bytes."""
+    buf = msg.pack(mav)
+    mav.seq = (mav.seq + 1) & 0xFF
+    return buf
+
+
+# ----------------------------------------------------------------------------------- decoding
+def frame_end(data: bytes, i: int = 0) -> int:
+    """End index of the frame starting at data[i], or -1 if data[i] is not a magic byte or
+    the frame is truncated (the length field points past the end of `data`)."""
+    n = len(data)
+    if i >= n:
+        return -1
+    magic = data[i]
+    if magic == MAGIC_V2:
+        if i + 3 > n:
+            return -1
+        end = i + HEADER_LEN_V2 + data[i + 1] + 2
+        if data[i + 2] & IFLAG_SIGNED:
+            end += SIGNATURE_LEN
+    elif magic == MAGIC_V1:
+        if i + 2 > n:
+            return -1
+        end = i + HEADER_LEN_V1 + data[i + 1] + 2
+    else:
+        return -1
+    return end if end <= n else -1
+
+
+def msgid_of(data: bytes, i: int = 0) -> int:
+    """Message id of the (complete) frame starting at data[i]."""
+    if data[i] == MAGIC_V2:
+        return data[i + 7] | data[i + 8] << 8 | data[i + 9] << 16
+    return data[i + 5]
+
+
+def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | None:
+    """Decode one MAVLink 2 frame data[i:end] of type `m`; None unless it is well formed,
+    of that type and CRC-correct. The signature block (if any) is NOT checked: use this only
+    where signing is not required (pymavlink's decoder checks signatures).
+
+    Returns the payload fields in wire order with arrays flattened (pymavlink's unpacker
+    tuple); trimmed payloads are zero-extended as pymavlink does.
+    """
+    if end < 0:
+        end = frame_end(data, i)
+        if end < 0:
+            return None
+    if data[i] != MAGIC_V2 or data[i + 7:i + 10] != m.id3:
+        return None
+    flags = data[i + 2]
+    if flags & ~IFLAG_SIGNED:
+        return None
+    plen = data[i + 1]
+    crc_at = i + HEADER_LEN_V2 + plen
+    if crc_at + 2 + (SIGNATURE_LEN if flags else 0) != end:
+        return None
+    if crc16(data[i + 1:crc_at] + m.extra) != (data[crc_at] | data[crc_at + 1] << 8):
+        return None
+    if plen >= m.size:
+        return m.st.unpack_from(data, i + HEADER_LEN_V2)
+    return m.st.unpack(data[i + HEADER_LEN_V2:crc_at] + m.zeros[plen:])
+
+
+_ODO_USED = struct.Struct("<Q13f168xBB")   # the fields the onboard stack uses, same offsets
+_ODO_ID3 = ODOMETRY.id3
+_ODO_EXTRA = ODOMETRY.extra
+_ODO_USED_LEN = _ODO_USED.size            # 230: payload bytes up to child_frame_id
+
+
+def decode_odometry(data: bytes) -> tuple | None:
+    """A datagram holding exactly one ODOMETRY frame -> (time_usec, x, y, z, qw, qx, qy, qz,
+    vx, vy, vz, rollspeed, pitchspeed, yawspeed, frame_id, child_frame_id), or None.
+
+    Same checks and values as `decode_fast(ODOMETRY, ...)`, minus the covariances and the
+    trailing fields the onboard stack does not use; the per-tick HIL path.
+    """
+    n = len(data)
+    if n < 12 or data[0] != MAGIC_V2 or data[7:10] != _ODO_ID3:
+        return None
+    flags = data[2]
+    plen = data[1]
+    crc_at = HEADER_LEN_V2 + plen
+    if flags == 0:
+        if n != crc_at + 2:
+            return None
+    elif flags != IFLAG_SIGNED or n != crc_at + 2 + SIGNATURE_LEN:
+        return None
+    if crc16(data[1:crc_at] + _ODO_EXTRA) != (data[crc_at] | data[crc_at + 1] << 8):
+        return None
+    if plen >= _ODO_USED_LEN:
+        return _ODO_USED.unpack_from(data, HEADER_LEN_V2)
+    return _ODO_USED.unpack(data[HEADER_LEN_V2:crc_at] + ODOMETRY.zeros[plen:_ODO_USED_LEN])
+
+
+def header_of(data: bytes, i: int = 0) -> tuple[int, int, int]:
+    """(seq, srcSystem, srcComponent) of the complete frame at data[i]."""
+    if data[i] == MAGIC_V2:
+        return data[i + 4], data[i + 5], data[i + 6]
+    return data[i + 2], data[i + 3], data[i + 4]
+
+
+# ------------------------------------------------------------------------------- wire units
+# WGS-84, as the Simulink "Flat Earth to LLA" block of the Minidrone template uses it.
+WGS84_A = 6378137.0                 # m, equatorial radius
+WGS84_F = 1.0 / 298.257223563       # flattening
+_E2 = WGS84_F * (2.0 - WGS84_F)     # first eccentricity squared
+
+
+class FlatEarth:
+    """Flat-earth conversion between local NED (m) and geodetic (deg, m AMSL) about an origin.
+
+    The meridian and prime-vertical radii of curvature are evaluated once at the origin
+    latitude (Simulink's Flat Earth to LLA with zero azimuth); good to mm over a room and to
+    cm over a few km, far beyond what a Minidrone arena needs.
+    """
+
+    __slots__ = ("lat0_deg", "lon0_deg", "alt0_m", "_dlat_dn", "_dlon_de")
+
+    def __init__(self, lat0_deg: float, lon0_deg: float, alt0_m: float) -> None:
+        self.lat0_deg, self.lon0_deg, self.alt0_m = lat0_deg, lon0_deg, alt0_m
+        s = math.sin(math.radians(lat0_deg))
+        den = 1.0 - _E2 * s * s
+        r_n = WGS84_A / math.sqrt(den)                 # prime vertical radius, m
+        r_m = r_n * (1.0 - _E2) / den                  # meridian radius, m
+        self._dlat_dn = math.degrees(math.atan2(1.0, r_m))                     # deg/m north
+        self._dlon_de = math.degrees(math.atan2(1.0, r_n * math.cos(math.radians(lat0_deg))))
+
+    def to_geodetic(self, n_m: float, e_m: float, d_m: float) -> tuple[float, float, float]:
+        """(lat_deg, lon_deg, alt_m AMSL) of the NED point (n, e, d) in m."""
+        lon = self.lon0_deg + e_m * self._dlon_de
+        lon = (lon + 180.0) % 360.0 - 180.0
+        return self.lat0_deg + n_m * self._dlat_dn, lon, self.alt0_m - d_m
+
+    def to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> tuple[float, float, float]:
+        """(n, e, d) in m of a geodetic point; inverse of `to_geodetic`."""
+        dlon = (lon_deg - self.lon0_deg + 180.0) % 360.0 - 180.0
+        return ((lat_deg - self.lat0_deg) / self._dlat_dn, dlon / self._dlon_de,
+                self.alt0_m - alt_m)
+
+    def to_int(self, n_m: float, e_m: float, d_m: float) -> tuple[int, int, int]:
+        """(lat_e7, lon_e7, alt_mm) as GLOBAL_POSITION_INT and HOME_POSITION carry them."""
+        lat, lon, alt = self.to_geodetic(n_m, e_m, d_m)
+        return round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0)
+
+
+def clamp_int(v: float, lo: int, hi: int) -> int:
+    """Round to int and saturate to [lo, hi] (NaN -> 0): for cm/s, cdeg, mV fields."""
+    if v != v:
+        return 0
+    if v >= hi:
+        return hi
+    if v <= lo:
+        return lo
+    return int(round(v))
+
+
+def euler_from_quat(qw: float, qx: float, qy: float, qz: float) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) in rad, ZYX (aerospace) from the body->world quaternion."""
+    roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
+    sp = 2.0 * (qw * qy - qz * qx)
+    pitch = math.asin(sp if -1.0 < sp < 1.0 else (1.0 if sp >= 1.0 else -1.0))
+    yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    return roll, pitch, yaw
+
+
+def yaw_from_quat(qw: float, qx: float, qy: float, qz: float) -> float:
+    """Heading (rad, ZYX yaw) of the body->world quaternion."""
+    return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
