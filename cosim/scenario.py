@@ -227,7 +227,10 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
             **{k: _number(ov, k, "vehicle.overrides", lo=0.0, lo_open=k != "drag_rot")
                for k in ov}
         )
+    world = _load_world(raw, base_dir)
     st = _table(v, "start", "vehicle")
+    if "start" not in v and isinstance(world.get("start"), dict):
+        st = world["start"]  # the world's suggested start pose
     _no_unknown(st, {"n", "e", "yaw_deg"}, "vehicle.start")
     start = Start(
         n=_number(st, "n", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
@@ -245,7 +248,6 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         t_final_s=_number(tm, "t_final_s", "timing", 100.0, lo=0.0, hi=86_400.0, lo_open=True),
     )
 
-    world = _load_world(raw, base_dir)
     camera = _table(raw, "camera", "") if "camera" in raw else None
 
     # app

@@ -48,7 +48,9 @@ class OffboardApp(Protocol):
 
 
 def check_params(params: dict[str, Any], defaults: dict[str, Any], app: str) -> dict[str, Any]:
-    """Merge `params` over `defaults`; unknown names and wrong types raise ValueError."""
+    """Merge `params` over `defaults`; unknown names and wrong types raise ValueError.
+
+    A default of None stands for a number whose value comes from elsewhere (a preset)."""
     out = dict(defaults)
     for k, v in params.items():
         if k not in defaults:
@@ -56,9 +58,11 @@ def check_params(params: dict[str, Any], defaults: dict[str, Any], app: str) -> 
                 f"app.params.{k}: unknown parameter for {app}; known: {', '.join(sorted(defaults))}"
             )
         d = defaults[k]
+        if d is None:  # a number whose default comes from elsewhere (e.g. a preset)
+            d = 0.0
         if isinstance(d, bool) != isinstance(v, bool) or (
             isinstance(d, int | float) and not isinstance(v, int | float)
-        ):
+        ) or (isinstance(d, str) and not isinstance(v, str)):
             raise ValueError(f"app.params.{k}: got {v!r}; expected a value like {d!r}")
         if isinstance(v, float) and not math.isfinite(v):
             raise ValueError(f"app.params.{k}: got {v!r}; expected a finite number")

@@ -1,0 +1,137 @@
+"""The ICUAS 2021 line follower (Terlizzi, Silano et al.) as a MAVLink offboard app.
+
+The Image Processing System (`cosim.apps.ips`, paper Algorithm 1) runs on every camera frame
+(5 Hz); the path planner and mission state machine (`cosim.apps.planner`, Algorithm 2 and the
+released code) run every tick (200 Hz) and stream SET_POSITION_TARGET_LOCAL_NED position
+setpoints to the vehicle. The app reaches the vehicle only through MAVLink: arm, AUTO.TAKEOFF
+to the hover height, OFFBOARD, setpoints, AUTO.LAND. It flies with yaw 0 and never commands
+yaw (the paper's drone only translates).
+
+Parameters (`[app.params]`), all optional:
+- `preset`: "released" (default: the released Simulink code's values) or "paper" (Table I);
+  see the docstrings of ips.py and planner.py for the differences.
+- `alpha` (m/px): track gain (released GAIN_TRACK = 0.0038); `beta` (m/px): marker gain.
+- `deriv_gain` (m/px), `hover_alt_m` (m above the floor), `search_on_loss` (bool),
+  `lost_timeout_s`, `mission_timeout_s` (s).
+- `k_t` (threshold), `r_min_px`, `r_max_px`, `arc_width_rad`: IPS overrides.
+- `setpoint_every` (ticks between setpoints; 1 = the paper's 200 Hz planner rate).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cosim.apps.base import NAN, AppContext, FlightSequencer, check_params
+from cosim.apps.ips import ImageProcessor, IPSParams
+from cosim.apps.planner import Action, MissionLogic, MissionState, PlannerParams
+
+DEFAULTS: dict[str, Any] = {
+    "preset": "released",
+    "alpha": None,
+    "beta": None,
+    "deriv_gain": None,
+    "hover_alt_m": None,
+    "search_on_loss": True,
+    "lost_timeout_s": 3.0,
+    "mission_timeout_s": 100.0,
+    "k_t": None,
+    "r_min_px": None,
+    "r_max_px": None,
+    "arc_width_rad": None,
+    "setpoint_every": 1,
+}
+
+
+def _overrides(p: dict[str, Any], mapping: dict[str, str]) -> dict[str, float]:
+    """The parameters the user gave (not None), renamed to the planner's / IPS's names."""
+    return {dst: float(p[src]) for src, dst in mapping.items() if p[src] is not None}
+
+
+class LineFollowerApp:
+    def __init__(self, params: dict[str, Any]) -> None:
+        p = check_params(params, DEFAULTS, "line_follower")
+        if p["preset"] not in ("released", "paper"):
+            raise ValueError(f"app.params.preset: got {p['preset']!r}; allowed: released, paper")
+        pl = _overrides(p, {"alpha": "gain_track", "beta": "gain_marker",
+                            "deriv_gain": "deriv_gain"})
+        if p["hover_alt_m"] is not None:
+            pl["z_hover"] = -float(p["hover_alt_m"])
+        pl["search_on_loss"] = bool(p["search_on_loss"])
+        pl["lost_timeout"] = float(p["lost_timeout_s"])
+        pl["mission_timeout"] = float(p["mission_timeout_s"])
+        ip = _overrides(p, {"k_t": "k_t", "r_min_px": "r_min", "r_max_px": "r_max",
+                            "arc_width_rad": "arc_width"})
+        maker_pl = PlannerParams.paper if p["preset"] == "paper" else PlannerParams.released
+        maker_ip = IPSParams.paper if p["preset"] == "paper" else IPSParams.released
+        try:
+            self.planner_params = maker_pl(**pl)
+            self.ips_params = maker_ip(**ip)
+        except ValueError as exc:
+            raise ValueError(f"app.params: {exc}") from None
+        self.every = int(p["setpoint_every"])
+        if self.every < 1:
+            raise ValueError("app.params.setpoint_every: expected an integer >= 1")
+        self.ips = ImageProcessor(self.ips_params)
+        self.logic = MissionLogic(self.planner_params)
+        self.seq = FlightSequencer(takeoff_alt_m=-self.planner_params.z_hover,
+                                   stream_before_s=1.05)
+        self.events = self.seq.events
+        self.phase = "prelude"
+        self.done = False
+        self.setpoint = [NAN, NAN, NAN]
+        self.frame_log: list[tuple[float, bool, bool, float, float]] = []
+        self._k = 0
+        self._following_logged = False
+
+    def on_start(self, ctx: AppContext) -> None:
+        self.client = ctx.client
+        n, e, _ = ctx.home_ned
+        self._hold = (n, e, self.planner_params.z_hover)
+
+    def on_frame(self, t: float, image: np.ndarray) -> None:
+        c = self.client
+        if self.seq.state != "flying":
+            self.frame_log.append((t, False, False, 0.0, 0.0))
+            return
+        r = self.ips.process(image, detect_marker=self.logic.ips_detect_marker)
+        self.frame_log.append((t, r.flag_track, r.flag_marker, r.e_x, r.e_y))
+        x, y, z = c.position
+        self.logic.on_ips(t, r, (x, y), z, c.attitude[2])
+
+    def on_tick(self, t: float) -> None:
+        c = self.client
+        c.poll(t)
+        self._k += 1
+        seq = self.seq
+        if seq.state != "flying" and seq.state not in ("landing", "landed"):
+            self.phase = "prelude"
+            seq.step(t, c, self._hold)
+            return
+        if seq.state == "flying":
+            x_ref, y_ref, z_ref, action = self.logic.setpoint(t, c.position)
+            st = self.logic.state
+            self.phase = st.value
+            if st is MissionState.FOLLOWING and not self._following_logged:
+                self.events.append((t, "following"))
+                self._following_logged = True
+            if action is Action.LAND or action is Action.DONE:
+                seq.land(t, c)
+            else:
+                sp = self.setpoint
+                sp[0], sp[1], sp[2] = x_ref, y_ref, z_ref
+                if self._k % self.every == 0:
+                    c.set_position_target(x_ref, y_ref, z_ref, 0.0)
+                return
+        # landing: AUTO.LAND at the current position, until disarmed
+        self.phase = "landing"
+        self.setpoint[0] = self.setpoint[1] = self.setpoint[2] = NAN
+        seq.step(t, c, self._hold)
+        if seq.state == "landed":
+            self.phase = "done"
+            self.done = True
+
+    def metrics(self) -> dict[str, Any]:
+        return {"landing_reason": self.logic.reason or "none",
+                "transitions": [list(tr) for tr in self.logic.transitions]}
