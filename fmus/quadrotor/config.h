@@ -57,6 +57,7 @@ typedef enum {
 typedef struct {
     double r[N_VR];        /* all Real variables by value reference (on_ground as 0/1) */
     double time;           /* s, current time */
+    double inv_mass, inv_I[3], inv_motor_tau; /* 1/kg, 1/(kg m^2), 1/s: from the parameters */
     int outputsValid;      /* algebraic outputs (ax, ay, az) are up to date */
 } ModelData;
 

@@ -11,6 +11,19 @@
 
 #include "config.h"
 
+/* Flush denormals to zero while integrating. Decaying quantities (rotor speeds after the
+ * motors stop, velocities under floor friction) otherwise sink into subnormal numbers, which
+ * makes every arithmetic operation on them ~5x slower. FTZ/DAZ only changes results below
+ * 2.2e-308, deterministically; the caller's MXCSR is restored on return. */
+#if defined(__SSE2__) || defined(__x86_64__)
+#include <xmmintrin.h>
+#define FTZ_BEGIN const unsigned int mxcsr_saved = _mm_getcsr(); _mm_setcsr(mxcsr_saved | 0x8040u);
+#define FTZ_END _mm_setcsr(mxcsr_saved);
+#else
+#define FTZ_BEGIN
+#define FTZ_END
+#endif
+
 /* FMI states as bits, so that "allowed in" is one mask test */
 enum {
     ST_INSTANTIATED = 1 << 0,
@@ -227,7 +240,11 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     CHECK("fmi2GetReal", ST_GET)
     NULLCHECK("fmi2GetReal", vr, nvr)
     NULLCHECK("fmi2GetReal", value, nvr)
-    if (!inst->md.outputsValid) model_update_outputs(&inst->md);
+    if (!inst->md.outputsValid) {
+        FTZ_BEGIN
+        model_update_outputs(&inst->md);
+        FTZ_END
+    }
     for (i = 0; i < nvr; i++) {
         const fmi2ValueReference v = vr[i];
         if (v >= N_VR || v == vr_on_ground)
@@ -461,10 +478,14 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
      * an integer). Substep boundaries are t0 + i*hsub, never accumulated. */
     n = (long)ceil(h / hsub * (1.0 - 1e-12));
     if (n < 1) n = 1;
-    for (i = 0; i < n; i++) {
-        const double ta = (double)i * hsub;
-        const double tb = (i == n - 1) ? h : (double)(i + 1) * hsub;
-        model_rk4_step(m, tb - ta);
+    {
+        FTZ_BEGIN
+        for (i = 0; i < n; i++) {
+            const double ta = (double)i * hsub;
+            const double tb = (i == n - 1) ? h : (double)(i + 1) * hsub;
+            model_rk4_step(m, tb - ta);
+        }
+        FTZ_END
     }
     for (i = VR_FIRST_STATE; i < VR_FIRST_STATE + N_STATES; i++) {
         if (!isfinite(m->r[i])) {
@@ -593,7 +614,11 @@ fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx
     if (nx != N_STATES || derivatives == NULL)
         return fail(inst, "fmi2GetDerivatives: expected %d states, got %lu", N_STATES,
                     (unsigned long)nx);
-    if (!inst->md.outputsValid) model_update_outputs(&inst->md);
+    if (!inst->md.outputsValid) {
+        FTZ_BEGIN
+        model_update_outputs(&inst->md);
+        FTZ_END
+    }
     memcpy(derivatives, &inst->md.r[vr_der_x], N_STATES * sizeof(double));
     return fmi2OK;
 }

@@ -83,6 +83,12 @@ void model_apply_initial_state(ModelData *m) {
     s[S(vr_qz)] = sin(0.5 * P(m, yaw0));
     for (i = 0; i < 4; i++) s[S(vr_omega1) + i] = P(m, omega0);
     m->r[vr_on_ground] = model_on_ground(m) ? 1.0 : 0.0;
+    /* inverses used by the derivatives (parameters only change before initialisation) */
+    m->inv_mass = 1.0 / P(m, mass);
+    m->inv_I[0] = 1.0 / P(m, Ixx);
+    m->inv_I[1] = 1.0 / P(m, Iyy);
+    m->inv_I[2] = 1.0 / P(m, Izz);
+    m->inv_motor_tau = 1.0 / P(m, motor_tau);
     m->outputsValid = 0;
 }
 
@@ -94,7 +100,7 @@ static double clamp01(double u) {
 /* State derivative ds = f(s, inputs, parameters). If f_B is not NULL it receives the
  * specific force in body axes (what an ideal accelerometer at the CG reads), m/s^2. */
 void model_derivatives(const ModelData *m, const double *s, double *ds, double *f_B) {
-    const double mass = P(m, mass), g = P(m, g);
+    const double g = P(m, g), inv_mass = m->inv_mass;
     const double Ixx = P(m, Ixx), Iyy = P(m, Iyy), Izz = P(m, Izz);
     const double a = P(m, arm_length) * 0.70710678118654752440;
     const double kT = P(m, k_thrust), kQ = P(m, k_torque);
@@ -134,21 +140,22 @@ void model_derivatives(const ModelData *m, const double *s, double *ds, double *
     const double FBz = -P(m, drag_z) * va_z - Ttot;
 
     /* ground contact (floor z = 0, NED): spring-damper normal force, viscous friction,
-     * levelling torque and rate damping, all scaled by act = Fn/(m g) in [0, 1] */
-    double Fc_n = 0.0, Fc_e = 0.0, Fc_d = 0.0;
+     * levelling torque and rate damping, all scaled by act = Fn/(m g) in [0, 1].
+     * Computed per unit mass (accelerations), so the static equilibrium is exact. */
+    double ac_n = 0.0, ac_e = 0.0, ac_d = 0.0;
     const double pen = s[S(vr_z)];
     if (pen > 0.0) {
         const double wn = P(m, contact_omega), zeta = P(m, contact_zeta);
-        double Fn = mass * (wn * wn * pen + 2.0 * zeta * wn * vz);
-        if (Fn > 0.0) {
-            double act = Fn / (mass * g);
+        const double an = wn * wn * pen + 2.0 * zeta * wn * vz; /* normal force / mass */
+        if (an > 0.0) {
+            double act = an / g;
             const double wa = P(m, contact_omega_att);
             /* world "down" in body axes = third row of R_WB */
             const double dx = R20, dy = R21;
             if (act > 1.0) act = 1.0;
-            Fc_d = -Fn;
-            Fc_n = -mass * P(m, contact_friction) * act * vx;
-            Fc_e = -mass * P(m, contact_friction) * act * vy;
+            ac_d = -an;
+            ac_n = -P(m, contact_friction) * act * vx;
+            ac_e = -P(m, contact_friction) * act * vy;
             tau_x += Ixx * act * (-wa * wa * dy - 2.0 * zeta * wa * p);
             tau_y += Iyy * act * (wa * wa * dx - 2.0 * zeta * wa * q);
             tau_z += Izz * act * (-2.0 * zeta * wa * r);
@@ -166,9 +173,9 @@ void model_derivatives(const ModelData *m, const double *s, double *ds, double *
     ds[S(vr_z)] = vz;
 
     /* translational dynamics, world axes */
-    ds[S(vr_vx)] = (R00 * FBx + R01 * FBy + R02 * FBz + Fc_n) / mass;
-    ds[S(vr_vy)] = (R10 * FBx + R11 * FBy + R12 * FBz + Fc_e) / mass;
-    ds[S(vr_vz)] = (R20 * FBx + R21 * FBy + R22 * FBz + Fc_d) / mass + g;
+    ds[S(vr_vx)] = (R00 * FBx + R01 * FBy + R02 * FBz) * inv_mass + ac_n;
+    ds[S(vr_vy)] = (R10 * FBx + R11 * FBy + R12 * FBz) * inv_mass + ac_e;
+    ds[S(vr_vz)] = (R20 * FBx + R21 * FBy + R22 * FBz) * inv_mass + ac_d + g;
 
     /* attitude kinematics q_dot = 1/2 q (x) [0, w_B], plus a term that keeps |q| = 1 */
     {
@@ -180,25 +187,25 @@ void model_derivatives(const ModelData *m, const double *s, double *ds, double *
     }
 
     /* Euler's equations, diagonal inertia: I w_dot = tau - w x (I w) */
-    ds[S(vr_p)] = (tau_x - (Izz - Iyy) * q * r) / Ixx;
-    ds[S(vr_q)] = (tau_y - (Ixx - Izz) * r * p) / Iyy;
-    ds[S(vr_r)] = (tau_z - (Iyy - Ixx) * p * q) / Izz;
+    ds[S(vr_p)] = (tau_x - (Izz - Iyy) * q * r) * m->inv_I[0];
+    ds[S(vr_q)] = (tau_y - (Ixx - Izz) * r * p) * m->inv_I[1];
+    ds[S(vr_r)] = (tau_z - (Iyy - Ixx) * p * q) * m->inv_I[2];
 
     /* first-order motor lag towards the clamped command */
     {
-        const double wmax = P(m, omega_max), tau_m = P(m, motor_tau);
+        const double wmax = P(m, omega_max), inv_tau = m->inv_motor_tau;
         int i;
         for (i = 0; i < 4; i++) {
             const double wcmd = clamp01(m->r[vr_u1 + i]) * wmax;
-            ds[S(vr_omega1) + i] = (wcmd - w[i]) / tau_m;
+            ds[S(vr_omega1) + i] = (wcmd - w[i]) * inv_tau;
         }
     }
 
     if (f_B) {
         /* specific force = (all forces except gravity) / m, in body axes */
-        f_B[0] = (FBx + R00 * Fc_n + R10 * Fc_e + R20 * Fc_d) / mass;
-        f_B[1] = (FBy + R01 * Fc_n + R11 * Fc_e + R21 * Fc_d) / mass;
-        f_B[2] = (FBz + R02 * Fc_n + R12 * Fc_e + R22 * Fc_d) / mass;
+        f_B[0] = FBx * inv_mass + R00 * ac_n + R10 * ac_e + R20 * ac_d;
+        f_B[1] = FBy * inv_mass + R01 * ac_n + R11 * ac_e + R21 * ac_d;
+        f_B[2] = FBz * inv_mass + R02 * ac_n + R12 * ac_e + R22 * ac_d;
     }
 }
 
