@@ -1,0 +1,627 @@
+"""The flat indoor world the minidrone flies over: floor, track, end marker, distractors.
+
+Everything lies on the floor plane z = 0 (world NED, so "up" is -z). Positions are (N, E) in
+metres, angles in radians inside (``heading``), degrees only in the TOML (``heading_deg``).
+A heading is the direction of an axis measured from North towards East (0 = N-S axis,
+90 deg = E-W axis), as in reference/minidrone.md §5.
+
+World TOML schema (the ``[world]`` table of a scenario or of ``scenarios/worlds/*.toml``;
+every key is checked, unknown keys are errors; see scenarios/README.md "World")::
+
+    [world]
+    name = "seed"                     # optional label
+    floor_texture = "plain"           # "plain" (default) or "competition" (0.15 x 0.05 m tiles
+                                      #   on a 0.25 m grid, alternating orientation)
+    floor_rgb = [180, 180, 180]       # 0-255; plain floor colour / competition base colour
+    tile_rgb = [122, 104, 86]         # competition tiles only
+    arena = { n_min = 51.5, n_max = 58.0, e_min = 91.5, e_max = 96.5 }   # m, NED
+    start = { n = 57.0, e = 95.0, yaw_deg = 0.0 }   # optional: where the drone should start
+
+    [[world.track]]                   # a rectangle part (the seed world's form)
+    center = [56.30, 95.0]            # m, (N, E)
+    length = 1.45                     # m, along the axis
+    width = 0.10                      # m
+    heading_deg = 0.0                 # axis direction, deg from North towards East
+    rgb = [255, 0, 0]                 # optional, default red
+
+    [[world.track]]                   # or a polyline part, points in track order
+    points = [[55.0, 95.0], [55.0, 96.0], [54.0, 96.5]]   # m, (N, E)
+    width = 0.10                      # m; round joins, flat ends
+    rgb = [255, 0, 0]
+
+    [world.marker]                    # optional end marker disc
+    center = [52.93, 93.325]          # m, (N, E)
+    radius = 0.10                     # m
+    rgb = [255, 0, 0]
+
+    [[world.distractor]]              # optional shapes that are not the track
+    shape = "square"                  # "square" (size = side) or "disc" (size = diameter)
+    center = [56.0, 96.0]             # m, (N, E)
+    size = 0.20                       # m
+    rgb = [220, 220, 60]
+    heading_deg = 0.0                 # squares only
+
+Track parts are listed in track order. A rectangle's centreline runs along its axis; its
+direction is chosen so that consecutive parts connect (first part: towards the second).
+
+Rasterisation (``World.floor_image``): the floor is drawn into an RGB texture covering the
+arena plus a margin, with exact-coverage anti-aliasing from signed distances (a pixel on an
+edge gets the area fraction of the shape). Order: floor, distractors, track, marker.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from cosim.errors import ScenarioError
+
+__all__ = [
+    "Arena",
+    "RectPart",
+    "PolylinePart",
+    "Marker",
+    "Distractor",
+    "World",
+    "WORLDS_DIR",
+    "builtin_worlds",
+    "load_world",
+]
+
+RED = (255, 0, 0)
+PLAIN_FLOOR_RGB = (180, 180, 180)       # light grey, stands in for the template's floor
+COMPETITION_FLOOR_RGB = (176, 164, 148)  # light grey-brown base of the competition floor
+COMPETITION_TILE_RGB = (122, 104, 86)    # darker brown tiles
+TILE_PITCH_M = 0.25                      # m, competition floor grid
+TILE_SIZE_M = (0.15, 0.05)               # m, (long, short) side of a competition tile
+
+WORLDS_DIR = Path(__file__).resolve().parent.parent / "scenarios" / "worlds"
+
+RGB = tuple[int, int, int]
+NE = tuple[float, float]
+
+
+class Arena(NamedTuple):
+    """Flyable area, world NED metres. Also indexable: ``arena[0..3]``."""
+
+    n_min: float
+    n_max: float
+    e_min: float
+    e_max: float
+
+    def contains(self, n: float, e: float) -> bool:
+        return self.n_min <= n <= self.n_max and self.e_min <= e <= self.e_max
+
+
+@dataclass(frozen=True)
+class RectPart:
+    """A straight track piece: a rectangle on the floor."""
+
+    center: NE            # m, (N, E)
+    length: float         # m, along the axis
+    width: float          # m
+    heading: float        # rad, axis direction from North towards East
+    rgb: RGB = RED
+
+    def axis_ends(self) -> np.ndarray:
+        """(2, 2) the two ends of the axis, (N, E) m: centre -/+ length/2 along the heading."""
+        h = 0.5 * self.length
+        u = np.array([math.cos(self.heading), math.sin(self.heading)])
+        c = np.array(self.center, dtype=float)
+        return np.stack([c - h * u, c + h * u])
+
+
+@dataclass(frozen=True)
+class PolylinePart:
+    """A track piece following a polyline (points in track order) with round joins."""
+
+    points: tuple[NE, ...]   # m, (N, E)
+    width: float             # m
+    rgb: RGB = RED
+
+
+TrackPart = RectPart | PolylinePart
+
+
+@dataclass(frozen=True)
+class Marker:
+    """The end-marker disc."""
+
+    center: NE     # m, (N, E)
+    radius: float  # m
+    rgb: RGB = RED
+
+
+@dataclass(frozen=True)
+class Distractor:
+    """A shape on the floor that is not the track (competition: yellow/blue squares)."""
+
+    shape: str         # "square" (size = side) or "disc" (size = diameter)
+    center: NE         # m, (N, E)
+    size: float        # m
+    rgb: RGB
+    heading: float = 0.0  # rad, squares only
+
+
+@dataclass(frozen=True)
+class World:
+    """A flat world. Build with ``World.from_dict`` / ``load_world``; immutable."""
+
+    arena: Arena
+    track: tuple[TrackPart, ...] = ()
+    marker: Marker | None = None
+    distractors: tuple[Distractor, ...] = ()
+    floor_rgb: RGB = PLAIN_FLOOR_RGB
+    floor_texture: str = "plain"          # "plain" or "competition"
+    tile_rgb: RGB = COMPETITION_TILE_RGB  # competition tiles
+    name: str = ""
+    start: tuple[float, float, float] | None = None  # (n m, e m, yaw rad), informational
+    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False,
+                         hash=False)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], where: str = "world") -> World:
+        """Validate the ``[world]`` table (schema in the module docstring).
+
+        Raises ScenarioError(field, value, allowed) naming the dotted field, e.g.
+        ``world.track[2].width``.
+        """
+        if not isinstance(d, Mapping):
+            raise ScenarioError(where, d, "a table")
+        _no_unknown(d, {"name", "floor_texture", "floor_rgb", "tile_rgb", "arena", "start",
+                        "track", "marker", "distractor"}, where)
+        name = d.get("name", "")
+        if not isinstance(name, str):
+            raise ScenarioError(f"{where}.name", name, "a string")
+        texture = d.get("floor_texture", "plain")
+        if texture not in ("plain", "competition"):
+            raise ScenarioError(f"{where}.floor_texture", texture, "'plain' or 'competition'")
+        floor_default = PLAIN_FLOOR_RGB if texture == "plain" else COMPETITION_FLOOR_RGB
+        floor_rgb = _rgb(d, "floor_rgb", where, floor_default)
+        tile_rgb = _rgb(d, "tile_rgb", where, COMPETITION_TILE_RGB)
+        if "tile_rgb" in d and texture != "competition":
+            raise ScenarioError(f"{where}.tile_rgb", d["tile_rgb"],
+                                "only with floor_texture = 'competition'")
+
+        if "arena" not in d:
+            raise ScenarioError(f"{where}.arena", None,
+                                "a table {n_min, n_max, e_min, e_max} in metres (required)")
+        a = d["arena"]
+        wa = f"{where}.arena"
+        if not isinstance(a, Mapping):
+            raise ScenarioError(wa, a, "a table {n_min, n_max, e_min, e_max} in metres")
+        _no_unknown(a, {"n_min", "n_max", "e_min", "e_max"}, wa)
+        arena = Arena(*(_num(a, k, wa, lo=-1e5, hi=1e5)
+                        for k in ("n_min", "n_max", "e_min", "e_max")))
+        if not arena.n_max - arena.n_min >= 0.5:
+            raise ScenarioError(f"{wa}.n_max", arena.n_max, f"at least n_min + 0.5 = "
+                                f"{arena.n_min + 0.5} (m)")
+        if not arena.e_max - arena.e_min >= 0.5:
+            raise ScenarioError(f"{wa}.e_max", arena.e_max, f"at least e_min + 0.5 = "
+                                f"{arena.e_min + 0.5} (m)")
+        if arena.n_max - arena.n_min > 200.0 or arena.e_max - arena.e_min > 200.0:
+            raise ScenarioError(wa, dict(a), "at most 200 m on each side")
+
+        start = None
+        if "start" in d:
+            s, ws = d["start"], f"{where}.start"
+            if not isinstance(s, Mapping):
+                raise ScenarioError(ws, s, "a table {n, e, yaw_deg}")
+            _no_unknown(s, {"n", "e", "yaw_deg"}, ws)
+            n0, e0 = _num(s, "n", ws, lo=-1e5, hi=1e5), _num(s, "e", ws, lo=-1e5, hi=1e5)
+            if not arena.contains(n0, e0):
+                raise ScenarioError(ws, dict(s), "a point inside the arena")
+            yaw0 = math.radians(_num(s, "yaw_deg", ws, 0.0, lo=-360.0, hi=360.0))
+            start = (n0, e0, yaw0)
+
+        raw_track = d.get("track", [])
+        if not isinstance(raw_track, list):
+            raise ScenarioError(f"{where}.track", raw_track, "an array of tables ([[world.track]])")
+        track = tuple(_track_part(p, f"{where}.track[{i}]", arena)
+                      for i, p in enumerate(raw_track))
+
+        marker = None
+        if "marker" in d:
+            m, wm = d["marker"], f"{where}.marker"
+            if not isinstance(m, Mapping):
+                raise ScenarioError(wm, m, "a table {center, radius, rgb}")
+            _no_unknown(m, {"center", "radius", "rgb"}, wm)
+            marker = Marker(center=_point(m, "center", wm, arena),
+                            radius=_num(m, "radius", wm, lo=0.005, hi=2.0),
+                            rgb=_rgb(m, "rgb", wm, RED))
+
+        raw_dis = d.get("distractor", [])
+        if not isinstance(raw_dis, list):
+            raise ScenarioError(f"{where}.distractor", raw_dis,
+                                "an array of tables ([[world.distractor]])")
+        distractors = tuple(_distractor(x, f"{where}.distractor[{i}]", arena)
+                            for i, x in enumerate(raw_dis))
+        return cls(arena=arena, track=track, marker=marker, distractors=distractors,
+                   floor_rgb=floor_rgb, floor_texture=texture, tile_rgb=tile_rgb, name=name,
+                   start=start)
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> World:
+        """Load a TOML file holding a ``[world]`` table (or the world keys at top level)."""
+        p = Path(path)
+        try:
+            raw = tomllib.loads(p.read_text())
+        except FileNotFoundError:
+            raise ScenarioError("world.file", str(p), "an existing world TOML file") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ScenarioError("world.file", str(p), f"valid TOML ({exc})") from None
+        return cls.from_dict(raw.get("world", raw), "world")
+
+    # ------------------------------------------------------------------ geometry
+    def centreline(self) -> list[np.ndarray]:
+        """Track centrelines, one (K, 2) float array of (N, E) points per part, track order.
+
+        The list index is the part index used by ``distance_to_track``.
+        """
+        if "centreline" not in self._cache:
+            self._cache["centreline"] = _orient_parts(self.track)
+        return [c.copy() for c in self._cache["centreline"]]
+
+    def distance_to_track(self, p_NE: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Horizontal distance (m) from points to the nearest centreline point, and the part.
+
+        p_NE: (M, 2) (N, E) m. Returns (dist (M,) float, part_idx (M,) int). Without a track:
+        dist = inf and part_idx = -1.
+        """
+        p = np.asarray(p_NE, dtype=float).reshape(-1, 2)
+        if "segments" not in self._cache:
+            a, b, part = [], [], []
+            for i, c in enumerate(_orient_parts(self.track)):
+                a.append(c[:-1])
+                b.append(c[1:])
+                part.append(np.full(len(c) - 1, i))
+            if a:
+                A, B = np.concatenate(a), np.concatenate(b)
+                self._cache["segments"] = (A, B - A, np.concatenate(part))
+            else:
+                self._cache["segments"] = None
+        seg = self._cache["segments"]
+        m = len(p)
+        if seg is None:
+            return np.full(m, np.inf), np.full(m, -1, dtype=int)
+        A, AB, part = seg
+        ab2 = np.maximum(np.einsum("ij,ij->i", AB, AB), 1e-18)
+        dist = np.empty(m)
+        idx = np.empty(m, dtype=int)
+        for lo in range(0, m, 4096):
+            q = p[lo:lo + 4096, None, :] - A[None, :, :]                  # (m, S, 2)
+            t = np.clip(np.einsum("msk,sk->ms", q, AB) / ab2, 0.0, 1.0)
+            r = q - t[..., None] * AB[None, :, :]
+            d2 = np.einsum("msk,msk->ms", r, r)
+            j = np.argmin(d2, axis=1)
+            dist[lo:lo + 4096] = np.sqrt(d2[np.arange(len(j)), j])
+            idx[lo:lo + 4096] = part[j]
+        return dist, idx
+
+    def track_length(self) -> float:
+        """Total centreline length, m."""
+        return float(sum(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()
+                         for c in self.centreline()))
+
+    # ------------------------------------------------------------------ rendering
+    def floor_image(self, px_per_m: float = 300.0, margin_m: float = 1.5
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """The floor as an RGB texture and its transform (cached per arguments).
+
+        Returns (image (H, W, 3) uint8 RGB, T_tex_W (3, 3) float): ``T_tex_W @ [N, E, 1]``
+        gives the texture pixel ``[col, row, 1]`` (integer values at pixel centres, as cv2
+        expects). Rows run southward, columns eastward; the texture covers the arena plus
+        ``margin_m`` on every side. The returned array is shared: do not modify it.
+        """
+        if not (10.0 <= px_per_m <= 2000.0):
+            raise ValueError(f"px_per_m must be in [10, 2000], got {px_per_m}")
+        key = ("floor", float(px_per_m), float(margin_m))
+        if key not in self._cache:
+            img, T = _rasterise(self, float(px_per_m), float(margin_m))
+            img.setflags(write=False)
+            self._cache[key] = (img, T)
+        return self._cache[key]
+
+
+# ====================================================================== validation helpers
+def _no_unknown(d: Mapping, known: set[str], where: str) -> None:
+    for k in d:
+        if k not in known:
+            raise ScenarioError(f"{where}.{k}" if where else k, d[k],
+                                f"one of the keys {', '.join(sorted(known))}")
+
+
+_REQUIRED = object()
+
+
+def _num(d: Mapping, key: str, where: str, default: Any = _REQUIRED, *, lo: float = -math.inf,
+         hi: float = math.inf, lo_open: bool = False) -> float:
+    f = f"{where}.{key}"
+    if key not in d:
+        if default is _REQUIRED:
+            raise ScenarioError(f, None, f"a number in [{lo}, {hi}] (required)")
+        return default
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ScenarioError(f, v, f"a finite number in {'(' if lo_open else '['}{lo}, {hi}]")
+    if v < lo or v > hi or (lo_open and v == lo):
+        raise ScenarioError(f, v, f"a number in {'(' if lo_open else '['}{lo}, {hi}]")
+    return float(v)
+
+
+def _rgb(d: Mapping, key: str, where: str, default: RGB) -> RGB:
+    if key not in d:
+        return default
+    v = d[key]
+    if (not isinstance(v, list) or len(v) != 3
+            or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c <= 255
+                   for c in v)):
+        raise ScenarioError(f"{where}.{key}", v, "[r, g, b] with integers 0-255")
+    return (int(v[0]), int(v[1]), int(v[2]))
+
+
+def _pair(v: Any, f: str) -> NE:
+    if (not isinstance(v, list) or len(v) != 2
+            or any(isinstance(c, bool) or not isinstance(c, (int, float))
+                   or not math.isfinite(c) for c in v)):
+        raise ScenarioError(f, v, "[north, east] in metres (two finite numbers)")
+    return (float(v[0]), float(v[1]))
+
+
+def _point(d: Mapping, key: str, where: str, arena: Arena) -> NE:
+    f = f"{where}.{key}"
+    if key not in d:
+        raise ScenarioError(f, None, "[north, east] in metres (required)")
+    p = _pair(d[key], f)
+    if not arena.contains(*p):
+        raise ScenarioError(f, d[key], f"a point inside the arena {tuple(arena)}")
+    return p
+
+
+def _track_part(p: Any, where: str, arena: Arena) -> TrackPart:
+    if not isinstance(p, Mapping):
+        raise ScenarioError(where, p, "a table (rectangle or polyline part)")
+    width = _num(p, "width", where, lo=0.005, hi=2.0)
+    rgb = _rgb(p, "rgb", where, RED)
+    if "points" in p:
+        _no_unknown(p, {"points", "width", "rgb"}, where)
+        raw = p["points"]
+        f = f"{where}.points"
+        if not isinstance(raw, list) or len(raw) < 2:
+            raise ScenarioError(f, raw, "at least two [north, east] points")
+        pts = tuple(_pair(q, f"{f}[{i}]") for i, q in enumerate(raw))
+        for i, q in enumerate(pts):
+            if not arena.contains(*q):
+                raise ScenarioError(f"{f}[{i}]", list(q), f"a point inside the arena "
+                                    f"{tuple(arena)}")
+            if i and math.dist(q, pts[i - 1]) < 1e-3:
+                raise ScenarioError(f"{f}[{i}]", list(q),
+                                    "a point at least 1 mm from the previous one")
+        return PolylinePart(points=pts, width=width, rgb=rgb)
+    _no_unknown(p, {"center", "length", "width", "heading_deg", "rgb"}, where)
+    if "center" not in p:
+        raise ScenarioError(where, dict(p), "a rectangle (center, length, width, heading_deg) "
+                            "or a polyline (points, width)")
+    part = RectPart(center=_point(p, "center", where, arena),
+                    length=_num(p, "length", where, lo=0.0, hi=200.0, lo_open=True),
+                    width=width,
+                    heading=math.radians(_num(p, "heading_deg", where, lo=-360.0, hi=360.0)),
+                    rgb=rgb)
+    for q in part.axis_ends():
+        if not arena.contains(*q):
+            raise ScenarioError(f"{where}.length", part.length,
+                                f"a length that keeps both ends inside the arena {tuple(arena)}")
+    return part
+
+
+def _distractor(x: Any, where: str, arena: Arena) -> Distractor:
+    if not isinstance(x, Mapping):
+        raise ScenarioError(where, x, "a table {shape, center, size, rgb, heading_deg}")
+    _no_unknown(x, {"shape", "center", "size", "rgb", "heading_deg"}, where)
+    shape = x.get("shape")
+    if shape not in ("square", "disc"):
+        raise ScenarioError(f"{where}.shape", shape, "'square' or 'disc'")
+    if shape == "disc" and "heading_deg" in x:
+        raise ScenarioError(f"{where}.heading_deg", x["heading_deg"], "only for squares")
+    if "rgb" not in x:
+        raise ScenarioError(f"{where}.rgb", None, "[r, g, b] with integers 0-255 (required)")
+    return Distractor(shape=shape, center=_point(x, "center", where, arena),
+                      size=_num(x, "size", where, lo=0.0, hi=10.0, lo_open=True),
+                      rgb=_rgb(x, "rgb", where, (0, 0, 0)),
+                      heading=math.radians(_num(x, "heading_deg", where, 0.0,
+                                                lo=-360.0, hi=360.0)))
+
+
+# ====================================================================== geometry helpers
+def _orient_parts(track: Sequence[TrackPart]) -> list[np.ndarray]:
+    """Centrelines in track order; rectangles flipped so consecutive parts connect."""
+    out: list[np.ndarray] = []
+    for i, part in enumerate(track):
+        if isinstance(part, PolylinePart):
+            out.append(np.array(part.points, dtype=float))
+            continue
+        ends = part.axis_ends()
+        if i == 0:
+            if len(track) == 1:
+                out.append(ends)
+                continue
+            nxt = track[1]
+            cand = (nxt.axis_ends() if isinstance(nxt, RectPart)
+                    else np.array(nxt.points[:1], dtype=float))
+            d_fwd = np.min(np.linalg.norm(cand - ends[1], axis=1))
+            d_rev = np.min(np.linalg.norm(cand - ends[0], axis=1))
+            out.append(ends if d_fwd <= d_rev else ends[::-1].copy())
+        else:
+            prev_end = out[-1][-1]
+            if np.linalg.norm(ends[1] - prev_end) < np.linalg.norm(ends[0] - prev_end):
+                ends = ends[::-1].copy()
+            out.append(ends)
+    return out
+
+
+# ====================================================================== rasterisation
+class _Grid:
+    """Texture pixel <-> world mapping: N = n0 - (row + 0.5)/s, E = e0 + (col + 0.5)/s."""
+
+    def __init__(self, n0: float, e0: float, s: float, rows: int, cols: int) -> None:
+        self.n0, self.e0, self.s, self.rows, self.cols = n0, e0, s, rows, cols
+
+    def window(self, n_lo: float, n_hi: float, e_lo: float, e_hi: float
+               ) -> tuple[slice, slice, np.ndarray, np.ndarray] | None:
+        """Pixel slices covering a world box (plus 2 px), and their centre coordinates."""
+        s = self.s
+        r0 = max(0, int(math.floor((self.n0 - n_hi) * s)) - 2)
+        r1 = min(self.rows, int(math.ceil((self.n0 - n_lo) * s)) + 2)
+        c0 = max(0, int(math.floor((e_lo - self.e0) * s)) - 2)
+        c1 = min(self.cols, int(math.ceil((e_hi - self.e0) * s)) + 2)
+        if r0 >= r1 or c0 >= c1:
+            return None
+        n = self.n0 - (np.arange(r0, r1) + 0.5) / s
+        e = self.e0 + (np.arange(c0, c1) + 0.5) / s
+        return slice(r0, r1), slice(c0, c1), n[:, None], e[None, :]
+
+
+def _sd_box(n: np.ndarray, e: np.ndarray, c: NE, half_len: float, half_wid: float,
+            heading: float) -> np.ndarray:
+    """Signed distance (m) to an oriented box (negative inside)."""
+    cu, su = math.cos(heading), math.sin(heading)
+    dn, de = n - c[0], e - c[1]
+    x = np.abs(dn * cu + de * su) - half_len
+    y = np.abs(-dn * su + de * cu) - half_wid
+    outside = np.hypot(np.maximum(x, 0.0), np.maximum(y, 0.0))
+    return outside + np.minimum(np.maximum(x, y), 0.0)
+
+
+def _sd_disc(n: np.ndarray, e: np.ndarray, c: NE, r: float) -> np.ndarray:
+    return np.hypot(n - c[0], e - c[1]) - r
+
+
+def _coverage(sd: np.ndarray, s: float) -> np.ndarray:
+    """Area fraction of a pixel (side 1/s m) inside a shape from the signed distance."""
+    return np.clip(0.5 - sd * s, 0.0, 1.0).astype(np.float32)
+
+
+def _blend(img: np.ndarray, rs: slice, cs: slice, alpha: np.ndarray, rgb: RGB) -> None:
+    if not alpha.any():
+        return
+    reg = img[rs, cs].astype(np.float32)
+    a = alpha[..., None]
+    reg += a * (np.asarray(rgb, dtype=np.float32) - reg)
+    img[rs, cs] = np.rint(reg).astype(np.uint8)
+
+
+def _pieces(part: TrackPart) -> list[tuple[str, tuple]]:
+    """A track part as boxes (centre, half_len, half_wid, heading) and join discs."""
+    hw = 0.5 * part.width
+    if isinstance(part, RectPart):
+        return [("box", (part.center, 0.5 * part.length, hw, part.heading))]
+    pts = part.points
+    out: list[tuple[str, tuple]] = []
+    for a, b in zip(pts[:-1], pts[1:], strict=True):
+        dn, de = b[0] - a[0], b[1] - a[1]
+        out.append(("box", (((a[0] + b[0]) / 2, (a[1] + b[1]) / 2), 0.5 * math.hypot(dn, de),
+                            hw, math.atan2(de, dn))))
+    for q in pts[1:-1]:
+        out.append(("disc", (q, hw)))
+    return out
+
+
+def _piece_bbox(kind: str, args: tuple) -> tuple[float, float, float, float]:
+    if kind == "disc":
+        (cn, ce), r = args
+        return cn - r, cn + r, ce - r, ce + r
+    (cn, ce), hl, hw, h = args
+    ext_n = abs(hl * math.cos(h)) + abs(hw * math.sin(h))
+    ext_e = abs(hl * math.sin(h)) + abs(hw * math.cos(h))
+    return cn - ext_n, cn + ext_n, ce - ext_e, ce + ext_e
+
+
+def _draw_union(img: np.ndarray, g: _Grid, pieces: list[tuple[str, tuple]], rgb: RGB) -> None:
+    """Draw the union of pieces in one colour (coverage = max over pieces, no seams)."""
+    boxes = [_piece_bbox(k, a) for k, a in pieces]
+    win = g.window(min(b[0] for b in boxes), max(b[1] for b in boxes),
+                   min(b[2] for b in boxes), max(b[3] for b in boxes))
+    if win is None:
+        return
+    rs, cs, _, _ = win
+    alpha = np.zeros((rs.stop - rs.start, cs.stop - cs.start), np.float32)
+    for (kind, args), bb in zip(pieces, boxes, strict=True):
+        w = g.window(*bb)
+        if w is None:
+            continue
+        prs, pcs, n, e = w
+        sd = _sd_disc(n, e, *args) if kind == "disc" else _sd_box(n, e, *args)
+        sub = alpha[prs.start - rs.start:prs.stop - rs.start,
+                    pcs.start - cs.start:pcs.stop - cs.start]
+        np.maximum(sub, _coverage(sd, g.s), out=sub)
+    _blend(img, rs, cs, alpha, rgb)
+
+
+def _tile_coverage(x: np.ndarray, half: float, s: float) -> np.ndarray:
+    """1-D coverage of pixels (centres x, side 1/s) by a centred interval in each grid cell."""
+    c = (np.floor(x / TILE_PITCH_M) + 0.5) * TILE_PITCH_M
+    d = 0.5 / s
+    return np.clip(np.minimum(x + d, c + half) - np.maximum(x - d, c - half), 0.0, 2 * d) * s
+
+
+def _rasterise(world: World, s: float, margin: float) -> tuple[np.ndarray, np.ndarray]:
+    a = world.arena
+    n0, e0 = a.n_max + margin, a.e_min - margin
+    rows = int(math.ceil((a.n_max - a.n_min + 2 * margin) * s))
+    cols = int(math.ceil((a.e_max - a.e_min + 2 * margin) * s))
+    g = _Grid(n0, e0, s, rows, cols)
+    img = np.empty((rows, cols, 3), np.uint8)
+    img[:] = world.floor_rgb
+    if world.floor_texture == "competition":
+        n = n0 - (np.arange(rows) + 0.5) / s
+        e = e0 + (np.arange(cols) + 0.5) / s
+        hl, hs = 0.5 * TILE_SIZE_M[0], 0.5 * TILE_SIZE_M[1]
+        n_long, n_short = _tile_coverage(n, hl, s)[:, None], _tile_coverage(n, hs, s)[:, None]
+        e_long, e_short = _tile_coverage(e, hl, s)[None, :], _tile_coverage(e, hs, s)[None, :]
+        parity = ((np.floor(n / TILE_PITCH_M).astype(np.int64)[:, None]
+                   + np.floor(e / TILE_PITCH_M).astype(np.int64)[None, :]) & 1).astype(bool)
+        # even cells: long side along East; odd cells: long side along North
+        alpha = np.where(parity, n_long * e_short, n_short * e_long).astype(np.float32)
+        _blend(img, slice(0, rows), slice(0, cols), alpha, world.tile_rgb)
+    for dsh in world.distractors:
+        if dsh.shape == "disc":
+            pieces = [("disc", (dsh.center, 0.5 * dsh.size))]
+        else:
+            h = 0.5 * dsh.size
+            pieces = [("box", (dsh.center, h, h, dsh.heading))]
+        _draw_union(img, g, pieces, dsh.rgb)
+    for part in world.track:
+        _draw_union(img, g, _pieces(part), part.rgb)
+    if world.marker is not None:
+        m = world.marker
+        _draw_union(img, g, [("disc", (m.center, m.radius))], m.rgb)
+    T = np.array([[0.0, s, -e0 * s - 0.5],
+                  [-s, 0.0, n0 * s - 0.5],
+                  [0.0, 0.0, 1.0]])
+    return img, T
+
+
+# ====================================================================== built-in worlds
+def builtin_worlds() -> list[str]:
+    """Names of the worlds shipped in scenarios/worlds/."""
+    return sorted(p.stem for p in WORLDS_DIR.glob("*.toml"))
+
+
+def load_world(spec: str | Path | Mapping[str, Any], where: str = "world") -> World:
+    """A world from a built-in name ('seed', 'turns', ...), a TOML path, or a ``[world]`` dict."""
+    if isinstance(spec, Mapping):
+        return World.from_dict(spec, where)
+    p = Path(spec)
+    if p.suffix != ".toml":
+        p = WORLDS_DIR / f"{spec}.toml"
+        if not p.is_file():
+            raise ScenarioError(where, str(spec),
+                                f"a world TOML path or one of {', '.join(builtin_worlds())}")
+    return World.from_toml(p)
