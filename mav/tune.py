@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import warnings
 from dataclasses import dataclass
 
 import control as ct
@@ -37,7 +36,9 @@ import numpy as np
 from cosim.vehicles import VehicleParams, get_vehicle
 from mav.control import make_controller
 
-__all__ = ["PM_MIN_DEG", "GM_MIN_DB", "IDENTIFIED_BEBOP2", "analyse", "check", "main"]
+__all__ = [
+    "GM_MIN_DB", "IDENTIFIED_BEBOP2", "PM_MIN_DEG", "analyse", "check", "main", "step_response",
+]
 
 PM_MIN_DEG = 30.0  # deg, phase margin every loop must have
 GM_MIN_DB = 6.0    # dB, gain margin every loop must have
@@ -146,27 +147,50 @@ def _close(G: ct.StateSpace, law: _Law) -> ct.StateSpace:
 
 
 # ----------------------------------------------------------------------------- metrics
-def _margins(L: ct.StateSpace) -> tuple[float, float, float, float]:
+def _freq(L: ct.StateSpace, w: np.ndarray) -> np.ndarray:
+    """Complex frequency response of a SISO discrete state space at w (rad/s)."""
+    A, B, C, D = (np.asarray(M, dtype=float) for M in (L.A, L.B, L.C, L.D))
+    if A.size == 0:
+        return np.full(w.shape, D[0, 0], dtype=complex)
+    z = np.exp(1j * w * L.dt)
+    M = z[:, None, None] * np.eye(A.shape[0]) - A
+    x = np.linalg.solve(M, np.broadcast_to(B, (w.size, *B.shape)).astype(complex))
+    return (C @ x)[:, 0, 0] + D[0, 0]
+
+
+def _margins(L: ct.StateSpace, n: int = 6000) -> tuple[float, float, float, float]:
     """(upper gain margin dB, lower gain margin dB, phase margin deg, gain crossover rad/s).
 
-    With an integrator in the loop the phase also crosses -180 deg at low frequency where
-    |L| > 1 (conditional stability): that crossing gives the *lower* gain margin (how far the
-    gain may drop, negative dB); the upper margin is the usual one. inf / -inf: no crossing."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        gms, pms, _sms, _wpcs, wgcs, _wms = ct.stability_margins(L, returnall=True)
-    gms = [float(x) for x in np.atleast_1d(gms) if np.isfinite(x) and x > 0]
-    up = [g for g in gms if g >= 1.0]
-    low = [g for g in gms if g < 1.0]
+    Evaluated on a dense log grid up to the Nyquist frequency, crossings interpolated
+    (python-control's `stability_margins` gives the same numbers, see tests, but falls back to
+    a slow spline method on these loops). With an integrator in the loop the phase also
+    crosses -180 deg at low frequency where |L| > 1 (conditional stability): that crossing
+    gives the *lower* gain margin (how far the gain may drop, negative dB); the upper margin
+    is the usual one. inf / -inf: no such crossing."""
+    w = np.logspace(-3, math.log10(math.pi / L.dt) - 1e-6, n)
+    h = _freq(L, w)
+    mag = np.abs(h)
+    lm = np.log(np.maximum(mag, 1e-300))
+    # gain crossovers: |L| = 1
+    pm, wgc = math.inf, math.nan
+    for i in np.nonzero(np.sign(lm[:-1]) != np.sign(lm[1:]))[0]:
+        f = lm[i] / (lm[i] - lm[i + 1])
+        hc = h[i] + f * (h[i + 1] - h[i])
+        p = (math.degrees(math.atan2(hc.imag, hc.real)) + 180.0) % 360.0
+        p = p - 360.0 if p > 180.0 else p
+        if p < pm:
+            pm, wgc = p, float(w[i] * (w[i + 1] / w[i]) ** f)
+    # phase crossovers: Im L = 0 with Re L < 0
+    up, low = [], []
+    im = h.imag
+    for i in np.nonzero((np.sign(im[:-1]) != np.sign(im[1:])) & (im[:-1] != 0))[0]:
+        f = im[i] / (im[i] - im[i + 1])
+        re = h[i].real + f * (h[i + 1].real - h[i].real)
+        if re < 0:
+            gm = -1.0 / re
+            (up if gm >= 1.0 else low).append(gm)
     gm_db = 20.0 * math.log10(min(up)) if up else math.inf
     gm_low_db = 20.0 * math.log10(max(low)) if low else -math.inf
-    pms = np.atleast_1d(pms)
-    wgcs = np.atleast_1d(wgcs)
-    if pms.size:
-        i = int(np.argmin(pms))
-        pm, wgc = float(pms[i]), float(wgcs[i])
-    else:
-        pm, wgc = math.inf, math.nan
     return gm_db, gm_low_db, pm, wgc
 
 
@@ -201,6 +225,59 @@ def _step(cl: ct.StateSpace, out: int, t_end: float) -> dict[str, float]:
 
 
 # ----------------------------------------------------------------------------- analysis
+def _controller(vehicle_name: str, params: dict[str, float] | None, preset: str,
+                vehicle_overrides: dict[str, float] | None):
+    v = get_vehicle(vehicle_name)
+    if vehicle_overrides:
+        v = v.with_overrides(**vehicle_overrides)
+    ctrl = make_controller(v)
+    if preset != "default":
+        ctrl.apply_preset(preset)  # type: ignore[attr-defined]
+    for k, val in (params or {}).items():
+        ctrl.set_param(k, val)
+    return v, ctrl
+
+
+def _loops(v: VehicleParams, ctrl) -> dict[str, tuple[ct.StateSpace, _Law, float]]:
+    """Every loop as (discrete plant seen by the law, law, step horizon s); output 0 of the
+    plant is the loop's controlled variable."""
+    g = ctrl.linear_gains()
+    dt = ctrl.dt
+
+    def zoh(sys_c: ct.StateSpace) -> ct.StateSpace:
+        return ct.c2d(sys_c, dt, method="zoh")
+
+    loops: dict[str, tuple[ct.StateSpace, _Law, float]] = {}
+    # attitude and the lateral loops through it
+    for ax, tilt, J, sign in (("pitch", "x", v.Iyy, -1.0), ("roll", "y", v.Ixx, 1.0)):
+        att = _Law(kp=g[f"{ax}_kp"], kd=g[f"{ax}_kd"], ki0=g[f"{ax}_ki"])
+        loops[ax] = (zoh(_rot_axis(J, v.drag_rot, v.motor_tau)), att, 5.0)
+        k_vxy, k_xy = g["k_vxy"], g["k_xy"]
+        # position loop: attitude closed inside, plant outputs [pos, vel, tilt, rate]
+        inner = _close(zoh(_lateral(v, tilt)), _Law(kp=att.kp, kd=att.kd, ki0=att.ki0,
+                                                     i0=2, i1=3))
+        loops[tilt] = (inner, _Law(kp=k_vxy * k_xy, kd=k_vxy, i0=0, i1=1, sign=sign), 20.0)
+        # velocity loop: plant outputs [vel, tilt, rate]
+        inner_v = _close(zoh(_drop_pos(_lateral(v, tilt))),
+                         _Law(kp=att.kp, kd=att.kd, ki0=att.ki0, i0=1, i1=2))
+        loops["v" + tilt] = (inner_v, _Law(kp=k_vxy, kff=g["c_drag"], i0=0, i1=None,
+                                           sign=sign), 20.0)
+    # heading
+    loops["yaw"] = (zoh(_rot_axis(v.Izz, v.drag_rot, v.motor_tau)),
+                    _Law(kp=g["k_r"] * g["k_psi"], kd=g["k_r"]), 5.0)
+    if not g["yaw_rate_integrates"]:
+        loops["yaw_rate"] = (zoh(_drop_pos(_rot_axis(v.Izz, v.drag_rot, v.motor_tau))),
+                             _Law(kp=g["k_r"], i1=None), 5.0)
+    # vertical (plant input: downward force; the law is written for it)
+    k_z, k_vz = g["k_z"], g["k_vz"]
+    loops["alt"] = (zoh(_vertical(v)),
+                    _Law(kp=k_vz * k_z, kd=k_vz, ki0=g["ki_z_pos"] + g["ki_z_vpos"] * k_z,
+                         ki1=g["ki_z_vpos"]), 20.0)
+    loops["vz"] = (zoh(_drop_pos(_vertical(v))), _Law(kp=k_vz, ki0=g["ki_z_vel"], i1=None),
+                   10.0)
+    return loops
+
+
 def analyse(
     vehicle_name: str,
     params: dict[str, float] | None = None,
@@ -221,61 +298,16 @@ def analyse(
     -------
     {loop: {'gm_db' (upper gain margin), 'gm_low_db' (lower gain margin of a conditionally
             stable loop, -inf if none), 'pm_deg', 'wc_rad_s' (gain crossover),
-            'stable' (closed loop),
-            'rise_s', 'overshoot_pct', 'settling_s', 't63_s', 'final'}}
+            'stable' (closed loop), 'rise_s' (10-90 %), 'overshoot_pct', 'settling_s' (2 %),
+            't63_s' (time to 63 %), 'final' (DC gain)}}
     plus for the Bebop 2 an entry '_identified' comparing first-order time constants.
     """
-    v = get_vehicle(vehicle_name)
-    if vehicle_overrides:
-        v = v.with_overrides(**vehicle_overrides)
-    ctrl = make_controller(v)
-    if preset != "default":
-        ctrl.apply_preset(preset)  # type: ignore[attr-defined]
-    for k, val in (params or {}).items():
-        ctrl.set_param(k, val)
-    g = ctrl.linear_gains()  # type: ignore[attr-defined]
-    dt = ctrl.dt
-
-    def zoh(sys_c: ct.StateSpace) -> ct.StateSpace:
-        return ct.c2d(sys_c, dt, method="zoh")
-
+    v, ctrl = _controller(vehicle_name, params, preset, vehicle_overrides)
     res: dict[str, dict[str, float]] = {}
-
-    def record(name: str, G: ct.StateSpace, law: _Law, out: int, t_end: float) -> ct.StateSpace:
+    for name, (G, law, t_end) in _loops(v, ctrl).items():
         gm, gm_low, pm, wc = _margins(_loop_transfer(G, law))
-        cl = _close(G, law)
         res[name] = {"gm_db": gm, "gm_low_db": gm_low, "pm_deg": pm, "wc_rad_s": wc,
-                     **_step(cl, out, t_end)}
-        return cl
-
-    # attitude and the lateral loops through it
-    for ax, tilt, J, sign in (("pitch", "x", v.Iyy, -1.0), ("roll", "y", v.Ixx, 1.0)):
-        att = _Law(kp=g[f"{ax}_kp"], kd=g[f"{ax}_kd"], ki0=g[f"{ax}_ki"])
-        record(ax, zoh(_rot_axis(J, v.drag_rot, v.motor_tau)), att, 0, 5.0)
-        k_vxy, k_xy = g["k_vxy"], g["k_xy"]
-        # position loop: attitude closed inside, plant outputs [pos, vel, tilt, rate]
-        inner = _close(zoh(_lateral(v, tilt)), _Law(kp=att.kp, kd=att.kd, ki0=att.ki0,
-                                                     i0=2, i1=3))
-        record(tilt, inner, _Law(kp=k_vxy * k_xy, kd=k_vxy, i0=0, i1=1, sign=sign), 0, 20.0)
-        # velocity loop: plant outputs [vel, tilt, rate]
-        inner_v = _close(zoh(_drop_pos(_lateral(v, tilt))),
-                         _Law(kp=att.kp, kd=att.kd, ki0=att.ki0, i0=1, i1=2))
-        record("v" + tilt, inner_v,
-               _Law(kp=k_vxy, kff=g["c_drag"], i0=0, i1=None, sign=sign), 0, 20.0)
-
-    # heading
-    Gy = zoh(_rot_axis(v.Izz, v.drag_rot, v.motor_tau))
-    record("yaw", Gy, _Law(kp=g["k_r"] * g["k_psi"], kd=g["k_r"]), 0, 5.0)
-    if not g["yaw_rate_integrates"]:
-        Gr = zoh(_drop_pos(_rot_axis(v.Izz, v.drag_rot, v.motor_tau)))
-        record("yaw_rate", Gr, _Law(kp=g["k_r"], i1=None), 0, 5.0)
-
-    # vertical (plant input: downward force; law written for it)
-    Gz = zoh(_vertical(v))
-    k_z, k_vz = g["k_z"], g["k_vz"]
-    record("alt", Gz, _Law(kp=k_vz * k_z, kd=k_vz, ki0=g["ki_z_pos"] + g["ki_z_vpos"] * k_z,
-                           ki1=g["ki_z_vpos"]), 0, 20.0)
-    record("vz", zoh(_drop_pos(_vertical(v))), _Law(kp=k_vz, ki0=g["ki_z_vel"], i1=None), 0, 10.0)
+                     **_step(_close(G, law), 0, t_end)}
 
     if v.name == "bebop2":
         ident = {}
@@ -290,6 +322,26 @@ def analyse(
                                  / res["yaw_rate"]["t63_s"])
         res["_identified"] = ident
     return res
+
+
+def step_response(
+    vehicle_name: str,
+    loop: str,
+    t_end: float,
+    params: dict[str, float] | None = None,
+    *,
+    preset: str = "default",
+    vehicle_overrides: dict[str, float] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Linear closed-loop unit-step response of one loop: (t in s, controlled variable)."""
+    v, ctrl = _controller(vehicle_name, params, preset, vehicle_overrides)
+    loops = _loops(v, ctrl)
+    if loop not in loops:
+        raise ValueError(f"unknown loop {loop!r}; choose one of {', '.join(loops)}")
+    G, law, _ = loops[loop]
+    cl = _close(G, law)
+    T = np.arange(0.0, t_end + cl.dt / 2, cl.dt)
+    return T, np.squeeze(ct.step_response(cl[0, 0], T).outputs)
 
 
 def check(res: dict[str, dict[str, float]], pm_min: float = PM_MIN_DEG,
