@@ -116,21 +116,6 @@ def _inverse4(m: list[list[float]]) -> list[list[float]]:
     return [row[n:] for row in aug]
 
 
-def _wrap(a: float) -> float:
-    """Angle wrapped to [-pi, pi), rad."""
-    return (a + _PI) % _TWO_PI - _PI
-
-
-def _euler(s: VehicleState) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) ZYX Euler angles, rad, of the body->world quaternion of `s`."""
-    qw, qx, qy, qz = s.qw, s.qx, s.qy, s.qz
-    sp = 2.0 * (qw * qy - qz * qx)
-    sp = 1.0 if sp > 1.0 else (-1.0 if sp < -1.0 else sp)
-    return (_atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy)),
-            _asin(sp),
-            _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)))
-
-
 class _QuadController:
     """Shared cascade and mixer. Subclasses supply the parameter table and `_gains()`."""
 
@@ -355,7 +340,7 @@ class _QuadController:
         thrust = weight + k_vz * (vz - vzc) + i_z
         if boost_n and n < boost_n and sp.takeoff_boost:
             thrust += boost
-        if r33 > 0.5:
+        if r33 > 0.5:  # tilt compensation (the template has none), capped at 60 deg
             thrust /= r33
         else:
             thrust *= 2.0
@@ -518,8 +503,7 @@ class MamboController(_QuadController):
             "k_z": p["MC_Z_P"] / p["MC_Z_D"], "k_vz": p["MC_Z_D"],
             "ki_z_pos": p["MC_Z_I"], "ki_z_vpos": 0.0,
             # velocity mode: the same integral action expressed on the velocity error
-            "ki_z_vel": p["MC_Z_I"] * p["MC_Z_D"] / max(p["MC_Z_P"], 1e-9)
-            if p["MC_Z_P"] > 0.0 else 0.0,
+            "ki_z_vel": (p["MC_Z_I"] * p["MC_Z_D"] / p["MC_Z_P"]) if p["MC_Z_P"] > 0.0 else 0.0,
             "z_i_lim": p["MC_Z_I_LIM"],
             "vz_max": p["MPC_Z_VEL_MAX"],
             "thrust_max_total": p["MC_THR_MAX"] * 4.0 * v.thrust_max,
