@@ -583,13 +583,18 @@ def _rasterise(world: World, s: float, margin: float) -> tuple[np.ndarray, np.nd
         n = n0 - (np.arange(rows) + 0.5) / s
         e = e0 + (np.arange(cols) + 0.5) / s
         hl, hs = 0.5 * TILE_SIZE_M[0], 0.5 * TILE_SIZE_M[1]
-        n_long, n_short = _tile_coverage(n, hl, s)[:, None], _tile_coverage(n, hs, s)[:, None]
-        e_long, e_short = _tile_coverage(e, hl, s)[None, :], _tile_coverage(e, hs, s)[None, :]
-        parity = ((np.floor(n / TILE_PITCH_M).astype(np.int64)[:, None]
-                   + np.floor(e / TILE_PITCH_M).astype(np.int64)[None, :]) & 1).astype(bool)
+        f32 = np.float32
+        n_long, n_short = (_tile_coverage(n, hl, s).astype(f32)[:, None],
+                           _tile_coverage(n, hs, s).astype(f32)[:, None])
+        e_long, e_short = (_tile_coverage(e, hl, s).astype(f32)[None, :],
+                           _tile_coverage(e, hs, s).astype(f32)[None, :])
+        odd = np.not_equal((np.floor(n / TILE_PITCH_M).astype(np.int64) & 1)[:, None],
+                           (np.floor(e / TILE_PITCH_M).astype(np.int64) & 1)[None, :])
         # even cells: long side along East; odd cells: long side along North
-        alpha = np.where(parity, n_long * e_short, n_short * e_long).astype(np.float32)
-        _blend(img, slice(0, rows), slice(0, cols), alpha, world.tile_rgb)
+        alpha = np.where(odd, n_long * e_short, n_short * e_long)
+        for ch in range(3):
+            b, tl = float(world.floor_rgb[ch]), float(world.tile_rgb[ch])
+            img[..., ch] = np.rint(b + alpha * f32(tl - b))
     for dsh in world.distractors:
         if dsh.shape == "disc":
             pieces = [("disc", (dsh.center, 0.5 * dsh.size))]
