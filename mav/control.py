@@ -239,7 +239,10 @@ class _QuadController:
 
     # ---------------------------------------------------------------- hot path
     def update(self, s: VehicleState, sp: Setpoint, out: list[float]) -> None:
-        """One control tick: state estimate + setpoint -> motor commands u1..u4 in out[0:4]."""
+        """One control tick: state estimate + setpoint -> motor commands u1..u4 in out[0:4].
+
+        The state must be finite (the estimator's job); a NaN still never reaches the motors
+        (the commands are clipped NaN-safe into [0, 1])."""
         if not sp.armed:
             out[0] = out[1] = out[2] = out[3] = 0.0
             if self._n:
@@ -367,9 +370,10 @@ class _QuadController:
             yref = yr
             r_ff = 0.0
         elif rr == rr:
-            r_ff = rr
+            # limited first, so the integrated heading reference cannot run away
+            r_ff = r_max if rr > r_max else (-r_max if rr < -r_max else rr)
             if integ:
-                yref = self._yaw_ref + rr * dt
+                yref = self._yaw_ref + r_ff * dt
                 if yref > _PI or yref < -_PI:
                     yref = (yref + _PI) % _TWO_PI - _PI
             else:
@@ -393,10 +397,10 @@ class _QuadController:
         b2 = m1t * thrust + m1m * tq_m + m1l * tq_l
         b3 = m2t * thrust + m2m * tq_m + m2l * tq_l
         b4 = m3t * thrust + m3m * tq_m + m3l * tq_l
-        b1 = 0.0 if b1 < 0.0 else (t_max if b1 > t_max else b1)
-        b2 = 0.0 if b2 < 0.0 else (t_max if b2 > t_max else b2)
-        b3 = 0.0 if b3 < 0.0 else (t_max if b3 > t_max else b3)
-        b4 = 0.0 if b4 < 0.0 else (t_max if b4 > t_max else b4)
+        b1 = t_max if b1 > t_max else (b1 if b1 > 0.0 else 0.0)  # NaN -> 0
+        b2 = t_max if b2 > t_max else (b2 if b2 > 0.0 else 0.0)  # NaN -> 0
+        b3 = t_max if b3 > t_max else (b3 if b3 > 0.0 else 0.0)  # NaN -> 0
+        b4 = t_max if b4 > t_max else (b4 if b4 > 0.0 else 0.0)  # NaN -> 0
         d = my * tq_n  # rotors 1, 2 get +d, rotors 3, 4 get -d
         if d > 0.0:
             h = min(t_max - b1, t_max - b2, b3, b4)
@@ -406,6 +410,8 @@ class _QuadController:
             h = min(b1, b2, t_max - b3, t_max - b4)
             if -d > h:
                 d = -h
+        else:
+            d = 0.0  # also for NaN
         b1 += d
         b2 += d
         b3 -= d

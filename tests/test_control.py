@@ -213,6 +213,29 @@ def test_outputs_stay_in_unit_range_under_absurd_inputs(v):
         assert all(0.0 <= ui <= 1.0 and math.isfinite(ui) for ui in u)
 
 
+@pytest.mark.parametrize("v", VEHICLES, ids=IDS)
+def test_nan_state_never_reaches_the_motors(v):
+    ctrl = make_controller(v)
+    s = hover_state()
+    s.q = math.nan
+    u = one_tick(ctrl, s, hold_setpoint(hover_state()))
+    assert all(0.0 <= ui <= 1.0 for ui in u)
+
+
+@pytest.mark.parametrize("v", VEHICLES, ids=IDS)
+def test_yaw_rate_setpoint_is_limited(v):
+    """An excessive yaw-rate setpoint is cut to MC_YAWRATE_MAX (the heading reference of the
+    Mambo integrates the limited rate, so it cannot run away)."""
+    ctrl = make_controller(v)
+    ctrl.set_param("MC_YAWRATE_MAX", 30.0)
+    g = ctrl.linear_gains()
+    s = hover_state()
+    sp = hold_setpoint(s, yaw=math.nan)
+    sp.yaw_rate = 100.0
+    N = wrench(v, one_tick(ctrl, s, sp))[1]
+    assert N == pytest.approx(g["k_r"] * math.radians(30.0), rel=1e-9)
+
+
 def test_mambo_takeoff_boost_first_ticks_after_arming():
     ctrl = make_controller(MAMBO)
     s = hover_state(z=0.0)
