@@ -17,7 +17,10 @@ Downward camera model (reference/minidrone.md §3):
 - The floor plane z = 0 is rendered through the plane-induced homography: output pixel ->
   world (N, E) on the floor -> floor texture pixel, one ``cv2.warpPerspective`` at
   ``supersample`` x resolution, then ``cv2.resize(INTER_AREA)`` down (box filter), so thin
-  lines keep their area and do not break up.
+  lines keep their area and do not break up. The texture (300 px/m by default, 3.3 mm) is
+  sampled bilinearly; ``interpolation = "nearest"`` is ~2.5x faster (0.21 vs 0.52 ms per
+  160 x 120 frame at supersample 2 on the development machine) and keeps points within
+  0.5 px, but biases the width of axis-aligned lines by up to ~0.5 px.
 - No floor in view: pixels whose ray does not hit the floor in front of the camera (at or
   above the horizon, |tilt| > ~55 deg) are black (0, 0, 0); with the camera at or below the
   floor (e.g. on the ground, camera 0.1 m below the CoG) the whole frame is black. Beyond the
@@ -85,6 +88,7 @@ class CameraConfig:
     lighting_noise: float = 0.0                     # 1, std of the per-frame gain around 1
     supersample: int = 2                            # render at k x resolution, box-filter down
     texture_px_per_m: float = 300.0                 # px/m, floor texture resolution
+    interpolation: str = "linear"                   # texture sampling: "linear" or "nearest"
 
     @property
     def focal_px(self) -> float:
@@ -108,7 +112,7 @@ class CameraConfig:
         if not isinstance(d, Mapping):
             raise ScenarioError(where, d, "a table")
         known = {"width", "height", "vfov_deg", "mount_B", "noise_std", "lighting_noise",
-                 "supersample", "texture_px_per_m"}
+                 "supersample", "texture_px_per_m", "interpolation"}
         for k in d:
             if k not in known:
                 raise ScenarioError(f"{where}.{k}", d[k],
@@ -139,6 +143,11 @@ class CameraConfig:
                 raise ScenarioError(f"{where}.mount_B", v,
                                     "[x, y, z] body FRD offset in metres, each |.| <= 1")
             kw["mount_B"] = (float(v[0]), float(v[1]), float(v[2]))
+        if "interpolation" in d:
+            if d["interpolation"] not in ("linear", "nearest"):
+                raise ScenarioError(f"{where}.interpolation", d["interpolation"],
+                                    "'linear' or 'nearest'")
+            kw["interpolation"] = d["interpolation"]
         return cls(**kw)
 
 
@@ -192,6 +201,8 @@ class DownwardCamera:
                                      [-0.5, h_hi - 0.5, 1.0], [w_hi - 0.5, h_hi - 0.5, 1.0]]).T
         self._border = tuple(float(c) for c in world.floor_rgb)
         self._mount_B = np.asarray(cfg.mount_B, dtype=float)
+        interp = cv2.INTER_NEAREST if cfg.interpolation == "nearest" else cv2.INTER_LINEAR
+        self._warp_flags = interp | cv2.WARP_INVERSE_MAP
         self._G = np.zeros((3, 3))
         self._G[2, 2] = 1.0
         self._grid_hi: tuple[np.ndarray, np.ndarray] | None = None
@@ -231,8 +242,7 @@ class DownwardCamera:
         if c_z >= -1e-6 or dz_corners.max() <= 0.0:
             out = np.zeros((cfg.height, cfg.width, 3), np.uint8)   # no floor in view
         else:
-            hi = cv2.warpPerspective(self.texture, M, self._size_hi,
-                                     flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            hi = cv2.warpPerspective(self.texture, M, self._size_hi, flags=self._warp_flags,
                                      borderMode=cv2.BORDER_CONSTANT, borderValue=self._border)
             if dz_corners.min() <= 1e-9:            # horizon in view: black above it
                 if self._grid_hi is None:

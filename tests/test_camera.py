@@ -211,6 +211,7 @@ def test_renderer_protocol_and_project_method():
     ({"supersample": 0}, "camera.supersample"),
     ({"mount_B": [0, 0]}, "camera.mount_B"),
     ({"fov": 45}, "camera.fov"),
+    ({"interpolation": "cubic"}, "camera.interpolation"),
 ])
 def test_config_validation(table, field):
     with pytest.raises(ScenarioError) as ei:
@@ -223,6 +224,16 @@ def test_config_from_dict():
                                 "mount_B": [0.01, 0, 0.1], "vfov_deg": 50})
     assert (c.noise_std, c.lighting_noise, c.supersample) == (3.0, 0.05, 3)
     assert c.mount_B == (0.01, 0.0, 0.1) and c.vfov_deg == 50.0
+
+
+def test_nearest_interpolation_keeps_the_geometry():
+    pts = [(5.0, 5.0), (5.25, 5.1), (4.8, 4.7)]
+    q = quat_from_euler(0.1, -0.05, 0.7)
+    cam = DownwardCamera(dots_world(pts), CameraConfig(interpolation="nearest"))
+    found = blob_centroids(cam.render(P0, q))
+    for p in pts:
+        e = project_floor_point(p, P0, q)
+        assert min(math.dist(e, f) for f in found) < 0.5
 
 
 def test_custom_resolution_keeps_the_centre():
