@@ -260,7 +260,7 @@ def test_takeoff_before_arm_waits_and_yaw_param():
     rig.tick()
     assert rig.ob.landed_state == M.MAV_LANDED_STATE_TAKEOFF
     assert rig.ob.setpoint.yaw == pytest.approx(math.pi / 2)
-    assert rig.ob.setpoint.takeoff_boost
+    assert rig.ob.setpoint.vz == -0.8          # the ramp climbs at MPC_TKO_SPEED (fed forward)
     assert min(rig.u) > 0.3
 
 

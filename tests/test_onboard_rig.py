@@ -25,7 +25,7 @@ APP_SYSID, APP_COMPID = 1, 191
 class Rig:
     def __init__(self, *, plant: bool = False, vehicle: str = "mambo", controller=None,
                  app_key: bytes | None = None, gcs_key: bytes | None = None,
-                 decode: bool = True, **cfg) -> None:
+                 decode: bool = True, client: bool = False, **cfg) -> None:
         self.hil, hil_v = MemoryLink.pair()
         self.api_link, api_v = MemoryLink.pair()
         self.gcs_link, gcs_v = MemoryLink.pair()
@@ -40,6 +40,11 @@ class Rig:
                 sg.secret_key, sg.sign_outgoing, sg.link_id = key, True, 7
                 sg.timestamp = 283996800 * 100000 + 1     # 2024-01-01, like the vehicle
         self.links = {"api": self.api_link, "gcs": self.gcs_link}
+        self.client = None
+        if client:                  # an OffboardClient owns the app's end of the API link
+            from mav.client import OffboardClient
+
+            self.client = OffboardClient(self.api_link, signing_key=app_key)
         self.k = 0
         # x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r: at rest on the floor, heading north
         self.odo = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
@@ -59,12 +64,28 @@ class Rig:
     def t_us(self) -> int:
         return self.k * TICK_US
 
+    @property
+    def t(self) -> float:
+        return self.k * TICK_US * 1e-6
+
+    def run_until(self, cond, timeout_s: float, each=None) -> float:
+        """Tick until cond(rig) is true; returns the time it took (s); fails on timeout."""
+        t0 = self.k
+        limit = self.k + round(timeout_s * 200)
+        while not cond(self):
+            assert self.k < limit, f"not reached within {timeout_s} s (t = {self.t:.2f} s)"
+            self.tick(1, each)
+        return (self.k - t0) * TICK_US * 1e-6
+
     def set_yaw(self, yaw: float) -> None:
         self.odo[3:7] = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
 
     def tick(self, n: int = 1, each=None) -> None:
-        """n lockstep ticks; `each(rig)` runs before each HIL exchange (the app's tick)."""
+        """n lockstep ticks; `each(rig)` runs before each HIL exchange (the app's tick, after
+        `client.poll(t)` when the rig has a client)."""
         for _ in range(n):
+            if self.client is not None:
+                self.client.poll(self.k * TICK_US * 1e-6)
             if each is not None:
                 each(self)
             if self.plant is not None:
@@ -90,6 +111,8 @@ class Rig:
 
     def _collect(self) -> None:
         for name, link in self.links.items():
+            if name == "api" and self.client is not None:
+                continue
             while (d := link.recv()) is not None:
                 self.raw[name].append(d)
                 if self.decode:
@@ -151,3 +174,62 @@ def test_rig_ticks_and_answers():
     assert [a[0] for a in rig.answers] == [0, 5000, 10000]
     assert rig.ob.stats["ticks"] == 3
     assert rig.last("gcs", "HEARTBEAT") is not None
+
+
+class UdpSim:
+    """The simulator end of a SIL vehicle: ODOMETRY over UDP to the onboard process's HIL
+    port, blocking for each HIL_ACTUATOR_CONTROLS answer (lockstep), stepping a Plant or
+    feeding a fixed state."""
+
+    def __init__(self, hil_port: int, *, vehicle: str = "mambo", plant: bool = True,
+                 timeout_s: float = 3.0) -> None:
+        import socket
+
+        from mav.hil import HilSimulatorCodec
+
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(timeout_s)
+        self.remote = ("127.0.0.1", hil_port)
+        self.codec = HilSimulatorCodec()
+        self.k = 0
+        self.odo = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self.u = (0.0, 0.0, 0.0, 0.0)
+        self.plant = None
+        if plant:
+            from cosim.plant import Plant
+            from cosim.vehicles import get_vehicle
+
+            self.plant = Plant(get_vehicle(vehicle))
+
+    @property
+    def t(self) -> float:
+        return self.k * TICK_US * 1e-6
+
+    @property
+    def pos(self) -> tuple[float, float, float]:
+        if self.plant is None:
+            return tuple(self.odo[:3])
+        return tuple(self.plant.y[:3])
+
+    def tick(self) -> None:
+        from cosim.plant import Y_P, Y_QW, Y_VX, Y_X
+
+        if self.plant is not None:
+            y = self.plant.y
+            m = tuple(y[Y_X:Y_X + 3] + y[Y_QW:Y_QW + 4] + y[Y_VX:Y_VX + 3] + y[Y_P:Y_P + 3])
+        else:
+            m = self.odo
+        t_us = self.k * TICK_US
+        self.sock.sendto(self.codec.encode_odometry(t_us, m), self.remote)
+        t_ans, *u = self.codec.decode_actuators(self.sock.recv(65535))
+        assert t_ans == t_us
+        self.u = tuple(u)
+        if self.plant is not None:
+            self.plant.step(*u)
+        self.k += 1
+
+    def close(self) -> None:
+        self.sock.close()
+        if self.plant is not None:
+            self.plant.close()
