@@ -1,0 +1,52 @@
+"""`cosim sweep`: the process pool gives the same results as running serially, and (slow)
+the alpha trade-off of paper 1 on the seed track."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+COSIM = [sys.executable, "-m", "cosim.cli"]
+
+
+def _sweep(tmp: Path, scenario: str, sets: list[str], executor: str) -> list[dict[str, str]]:
+    args = [*COSIM, "sweep", str(ROOT / "scenarios" / scenario), "--executor", executor,
+            "--out", str(tmp)]
+    for s in sets:
+        args += ["--set", s]
+    r = subprocess.run(args, capture_output=True, text=True, timeout=1200)
+    assert r.returncode in (0, 1), r.stderr
+    assert (tmp / "sweep.png").stat().st_size > 0
+    return list(csv.DictReader(open(tmp / "sweep.csv")))
+
+
+def test_pool_and_serial_agree(tmp_path):
+    sets = ["timing.t_final_s=3.0,4.0", "seed=0,1"]
+    a = _sweep(tmp_path / "pool", "scripted_square.toml", sets, "local")
+    b = _sweep(tmp_path / "serial", "scripted_square.toml", sets, "serial")
+    assert len(a) == 4
+    strip = [{k: v for k, v in r.items() if k != "real_time_factor"} for r in a]
+    assert strip == [{k: v for k, v in r.items() if k != "real_time_factor"} for r in b]
+    assert {r["exit_reason"] for r in a} == {"time_limit"}
+
+
+@pytest.mark.slow
+def test_alpha_trade_off_on_the_seed_track(tmp_path):
+    alphas = [0.0038, 0.006, 0.008, 0.010, 0.012]
+    rows = _sweep(tmp_path, "mambo_seed_track.toml",
+                  ["app.alpha=" + ",".join(map(str, alphas))], "local")
+    assert [float(r["app.alpha"]) for r in rows] == alphas
+    assert all(r["exit_reason"] == "mission_complete" for r in rows)
+    times = [float(r["mission_time_s"]) for r in rows]
+    speeds = [float(r["speed_mean_mps"]) for r in rows]
+    assert times == sorted(times, reverse=True)         # larger alpha, shorter mission
+    assert speeds == sorted(speeds)                     # ... and faster
+    for a, v in zip(alphas, speeds, strict=True):       # speed ~ proportional to alpha
+        assert v / a == pytest.approx(speeds[0] / alphas[0], rel=0.2)
+    rms = [float(r["path_error_rms_m"]) for r in rows]
+    assert rms[-1] > min(rms) * 2                       # the fastest is the least accurate
