@@ -311,8 +311,6 @@ class Onboard:
         self.mode = POSCTL
         self.landed_state = ON_GROUND
         self._home: tuple[float, float, float] | None = None   # NED, m
-        self._home_yaw = 0.0
-        self._yaw = 0.0                # rad, heading of the last state
         self._hb_now = False           # send a HEARTBEAT at the end of this tick (mode/arm)
         self._ext_now = False          # EXTENDED_SYS_STATE now (landed state changed)
         self._home_now = False
@@ -458,7 +456,6 @@ class Onboard:
         else:   # body FRD velocity -> world NED
             s.vx, s.vy, s.vz = _rotate_body_to_world(qw, qx, qy, qz, vx, vy, vz)
         s.p, s.q, s.r = p, q, r
-        self._yaw = wire.yaw_from_quat(qw, qx, qy, qz)
         if not self._have_state:
             self._have_state = True
             self._set_home()
@@ -626,7 +623,8 @@ class Onboard:
                 use_rate and not abs(yaw_rate) <= SP_MAX_YAW_RATE):
             return self._reject_sp("range", "setpoint yaw not finite or out of range")
         if frame == M.MAV_FRAME_BODY_NED and use_vxy:
-            c, s = math.cos(self._yaw), math.sin(self._yaw)
+            yaw_now = self._heading()
+            c, s = math.cos(yaw_now), math.sin(yaw_now)
             vx, vy = c * vx - s * vy, s * vx + c * vy
         of = self._of
         of.x = x if use_pxy else NAN
@@ -682,7 +680,7 @@ class Onboard:
             sp.clear()
             sp.x, sp.y = self.state.x, self.state.y
             sp.vz = self._own["MPC_LAND_SPEED"]
-            sp.yaw = self._yaw
+            sp.yaw = self._heading()
             if self.landed_state != ON_GROUND:
                 self._set_landed(LANDING)
             elif self.armed and self._ground_since < 0:
@@ -697,11 +695,16 @@ class Onboard:
             self._tko_ramp_done_us = -1
         self.setpoint = self._of if mode == OFFBOARD else sp
 
+    def _heading(self) -> float:
+        """Heading (rad) of the current state; computed on demand, not every tick."""
+        s = self.state
+        return wire.yaw_from_quat(s.qw, s.qx, s.qy, s.qz)
+
     def _hold_here(self) -> None:
         sp = self._sp
         s = self.state
         sp.clear()
-        sp.x, sp.y, sp.z, sp.yaw = s.x, s.y, s.z, self._yaw
+        sp.x, sp.y, sp.z, sp.yaw = s.x, s.y, s.z, self._heading()
 
     def _set_landed(self, ls: int) -> None:
         if ls != self.landed_state:
@@ -719,7 +722,6 @@ class Onboard:
     def _set_home(self) -> None:
         s = self.state
         self._home = (s.x, s.y, s.z)
-        self._home_yaw = self._yaw
         self._home_now = True
 
     def _step_modes(self, t: int) -> None:
@@ -932,7 +934,7 @@ class Onboard:
         s = self.state
         self._tko_x, self._tko_y = s.x, s.y
         self._tko_z = home_d - rel
-        self._tko_yaw = math.radians(yaw_deg) if math.isfinite(yaw_deg) else self._yaw
+        self._tko_yaw = math.radians(yaw_deg) if math.isfinite(yaw_deg) else self._heading()
         self._set_mode(TAKEOFF)
         return M.MAV_RESULT_ACCEPTED
 
@@ -1160,12 +1162,20 @@ class Onboard:
             if self._home_now:
                 self._emit_home_position(ch)
             if t >= ch.next_due:
+                due = 1 << 62
                 for s in ch.streams:
-                    if s.interval_us > 0 and t >= s.next_us:
-                        s.emit(ch)
-                        nxt = s.next_us + s.interval_us
-                        s.next_us = nxt if nxt > t else t + s.interval_us
-                ch.recompute_due()
+                    iv = s.interval_us
+                    if iv > 0:
+                        nxt = s.next_us
+                        if t >= nxt:
+                            s.emit(ch)
+                            nxt += iv
+                            if nxt <= t:
+                                nxt = t + iv
+                            s.next_us = nxt
+                        if nxt < due:
+                            due = nxt
+                ch.next_due = due
             q = ch.param_queue
             if q:
                 for idx in q[:PARAM_BURST]:
@@ -1235,7 +1245,7 @@ class Onboard:
         s = self.state
         lat, lon, alt = self.geo.to_int(s.x, s.y, s.z)
         rel = wire.clamp_int(self._agl() * 1000.0, -(1 << 31), (1 << 31) - 1)
-        hdg = wire.clamp_int(math.degrees(self._yaw) % 360.0 * 100.0, 0, 35999)
+        hdg = wire.clamp_int(math.degrees(self._heading()) % 360.0 * 100.0, 0, 35999)
         ci = wire.clamp_int
         ch.send(wire.pack(ch.mav, wire.GLOBAL_POSITION_INT, self._time_boot_ms(), lat, lon, alt,
                           rel, ci(s.vx * 100.0, -32768, 32767), ci(s.vy * 100.0, -32768, 32767),
@@ -1289,7 +1299,7 @@ class Onboard:
         u = self.u
         thr = wire.clamp_int(25.0 * (u[0] + u[1] + u[2] + u[3]), 0, 100)
         ch.send(wire.pack(ch.mav, wire.VFR_HUD, gs, gs, self.cfg.origin_alt_m - s.z, -s.vz,
-                          wire.clamp_int(math.degrees(self._yaw) % 360.0, 0, 359), thr))
+                          wire.clamp_int(math.degrees(self._heading()) % 360.0, 0, 359), thr))
 
     def _emit_autopilot_version(self, ch: _Chan) -> None:
         ch.send(wire.send_msg(ch.mav, M.MAVLink_autopilot_version_message(
