@@ -218,10 +218,15 @@ def test_euler_and_clamp():
 
 
 def test_fast_codec_is_faster_than_pymavlink():
-    """The point of the fast path (numbers: `python -m mav.wire`)."""
-    res = wire.bench(n=2000, repeat=3)
-    for name, (py, fast) in res.items():
-        assert fast < py, name
-    enc = res["HIL_ACTUATOR_CONTROLS encode"]
-    dec = res["ODOMETRY decode"]
-    assert enc[1] * 2 < enc[0] and dec[1] * 4 < dec[0]
+    """The point of the fast path (numbers: `python -m mav.wire`). Timing on a shared
+    machine: best of 5 runs per number, and one re-measurement before failing."""
+    def ok(res) -> bool:
+        enc = res["HIL_ACTUATOR_CONTROLS encode"]
+        dec = res["ODOMETRY decode"]
+        return (all(fast < py for py, fast in res.values())
+                and enc[1] * 2 < enc[0] and dec[1] * 4 < dec[0])
+
+    res = wire.bench(n=2000, repeat=5)
+    if not ok(res):
+        res = wire.bench(n=2000, repeat=5)
+    assert ok(res), res
