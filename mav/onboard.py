@@ -536,7 +536,8 @@ class Onboard:
                 continue
             frames += 1
             msgid = wire.msgid_of(data, i)
-            if msgid == M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED and not ch.signed:
+            if (msgid == M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED and not ch.signed
+                    and data[i] == wire.MAGIC_V2):
                 f = wire.decode_fast(wire.SET_POSITION_TARGET_LOCAL_NED, data, i, end)
                 if f is None:
                     st[bad_key] += 1

@@ -665,3 +665,47 @@ def test_deterministic_bytes_mil():
         return rig.raw["api"], rig.raw["gcs"], rig.answers
 
     assert run() == run()
+
+
+def test_set_vehicle_params_rebuilds_controller_and_keeps_user_params():
+    rig = Rig()
+    rig.tick()
+    name = rig.ob._ctrl.param_table()[0].name
+    spec = rig.ob.params.spec(name)
+    new = spec.max if spec.max != spec.default else spec.min
+    rig.send("gcs", M.MAVLink_param_set_message(1, 1, name.encode(), new,
+                                                M.MAV_PARAM_TYPE_REAL32))
+    rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"MPC_LAND_SPEED", 0.25,
+                                                M.MAV_PARAM_TYPE_REAL32))
+    rig.tick()
+    old_ctrl = rig.ob._ctrl
+    heavier = rig.ob.vehicle.with_overrides(mass=0.07)
+    rig.ob.set_vehicle_params(heavier)
+    assert rig.ob._ctrl is not old_ctrl and rig.ob._ctrl.vehicle.mass == 0.07
+    assert rig.ob.params.get(name) == pytest.approx(new, rel=1e-6)
+    assert rig.ob.params.get("MPC_LAND_SPEED") == pytest.approx(0.25)
+    assert rig.ob.battery.u_hover == pytest.approx(heavier.u_hover)
+    rig.tick()
+
+
+def test_stream_rates_from_config():
+    rig = Rig(api_rates_hz={"ATTITUDE": 100.0, "HEARTBEAT": 2.0}, gcs_rates_hz={})
+    rig.tick(200)
+    assert len(rig.msgs("api", "ATTITUDE")) == 100 and len(rig.msgs("api", "HEARTBEAT")) == 2
+    assert len(rig.msgs("api", "LOCAL_POSITION_NED")) == 0
+    assert rig.rx["gcs"] == [] or {m.get_type() for _, m in rig.rx["gcs"]} <= {"HOME_POSITION"}
+
+
+def test_mavlink1_packets_are_understood():
+    """mavutil talks MAVLink 1 until it has seen a MAVLink 2 packet."""
+    rig = Rig()
+    rig.tick()
+    v1 = M.MAVLink(None, 255, 190)
+    sp = M.MAVLink_set_position_target_local_ned_message(0, 1, 1, 1, POS_ONLY, 1.0, 2.0, -1.0,
+                                                         0, 0, 0, 0, 0, 0, 0, 0)
+    rig.send_raw("api", sp.pack(v1, force_mavlink1=True))
+    rig.send_raw("gcs", M.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)
+                 .pack(v1, force_mavlink1=True))
+    rig.tick()
+    assert rig.ob.stats["setpoints"] == 1 and rig.ob._of.x == 1.0
+    assert rig.ob.armed and rig.ob.stats["dropped_bad_api"] == 0

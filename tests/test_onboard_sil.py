@@ -164,7 +164,8 @@ def test_hil_silence_exits(tmp_path):
     (["--hil-timeout", "0"], "seconds > 0"),
 ])
 def test_bad_arguments_exit_2(args, msg):
-    r = subprocess.run([sys.executable, "-m", "mav.onboard", *args], capture_output=True,
+    module = "mav" if args[0] == "--vehicle" else "mav.onboard"     # `python -m mav` too
+    r = subprocess.run([sys.executable, "-m", module, *args], capture_output=True,
                        text=True, timeout=30)
     assert r.returncode == 2 and msg in r.stderr
 
