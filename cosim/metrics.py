@@ -31,7 +31,7 @@ def compute_metrics(res: RunResult, world) -> dict[str, Any]:
     t_takeoff = ev.get("takeoff_command")
     if res.touchdown is not None and t_takeoff is not None:
         m["mission_time_s"] = res.touchdown[0] - t_takeoff
-    if "following" in res.phases and len(s):
+    if "following" in res.phases and len(s) and world.centreline():
         mask = s[:, COL["phase"]] == res.phases.index("following")
         if mask.any():
             xy = s[mask][:, [COL["x"], COL["y"]]]

@@ -38,7 +38,9 @@ def plot_run(res, world, out: Path) -> list[Path]:
     ax.set_title(f"{res.scenario.name}: {res.exit_reason.value}")
     paths.append(_save(fig, out / "trajectory.png"))
 
-    fig, axs = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    has_track = bool(world.centreline())
+    fig, axs = plt.subplots(3 if has_track else 2, 1, figsize=(8, 7 if has_track else 5),
+                            sharex=True)
     axs[0].plot(t, -s[:, COL["z"]], label="altitude")
     sp = -s[:, COL["sp_z"]]
     axs[0].plot(t, sp, "--", label="setpoint")
@@ -49,10 +51,11 @@ def plot_run(res, world, out: Path) -> list[Path]:
     axs[1].plot(t, np.hypot(s[:, COL["vx"]], s[:, COL["vy"]]), "k", lw=0.8, label="|v_h|")
     axs[1].set_ylabel("velocity NED (m/s)")
     axs[1].legend(fontsize=8, ncol=4)
-    d, _ = world.distance_to_track(s[:, [COL["x"], COL["y"]]])
-    axs[2].plot(t, d, label="distance to track")
-    axs[2].set_ylabel("path error (m)")
-    axs[2].set_xlabel("time (s)")
+    if has_track:
+        d, _ = world.distance_to_track(s[:, [COL["x"], COL["y"]]])
+        axs[2].plot(t, d, label="distance to track")
+        axs[2].set_ylabel("path error (m)")
+    axs[-1].set_xlabel("time (s)")
     for a in axs:
         a.grid(True, alpha=0.3)
     paths.append(_save(fig, out / "timeseries.png"))
