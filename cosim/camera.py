@@ -18,9 +18,10 @@ Downward camera model (reference/minidrone.md §3):
   world (N, E) on the floor -> floor texture pixel, one ``cv2.warpPerspective`` at
   ``supersample`` x resolution, then ``cv2.resize(INTER_AREA)`` down (box filter), so thin
   lines keep their area and do not break up. The texture (300 px/m by default, 3.3 mm) is
-  sampled bilinearly; ``interpolation = "nearest"`` is ~2.5x faster (0.21 vs 0.52 ms per
-  160 x 120 frame at supersample 2 on the development machine) and keeps points within
-  0.5 px, but biases the width of axis-aligned lines by up to ~0.5 px.
+  sampled bilinearly (from an RGBA copy: OpenCV's 4-channel warp is ~1.8x faster and gives
+  the same bytes); ``interpolation = "nearest"`` is faster still and keeps points within
+  0.5 px, but biases the width of axis-aligned lines by up to ~0.5 px. OpenCV runs
+  single-threaded (one run uses one core).
 - No floor in view: pixels whose ray does not hit the floor in front of the camera (at or
   above the horizon, |tilt| > ~55 deg) are black (0, 0, 0); with the camera at or below the
   floor (e.g. on the ground, camera 0.1 m below the CoG) the whole frame is black. Beyond the
@@ -186,10 +187,16 @@ class DownwardCamera:
     """
 
     def __init__(self, world: World, config: CameraConfig | None = None, seed: int = 0) -> None:
+        # One run uses one core (ARCHITECTURE.md, Scale): OpenCV's worker threads would take
+        # the second core from the SIL onboard process or from the other runs of a sweep.
+        cv2.setNumThreads(1)
         self.world = world
         self.config = cfg = config or CameraConfig()
         self.rng = np.random.default_rng(seed)
-        self.texture, self.T_tex_W = world.floor_image(cfg.texture_px_per_m)
+        texture, self.T_tex_W = world.floor_image(cfg.texture_px_per_m)
+        # Sampled as RGBA: OpenCV's 4-channel warp is ~1.8x faster than its 3-channel one and
+        # gives the same R, G, B bytes (each channel is interpolated on its own; tested).
+        self._texture4 = cv2.cvtColor(texture, cv2.COLOR_RGB2RGBA)
         k = cfg.supersample
         self._size_hi = (cfg.width * k, cfg.height * k)        # cv2 (width, height)
         self._size = (cfg.width, cfg.height)
@@ -199,7 +206,7 @@ class DownwardCamera:
         w_hi, h_hi = self._size_hi
         self._corners_hi = np.array([[-0.5, -0.5, 1.0], [w_hi - 0.5, -0.5, 1.0],
                                      [-0.5, h_hi - 0.5, 1.0], [w_hi - 0.5, h_hi - 0.5, 1.0]]).T
-        self._border = tuple(float(c) for c in world.floor_rgb)
+        self._border = (*(float(c) for c in world.floor_rgb), 255.0)
         self._mount_B = np.asarray(cfg.mount_B, dtype=float)
         interp = cv2.INTER_NEAREST if cfg.interpolation == "nearest" else cv2.INTER_LINEAR
         self._warp_flags = interp | cv2.WARP_INVERSE_MAP
@@ -242,7 +249,7 @@ class DownwardCamera:
         if c_z >= -1e-6 or dz_corners.max() <= 0.0:
             out = np.zeros((cfg.height, cfg.width, 3), np.uint8)   # no floor in view
         else:
-            hi = cv2.warpPerspective(self.texture, M, self._size_hi, flags=self._warp_flags,
+            hi = cv2.warpPerspective(self._texture4, M, self._size_hi, flags=self._warp_flags,
                                      borderMode=cv2.BORDER_CONSTANT, borderValue=self._border)
             if dz_corners.min() <= 1e-9:            # horizon in view: black above it
                 if self._grid_hi is None:
@@ -250,12 +257,16 @@ class DownwardCamera:
                     self._grid_hi = (np.arange(w_hi, dtype=float)[None, :],
                                      np.arange(h_hi, dtype=float)[:, None])
                 u, v = self._grid_hi
-                hi[dz[0] * u + dz[1] * v + dz[2] <= 1e-9] = NO_FLOOR_RGB
+                hi[dz[0] * u + dz[1] * v + dz[2] <= 1e-9] = (*NO_FLOOR_RGB, 255)
             if cfg.supersample > 1:
-                out = cv2.resize(hi, self._size, interpolation=cv2.INTER_AREA)
-            else:
-                out = hi
+                hi = cv2.resize(hi, self._size, interpolation=cv2.INTER_AREA)
+            out = cv2.cvtColor(hi, cv2.COLOR_RGBA2RGB)
         return self._add_noise(out)
+
+    @property
+    def texture(self) -> np.ndarray:
+        """The floor texture (rows x cols x 3 uint8 RGB view); `T_tex_W` maps world to it."""
+        return self._texture4[:, :, :3]
 
     def _add_noise(self, img: np.ndarray) -> np.ndarray:
         cfg = self.config
