@@ -234,3 +234,51 @@ def test_cli_video_pngs_and_tune(tmp_path):
     assert img.shape == (120, 160, 3)
     r = subprocess.run([*COSIM, "tune", "mambo"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "PM" in r.stdout and "alt" in r.stdout
+
+
+def test_fmu_error_is_named_and_outputs_kept(tmp_path, monkeypatch):
+    """A NaN motor command reaches the real FMU, which rejects it with fmi2Error."""
+    import mav.hil as hil
+
+    orig = hil.HilSimulatorCodec.decode_actuators
+
+    def poisoned(self, data):
+        t, u1, u2, u3, u4 = orig(self, data)
+        return (t, float("nan"), u2, u3, u4) if t >= 1_500_000 else (t, u1, u2, u3, u4)
+
+    monkeypatch.setattr(hil.HilSimulatorCodec, "decode_actuators", poisoned)
+    res = run_scenario(load_scenario(SQUARE), RunOptions())
+    assert res.exit_reason is ExitReason.COMPONENT_ERROR
+    assert res.message.startswith("plant:") and "u1" in res.message
+    assert res.t_end_s == pytest.approx(1.505)
+    write_run(res, tmp_path)
+    assert (tmp_path / "summary.json").is_file()
+
+
+def test_onboard_process_that_hangs_is_detected(tmp_path, monkeypatch):
+    import cosim.sil as sil
+
+    procs = []
+    orig = sil.OnboardProcess.__init__
+
+    def spy(self, *a, **kw):
+        orig(self, *a, **kw)
+        procs.append(self)
+
+    monkeypatch.setattr(sil.OnboardProcess, "__init__", spy)
+
+    class FreezerApp(ScriptedApp):
+        def on_tick(self, t: float) -> None:
+            if t >= 2.0 and not getattr(self, "_frozen", False):
+                os.kill(procs[0].proc.pid, signal.SIGSTOP)
+                self._frozen = True
+            super().on_tick(t)
+
+    sc = load_scenario(SQUARE)
+    t0 = time.monotonic()
+    res = run_scenario(sc, RunOptions(mode="sil", out_dir=tmp_path, hil_timeout_s=1.0,
+                                      app_override=FreezerApp(sc.app.params)))
+    assert time.monotonic() - t0 < 30
+    assert res.exit_reason is ExitReason.COMPONENT_ERROR
+    assert res.message.startswith("onboard: stopped answering")
+    assert not procs[0].alive()               # the master shut the stopped process down
