@@ -14,6 +14,8 @@ Parameters (`[app.params]`), all optional:
 - `deriv_gain` (m/px), `hover_alt_m` (m above the floor), `search_on_loss` (bool),
   `lost_timeout_s`, `mission_timeout_s` (s).
 - `k_t` (threshold), `r_min_px`, `r_max_px`, `arc_width_rad`: IPS overrides.
+- `search_nearest` (bool, default true): after a miss, follow the ring branch nearest the last
+  direction; false is the released code's centroid of all ring pixels.
 - `setpoint_every` (ticks between setpoints; 1 = the paper's 200 Hz planner rate).
 """
 
@@ -40,6 +42,7 @@ DEFAULTS: dict[str, Any] = {
     "r_min_px": None,
     "r_max_px": None,
     "arc_width_rad": None,
+    "search_nearest": True,
     "setpoint_every": 1,
 }
 
@@ -63,6 +66,7 @@ class LineFollowerApp:
         pl["mission_timeout"] = float(p["mission_timeout_s"])
         ip = _overrides(p, {"k_t": "k_t", "r_min_px": "r_min", "r_max_px": "r_max",
                             "arc_width_rad": "arc_width"})
+        ip["search_nearest"] = bool(p["search_nearest"])
         maker_pl = PlannerParams.paper if p["preset"] == "paper" else PlannerParams.released
         maker_ip = IPSParams.paper if p["preset"] == "paper" else IPSParams.released
         try:
