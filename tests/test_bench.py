@@ -1,0 +1,56 @@
+"""`cosim bench --quick` through the CLI: it runs, and every figure it reports is present and
+positive. No timing is asserted (machines are shared and noisy)."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+COSIM = [sys.executable, "-m", "cosim.cli"]
+
+
+def _figures(d, path=""):
+    """Every per-figure dict (one with a 'median') and every number in the breakdown."""
+    if isinstance(d, dict):
+        if "median" in d:
+            yield path, d
+        for k, v in d.items():
+            if isinstance(v, dict):
+                yield from _figures(v, f"{path}.{k}")
+
+
+def test_bench_quick_reports_every_figure(tmp_path):
+    out = tmp_path / "bench.json"
+    r = subprocess.run([*COSIM, "bench", "--quick", "--json", str(out)], capture_output=True,
+                       text=True, timeout=300, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    expected = ["plant_step", "controller_update", "udp_hil_roundtrip", "render", "ips",
+                "mission_mil", "mission_sil"]
+    for key in expected:
+        assert key in res, key
+    figs = dict(_figures(res))
+    assert len(figs) >= len(expected) + 5 + 2          # + codec figures + end-to-end figures
+    for name, d in figs.items():
+        for k in ("median", "min", "max"):
+            assert math.isfinite(d[k]) and d[k] > 0, (name, k, d[k])
+        assert d["min"] <= d["median"] <= d["max"], name
+    for mode in ("mission_mil", "mission_sil"):
+        m = res[mode]
+        assert m["exit_reason"] == "mission_complete"
+        assert m["sim_time_s"] > 0 and m["us_per_tick"] > 0
+    b = res["mil_tick_breakdown"]
+    assert b["ticks"] > 0 and b["loop_us_per_tick"] > 0
+    parts = b["parts_us_per_tick"]
+    for name in ("plant step", "ODOMETRY encode", "HIL exchange (onboard)", "app on_tick",
+                 "camera render (per tick)", "  onboard controller"):
+        assert parts[name] > 0, name
+    assert all(math.isfinite(v) for v in parts.values())
+    # the report names every figure
+    for label in ("plant step", "render 160x120 frame", "seed mission MIL (tick loop)",
+                  "seed mission SIL (end to end)", "MIL tick breakdown"):
+        assert label in r.stdout, label
