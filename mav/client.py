@@ -56,6 +56,14 @@ _SIGNING_EPOCH_2015 = 1420070400
 SIGNING_EPOCH_2024 = 1704067200.0
 
 
+# telemetry decoded by the fast codec (unsigned MAVLink 2); everything else goes to pymavlink
+_FAST_RX: dict[int, wire.FastMsg] = {
+    m.id: m for m in (wire.LOCAL_POSITION_NED, wire.ATTITUDE, wire.HEARTBEAT,
+                      wire.EXTENDED_SYS_STATE, wire.GLOBAL_POSITION_INT,
+                      wire.POSITION_TARGET_LOCAL_NED, wire.SYS_STATUS)
+}
+
+
 class CommandAck(NamedTuple):
     result: int      # MAV_RESULT
     t: float         # s, client clock when it arrived
@@ -108,15 +116,22 @@ class OffboardClient:
         self.params: dict[str, float] = {}
         self.param_count = -1
         self.stats = {"rx": 0, "tx": 0, "dropped_bad": 0, "unknown": 0, "rejected_unsigned": 0}
-        self._handlers = {
+        # telemetry with a fast decoder (mav/wire.py): handlers take the fields in wire order;
+        # not when signed (the fast codec does not check signatures)
+        self._fast_rx = None if self.signed else _FAST_RX
+        self._fast_handlers = {
+            M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._on_local_position,
+            M.MAVLINK_MSG_ID_ATTITUDE: self._on_attitude,
             M.MAVLINK_MSG_ID_HEARTBEAT: self._on_heartbeat,
             M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self._on_ext_state,
-            M.MAVLINK_MSG_ID_COMMAND_ACK: self._on_ack,
-            M.MAVLINK_MSG_ID_STATUSTEXT: self._on_statustext,
             M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self._on_global,
-            M.MAVLINK_MSG_ID_HOME_POSITION: self._on_home,
             M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: self._on_target,
             M.MAVLINK_MSG_ID_SYS_STATUS: self._on_sys_status,
+        }
+        self._handlers = {
+            M.MAVLINK_MSG_ID_COMMAND_ACK: self._on_ack,
+            M.MAVLINK_MSG_ID_STATUSTEXT: self._on_statustext,
+            M.MAVLINK_MSG_ID_HOME_POSITION: self._on_home,
             M.MAVLINK_MSG_ID_PARAM_VALUE: self._on_param_value,
         }
 
@@ -144,28 +159,26 @@ class OffboardClient:
         st = self.stats
         n = 0
         i, size = 0, len(data)
+        fast = self._fast_rx
         while i < size:
             end = wire.frame_end(data, i)
             if end < 0:
                 st["dropped_bad"] += 1
                 return n
             msgid = wire.msgid_of(data, i)
-            if not self.signed and msgid in (M.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
-                                             M.MAVLINK_MSG_ID_ATTITUDE):
-                f = wire.decode_fast(wire.FAST_BY_ID[msgid], data, i, end)
-                if f is None:
-                    st["dropped_bad"] += 1
-                elif wire.header_of(data, i)[1] == self.target_system:
-                    if msgid == M.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
-                        self.position = (f[1], f[2], f[3])
-                        self.velocity = (f[4], f[5], f[6])
+            if fast is not None and data[i] == wire.MAGIC_V2:
+                fm = fast.get(msgid)
+                if fm is not None:
+                    f = wire.decode_fast(fm, data, i, end)
+                    if f is None:
+                        st["dropped_bad"] += 1
                     else:
-                        self.attitude = (f[1], f[2], f[3])
-                        self.rates = (f[4], f[5], f[6])
-                    st["rx"] += 1
-                    n += 1
-                i = end
-                continue
+                        st["rx"] += 1
+                        n += 1
+                        if data[i + 5] == self.target_system:
+                            self._fast_handlers[msgid](f, data[i + 6])
+                    i = end
+                    continue
             try:
                 msg = self.mav.decode(bytearray(data[i:end]))
             except Exception as exc:
@@ -184,32 +197,41 @@ class OffboardClient:
             if msg.get_srcSystem() != self.target_system:
                 continue
             mid = msg.get_msgId()
-            if mid == M.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
-                self.position = (msg.x, msg.y, msg.z)
-                self.velocity = (msg.vx, msg.vy, msg.vz)
-            elif mid == M.MAVLINK_MSG_ID_ATTITUDE:
-                self.attitude = (msg.roll, msg.pitch, msg.yaw)
-                self.rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
-            else:
-                h = self._handlers.get(mid)
-                if h is not None:
-                    h(msg)
+            fm = _FAST_RX.get(mid)
+            if fm is not None:     # signed or MAVLink 1: the same handler on the same fields
+                self._fast_handlers[mid](tuple(getattr(msg, name)
+                                               for name in fm.cls.ordered_fieldnames),
+                                         msg.get_srcComponent())
+                continue
+            h = self._handlers.get(mid)
+            if h is not None:
+                h(msg)
         return n
 
-    def _on_heartbeat(self, msg) -> None:
-        if msg.get_srcComponent() != self.target_component:
+    # handlers of the fast-decoded messages: f = the fields in wire order (wire.py)
+    def _on_local_position(self, f: tuple, compid: int) -> None:
+        self.position = (f[1], f[2], f[3])
+        self.velocity = (f[4], f[5], f[6])
+
+    def _on_attitude(self, f: tuple, compid: int) -> None:
+        self.attitude = (f[1], f[2], f[3])
+        self.rates = (f[4], f[5], f[6])
+
+    def _on_heartbeat(self, f: tuple, compid: int) -> None:
+        # custom_mode, type, autopilot, base_mode, system_status, mavlink_version
+        if compid != self.target_component:
             return
         self.heartbeat_seen = True
         self.last_heartbeat_t = self.t
-        self.armed = bool(msg.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
-        cm = msg.custom_mode
+        self.armed = bool(f[3] & M.MAV_MODE_FLAG_SAFETY_ARMED)
+        cm = f[0]
         self.custom_mode = cm
         key = ((cm >> 16) & 0xFF, (cm >> 24) & 0xFF)
         self.mode = _MODE_BY_NUMBERS.get(key, f"MODE({key[0]},{key[1]})")
-        self.system_status = msg.system_status
+        self.system_status = f[4]
 
-    def _on_ext_state(self, msg) -> None:
-        self.landed_state = LANDED_STATES.get(msg.landed_state, "UNDEFINED")
+    def _on_ext_state(self, f: tuple, compid: int) -> None:
+        self.landed_state = LANDED_STATES.get(f[1], "UNDEFINED")
 
     def _on_ack(self, msg) -> None:
         self.acks[msg.command] = CommandAck(msg.result, self.t)
@@ -220,23 +242,24 @@ class OffboardClient:
             text = bytes(text).decode("ascii", errors="replace")
         self.statustext.append((self.t, msg.severity, text.rstrip("\x00")))
 
-    def _on_global(self, msg) -> None:
-        self.global_position = (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
-                                msg.relative_alt * 1e-3)
+    def _on_global(self, f: tuple, compid: int) -> None:
+        # time_boot_ms, lat, lon, alt, relative_alt, vx, vy, vz, hdg
+        self.global_position = (f[1] * 1e-7, f[2] * 1e-7, f[3] * 1e-3, f[4] * 1e-3)
 
     def _on_home(self, msg) -> None:
         self.home = (msg.x, msg.y, msg.z)
         self.home_global = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
 
-    def _on_target(self, msg) -> None:
-        m = msg.type_mask
-        vals = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, msg.yaw, msg.yaw_rate)
+    def _on_target(self, f: tuple, compid: int) -> None:
+        # time_boot_ms, x, y, z, vx, vy, vz, afx, afy, afz, yaw, yaw_rate, type_mask, frame
+        m = f[12]
+        vals = (f[1], f[2], f[3], f[4], f[5], f[6], f[10], f[11])
         bits = (1, 2, 4, 8, 16, 32, _IGN_YAW, _IGN_YAW_RATE)
         self.position_target = tuple(NAN if m & b else v for v, b in zip(vals, bits, strict=True))
 
-    def _on_sys_status(self, msg) -> None:
-        self.battery = (msg.voltage_battery * 1e-3, msg.current_battery * 1e-2,
-                        msg.battery_remaining * 1e-2 if msg.battery_remaining >= 0 else NAN)
+    def _on_sys_status(self, f: tuple, compid: int) -> None:
+        # voltage_battery (mV), current_battery (cA), battery_remaining (%): fields 4, 5, 12
+        self.battery = (f[4] * 1e-3, f[5] * 1e-2, f[12] * 1e-2 if f[12] >= 0 else NAN)
 
     def _on_param_value(self, msg) -> None:
         name = msg.param_id
