@@ -8,6 +8,9 @@ Both directions use the fast codec of mav/wire.py (byte-identical to pymavlink's
 
 from __future__ import annotations
 
+import math
+import struct
+
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
@@ -16,13 +19,23 @@ SIM_SYSID = 250
 SIM_COMPID = mavlink2.MAV_COMP_ID_SYSTEM_CONTROL
 
 
+# ODOMETRY payload = time_usec and the 13 measured values, then a tail that is the same every
+# tick (covariances [NaN, 0, ...], frame ids, reset counter, estimator type, quality)
+_ODO_HEAD = struct.Struct("<Q13f")
+_ODO_TAIL = wire.ODOMETRY.st.pack(0, *(0.0,) * 13, math.nan, *(0.0,) * 20, math.nan,
+                                  *(0.0,) * 20, mavlink2.MAV_FRAME_LOCAL_NED,
+                                  mavlink2.MAV_FRAME_LOCAL_NED, 0, 1, 100)[_ODO_HEAD.size:]
+
+
 class HilSimulatorCodec:
     def __init__(self) -> None:
         self.mav = mavlink2.MAVLink(None, srcSystem=SIM_SYSID, srcComponent=SIM_COMPID)
 
     def encode_odometry(self, t_us: int, m: tuple[float, ...]) -> bytes:
-        """m = (x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r), SI, NED/FRD."""
-        return wire.encode_odometry(self.mav, t_us, *m, estimator_type=1, quality=100)
+        """m = (x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r), SI, NED/FRD. The same bytes as
+        `wire.encode_odometry(mav, t_us, *m, estimator_type=1, quality=100)`, with the
+        constant tail of the payload packed once."""
+        return wire.frame(self.mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL)
 
     def decode_actuators(self, data: bytes) -> tuple[int, float, float, float, float]:
         f = wire.decode_fast(wire.HIL_ACTUATOR_CONTROLS, data)

@@ -64,6 +64,11 @@ def px4_custom_mode(mode: int) -> int:
     return main << 16 | sub << 24
 
 
+_FRAME_LOCAL_NED = M.MAV_FRAME_LOCAL_NED
+_FRAME_BODY_FRD = M.MAV_FRAME_BODY_FRD
+_HIL_MODE_DISARMED = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED       # HIL_ACTUATOR_CONTROLS.mode
+_HIL_MODE_ARMED = M.MAV_MODE_FLAG_SAFETY_ARMED | M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+
 # ---- landed states (MAV_LANDED_STATE)
 ON_GROUND = M.MAV_LANDED_STATE_ON_GROUND
 IN_AIR = M.MAV_LANDED_STATE_IN_AIR
@@ -435,8 +440,8 @@ class Onboard:
             return False
         (t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r, frame_id, child) = od
         chk = x + y + z + qw + qx + qy + qz + vx + vy + vz + p + q + r
-        if chk - chk != 0.0 or frame_id != M.MAV_FRAME_LOCAL_NED or child not in (
-                M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_BODY_FRD):
+        if chk - chk != 0.0 or frame_id != _FRAME_LOCAL_NED or (
+                child != _FRAME_LOCAL_NED and child != _FRAME_BODY_FRD):
             st["hil_bad_values"] += 1
             return False
         if not self._have_state:
@@ -451,7 +456,7 @@ class Onboard:
         s.t = t_us * 1e-6
         s.x, s.y, s.z = x, y, z
         s.qw, s.qx, s.qy, s.qz = qw, qx, qy, qz
-        if child == M.MAV_FRAME_LOCAL_NED:
+        if child == _FRAME_LOCAL_NED:
             s.vx, s.vy, s.vz = vx, vy, vz
         else:   # body FRD velocity -> world NED
             s.vx, s.vy, s.vz = _rotate_body_to_world(qw, qx, qy, qz, vx, vy, vz)
@@ -477,10 +482,9 @@ class Onboard:
             self.battery.step(dt_us * 1e-6, u[0], u[1], u[2], u[3])
         # 4. telemetry when due, then the HIL answer
         self._publish(t_us)
-        mode = (M.MAV_MODE_FLAG_SAFETY_ARMED | M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-                if self.armed else M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
-        self._hil.send(wire.encode_hil_actuator_controls(self._hil_mav, t_us, u[0], u[1], u[2],
-                                                         u[3], mode))
+        self._hil.send(wire.encode_hil_actuator_controls(
+            self._hil_mav, t_us, u[0], u[1], u[2], u[3],
+            _HIL_MODE_ARMED if self.armed else _HIL_MODE_DISARMED))
         st["ticks"] += 1
         return True
 
@@ -499,15 +503,19 @@ class Onboard:
 
     # ------------------------------------------------------------------ link input
     def _drain(self, ch: _Chan) -> None:
-        link = ch.link
+        recv = ch.link.recv
+        data = recv()
+        if data is None:           # the common case: nothing arrived since the last tick
+            return
         st = self.stats
         rx_key = "rx_" + ch.name
         if ch.signed:
             self._sync_signing(ch)
-        for _ in range(DRAIN_MAX):
-            data = link.recv()
-            if data is None:
-                return
+        for n in range(DRAIN_MAX):
+            if n:
+                data = recv()
+                if data is None:
+                    return
             st[rx_key] += 1
             try:
                 self._handle_datagram(ch, data)
