@@ -288,12 +288,18 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         rest_ticks = int(round(REST_TIMEOUT_S / h))
         nan3 = (math.nan, math.nan, math.nan)
         y = plant.y
+        # the per-tick calls as locals (one lookup each per run, not per tick)
+        measure, encode_odometry = sensor.measure, codec.encode_odometry
+        exchange, decode_actuators = vehicle.exchange, codec.decode_actuators
+        drain_gcs, plant_step, record = vehicle.drain_gcs, plant.step, rows.append
+        on_tick = app.on_tick if app is not None else None
+        realtime, progress, sitl = opts.realtime, opts.progress, opts.sitl
         loop0 = time.perf_counter()
         for k in range(n_ticks):
             t_us = k * h_us
             t = t_us * 1e-6
             tlog.t_us = t_us
-            meas = sensor.measure(y)
+            meas = measure(y)
             if app is not None:
                 if camera is not None and k % cam_every == 0:
                     try:
@@ -305,15 +311,20 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                     if opts.png_every and (k // cam_every) % opts.png_every == 0:
                         png_frames.append((t, img))
                     _call_app(app.on_frame, t, img)
-                _call_app(app.on_tick, t)
-            ans = vehicle.exchange(codec.encode_odometry(t_us, meas))
+                try:
+                    on_tick(t)
+                except ComponentError:
+                    raise
+                except Exception as exc:
+                    raise ComponentError("app", f"{type(exc).__name__}: {exc}") from exc
+            ans = exchange(encode_odometry(t_us, meas))
             try:
-                t_ans, u1, u2, u3, u4 = codec.decode_actuators(ans)
+                t_ans, u1, u2, u3, u4 = decode_actuators(ans)
             except Exception as exc:
                 raise ComponentError("onboard", f"bad HIL answer: {exc}") from exc
             if t_ans != t_us:
                 raise ComponentError("onboard", f"HIL answer stamped {t_ans} us for {t_us} us")
-            vehicle.drain_gcs()
+            drain_gcs()
             if app is not None:
                 sp = app.setpoint
                 ph = app.phase
@@ -323,10 +334,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             if pi is None:
                 pi = phase_idx[ph] = len(phases)
                 phases.append(ph)
-            rows.append((t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2],
+            record((t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2],
                          sp[0], sp[1], sp[2], pi))
             try:
-                y = plant.step(u1, u2, u3, u4, wind_n, wind_e, wind_d)
+                y = plant_step(u1, u2, u3, u4, wind_n, wind_e, wind_d)
             except ComponentError:
                 raise
             except Exception as exc:
@@ -364,7 +375,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                     f"left the arena at N {x_:.2f} E {y_:.2f} D {z_:.2f} m")
                 k += 1
                 break
-            if airborne and ground_ticks > 0 and not opts.sitl:
+            if airborne and ground_ticks > 0 and not sitl:
                 disarmed = u1 == 0.0 and u2 == 0.0 and u3 == 0.0 and u4 == 0.0
                 app_done = app is not None and app.done
                 if disarmed and (app is None or app_done):
@@ -377,11 +388,11 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                     exit_reason, message = ExitReason.LANDED, "landed before the app finished"
                     k += 1
                     break
-            if opts.realtime:
+            if realtime:
                 ahead = (t + h) / opts.speed - (time.perf_counter() - wall0)
                 if ahead > 0:
                     time.sleep(ahead)
-            if opts.progress and k % 2000 == 0:
+            if progress and k % 2000 == 0:
                 el = time.perf_counter() - wall0
                 print(f"\r  t = {t:7.1f} s  phase = {phases[pi]:<12s} "
                       f"{t / el if el > 0 else 0:6.0f}x real time", end="", file=sys.stderr)
