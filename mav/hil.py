@@ -38,7 +38,7 @@ class HilSimulatorCodec:
         return wire.frame(self.mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL)
 
     def decode_actuators(self, data: bytes) -> tuple[int, float, float, float, float]:
-        f = wire.decode_fast(wire.HIL_ACTUATOR_CONTROLS, data)
+        f = wire.decode_hil_actuator_controls(data)
         if f is None:
             raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(data)} bytes)")
-        return f[0], f[2], f[3], f[4], f[5]
+        return f

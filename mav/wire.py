@@ -275,6 +275,38 @@ def decode_odometry(data: bytes) -> tuple | None:
     return _ODO_USED.unpack(data[HEADER_LEN_V2:crc_at] + ODOMETRY.zeros[plen:_ODO_USED_LEN])
 
 
+_HIL_USED = struct.Struct("<Q8x4f")          # time_usec, (flags), controls[0..3]
+_HIL_ID3 = HIL_ACTUATOR_CONTROLS.id3
+_HIL_EXTRA = HIL_ACTUATOR_CONTROLS.extra
+_HIL_USED_LEN = _HIL_USED.size               # 32: payload bytes up to controls[3]
+
+
+def decode_hil_actuator_controls(data: bytes) -> tuple | None:
+    """A datagram holding exactly one HIL_ACTUATOR_CONTROLS frame -> (time_usec, controls[0],
+    controls[1], controls[2], controls[3]), or None.
+
+    Same checks and values as `decode_fast(HIL_ACTUATOR_CONTROLS, ...)` restricted to those
+    fields (the four motors the simulator applies); the per-tick HIL path of the simulator.
+    """
+    n = len(data)
+    if n < 12 or data[0] != MAGIC_V2 or data[7:10] != _HIL_ID3:
+        return None
+    flags = data[2]
+    plen = data[1]
+    crc_at = HEADER_LEN_V2 + plen
+    if flags == 0:
+        if n != crc_at + 2:
+            return None
+    elif flags != IFLAG_SIGNED or n != crc_at + 2 + SIGNATURE_LEN:
+        return None
+    if crc16(data[1:crc_at] + _HIL_EXTRA) != (data[crc_at] | data[crc_at + 1] << 8):
+        return None
+    if plen >= _HIL_USED_LEN:
+        return _HIL_USED.unpack_from(data, HEADER_LEN_V2)
+    return _HIL_USED.unpack(data[HEADER_LEN_V2:crc_at]
+                            + HIL_ACTUATOR_CONTROLS.zeros[plen:_HIL_USED_LEN])
+
+
 def header_of(data: bytes, i: int = 0) -> tuple[int, int, int]:
     """(seq, srcSystem, srcComponent) of the complete frame at data[i]."""
     if data[i] == MAGIC_V2:

@@ -247,3 +247,21 @@ def test_hil_codec_odometry_is_pymavlinks():
                                  1, 100).pack(pm)
         pm.seq = (pm.seq + 1) & 0xFF
         assert codec.encode_odometry(k * 5000, m) == ref, k
+
+
+def test_decode_hil_actuator_controls_matches_decode_fast():
+    """The simulator's per-tick decoder: the same motors as decode_fast (and pymavlink) for
+    good frames (trimmed payloads included), None for every corrupted one decode_fast refuses."""
+    mav = M.MAVLink(None, 1, 1)
+    r = random.Random(11)
+    for k in range(2000):
+        u = [r.choice([0.0, r.random()]) for _ in range(4)]
+        d = wire.encode_hil_actuator_controls(mav, k * 5000, *u, r.choice([129, 1, 0]))
+        f = wire.decode_fast(wire.HIL_ACTUATOR_CONTROLS, d)
+        assert wire.decode_hil_actuator_controls(d) == (f[0], f[2], f[3], f[4], f[5])
+        bad = bytearray(d)
+        bad[r.randrange(len(d))] ^= 1 << r.randrange(8)
+        if wire.decode_fast(wire.HIL_ACTUATOR_CONTROLS, bytes(bad)) is None:
+            assert wire.decode_hil_actuator_controls(bytes(bad)) is None
+    assert wire.decode_hil_actuator_controls(d + d) is None      # exactly one frame
+    assert wire.decode_hil_actuator_controls(b"") is None
