@@ -8,6 +8,28 @@ from pathlib import Path
 
 from cosim.errors import ScenarioError
 
+EXAMPLES = {
+    "run": """examples:
+  cosim run scenarios/mambo_seed_track.toml
+  cosim run scenarios/mambo_seed_track.toml --mode sil --out runs/seed-sil
+  cosim run scenarios/mambo_turns.toml --set app.alpha=0.008 --set seed=3
+  cosim run scenarios/mambo_seed_track.toml --realtime --speed 2 --video --png-every 5""",
+    "validate": """examples:
+  cosim validate scenarios/mambo_seed_track.toml
+  cosim validate scenarios/*.toml""",
+    "sweep": """examples:
+  cosim sweep scenarios/mambo_seed_track.toml --set app.alpha=0.002,0.0038,0.006,0.008,0.010
+  cosim sweep scenarios/mambo_textured.toml --set seed=0,1,2,3 --set app.k_t=100,150
+  cosim sweep scenarios/scripted_square.toml --set seed=0,1 --executor serial""",
+    "sitl": """examples:
+  cosim sitl                                  then connect QGroundControl (UDP 14550)
+  cosim sitl --vehicle bebop2 --world turns   MAVSDK / scripts on UDP 14540
+  cosim sitl --gcs-remote 127.0.0.1:14551 --gcs-bind 127.0.0.1:18571""",
+    "bench": """examples:
+  cosim bench                   full measurement (a few minutes), figures + runs/bench.json
+  cosim bench --quick           a short smoke run""",
+}
+
 EPILOG = """examples:
   cosim run scenarios/mambo_seed_track.toml                 fly the seed mission (MIL)
   cosim run scenarios/mambo_seed_track.toml --mode sil      onboard stack as its own process
@@ -29,8 +51,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     sub = p.add_subparsers(dest="cmd", required=True)
 
-    r = sub.add_parser("run", help="fly one scenario", epilog=EPILOG,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    def add(name: str, **kw) -> argparse.ArgumentParser:
+        return sub.add_parser(name, epilog=EXAMPLES.get(name),
+                              formatter_class=argparse.RawDescriptionHelpFormatter, **kw)
+
+    r = add("run", help="fly one scenario")
     r.add_argument("scenario")
     r.add_argument("--mode", choices=("mil", "sil"), default="mil")
     r.add_argument("--realtime", action="store_true", help="pace against the wall clock")
@@ -44,10 +69,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true")
     r.add_argument("--quiet", action="store_true", help="no progress display")
 
-    v = sub.add_parser("validate", help="check scenario files")
+    v = add("validate", help="check scenario files")
     v.add_argument("scenarios", nargs="+")
 
-    s = sub.add_parser("sweep", help="many runs of one scenario over parameter values")
+    s = add("sweep", help="many runs of one scenario over parameter values")
     s.add_argument("scenario")
     s.add_argument("--set", action="append", required=True, metavar="KEY=V1,V2,...")
     s.add_argument("--mode", choices=("mil", "sil"), default="mil")
@@ -55,7 +80,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--executor", choices=("local", "serial"), default="local")
     s.add_argument("--out", type=Path, help="sweep folder (default runs/sweep-<scenario>)")
 
-    t = sub.add_parser("sitl", help="a vehicle in a world, real time, for ground stations")
+    t = add("sitl", help="a vehicle in a world, real time, for ground stations")
     t.add_argument("--vehicle", choices=("mambo", "bebop2"), default="mambo")
     t.add_argument("--world", default="seed", help="a world file or built-in name (seed, ...)")
     t.add_argument("--speed", type=float, default=1.0)
@@ -67,10 +92,10 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("onboard", help="the onboard flight stack process (see --help)",
                    add_help=False)
-    tu = sub.add_parser("tune", help="controller loop margins and step responses")
-    tu.add_argument("vehicle", choices=("mambo", "bebop2"))
+    sub.add_parser("tune", help="controller loop margins and step responses (see --help)",
+                   add_help=False)
 
-    b = sub.add_parser("bench", help="measure the speed of every part")
+    b = add("bench", help="measure the speed of every part")
     b.add_argument("--quick", action="store_true", help="fewer repeats (a smoke test)")
     b.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
     return p
@@ -82,11 +107,15 @@ def main(argv: list[str] | None = None) -> int:
         from mav.onboard import main as onboard_main
 
         return onboard_main(argv[1:])
+    if argv and argv[0] == "tune":
+        from mav.tune import main as tune_main
+
+        return tune_main(argv[1:])
     args = _parser().parse_args(argv)
     try:
         return _dispatch(args)
     except ScenarioError as exc:
-        print(f"cosim: error in scenario: {exc}", file=sys.stderr)
+        print(f"cosim: bad input: {exc}", file=sys.stderr)
         return 2
 
 
@@ -105,12 +134,11 @@ def _dispatch(args) -> int:
         return _sweep(args)
     if args.cmd == "sitl":
         return _sitl(args)
-    if args.cmd == "tune":
-        from mav.tune import main as tune_main
-
-        return tune_main([args.vehicle])
     if args.cmd == "bench":
         from cosim.bench import main as bench_main
+
+        if args.json is not None and args.json.is_dir():
+            raise ScenarioError("--json", str(args.json), "a file path (this is a folder)")
 
         return bench_main(quick=args.quick, json_path=args.json)
     raise AssertionError(args.cmd)
@@ -125,9 +153,16 @@ def _run(args) -> int:
     sc = load_scenario(args.scenario)
     if args.set:
         sc = sc.with_set({k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
-    if args.speed <= 0:
-        raise ScenarioError("--speed", args.speed, "a number > 0")
+    _check_speed(args.speed)
+    if args.speed != 1.0 and not args.realtime:
+        raise ScenarioError("--speed", args.speed, "only with --realtime")
+    if args.png_every < 0:
+        raise ScenarioError("--png-every", args.png_every, "an integer >= 0")
+    if (args.video or args.png_every) and sc.camera is None:
+        print(f"cosim: warning: {sc.name} has no [camera]; --video / --png-every save nothing",
+              file=sys.stderr)
     out = args.out or Path("runs") / f"{sc.name}-{args.mode}"
+    _check_out_dir(out, "--out")
     opts = RunOptions(mode=args.mode, realtime=args.realtime, speed=args.speed,
                       video=args.video, png_every=args.png_every,
                       progress=not args.quiet and sys.stderr.isatty(), out_dir=out)
@@ -148,7 +183,10 @@ def _sweep(args) -> int:
     for key, values in grid.items():  # validate every value before starting any run
         for v in values:
             sc.with_set({key: v})
+    if args.workers is not None and args.workers < 1:
+        raise ScenarioError("--workers", args.workers, "an integer >= 1")
     out = args.out or Path("runs") / f"sweep-{sc.name}"
+    _check_out_dir(out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     jobs = make_jobs(args.scenario, grid, out, args.mode)
     print(f"sweep: {len(jobs)} runs of {sc.name} ({args.executor} executor)", file=sys.stderr)
@@ -162,16 +200,17 @@ def _sweep(args) -> int:
 
 
 def _sitl(args) -> int:
-    from cosim.master import RunOptions, run_scenario
+    from cosim.master import ExitReason, RunOptions, run_scenario
     from cosim.report import one_screen, write_run
     from cosim.scenario import parse_scenario
 
     def hp(s: str, name: str) -> tuple[str, int]:
         host, _, port = s.rpartition(":")
-        if not host or not port.isdigit():
-            raise ScenarioError(name, s, "HOST:PORT")
+        if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise ScenarioError(name, s, "HOST:PORT with a port in 0..65535")
         return host, int(port)
 
+    _check_speed(args.speed)
     world = _world_table(args.world)
     sc = parse_scenario({
         "name": f"sitl-{args.vehicle}",
@@ -189,7 +228,20 @@ def _sitl(args) -> int:
                                       external_links=links, sitl=True))
     summary = write_run(res, out, plots=False)
     print(one_screen(summary, out))
+    if res.exit_reason is ExitReason.COMPONENT_ERROR:
+        print(f"cosim: sitl failed: {res.message}", file=sys.stderr)
+        return 1
     return 0
+
+
+def _check_speed(speed: float) -> None:
+    if not (speed > 0 and speed < float("inf")):
+        raise ScenarioError("--speed", speed, "a finite number > 0")
+
+
+def _check_out_dir(out: Path, flag: str) -> None:
+    if out.exists() and not out.is_dir():
+        raise ScenarioError(flag, str(out), "a folder (this path is a file)")
 
 
 def _world_table(world: str) -> dict:

@@ -15,6 +15,21 @@ from cosim.master import SERIES_COLUMNS, RunResult
 from cosim.metrics import COL, compute_metrics, evaluate
 from cosim.scenario import build_world
 
+FAILED_EXITS = {"component_error", "crashed", "left_arena", "interrupted"}
+# files a run folder may hold; removed before a run writes there, so folders never mix runs
+OUTPUT_FILES = ("summary.json", "timeseries.csv", "frames.csv", "flight.tlog", "trajectory.png",
+                "timeseries.png", "camera.mp4", "camera.avi")
+
+
+def clean_run_folder(out: Path) -> None:
+    """Remove what an earlier run wrote into `out` (only the files a run writes)."""
+    for name in OUTPUT_FILES:
+        (out / name).unlink(missing_ok=True)
+    frames = out / "frames"
+    if frames.is_dir():
+        for f in frames.glob("frame_*.png"):
+            f.unlink()
+
 
 def versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
@@ -47,7 +62,9 @@ def summarize(res: RunResult) -> dict[str, Any]:
         "ticks": res.ticks,
         "metrics": metrics,
         "criteria": crit,
-        "passed": all(c["passed"] for c in crit.values()),
+        # a run that ended in an error never passes, whatever the criteria say
+        "passed": all(c["passed"] for c in crit.values())
+        and res.exit_reason.value not in FAILED_EXITS,
         "events": [[t, name] for t, name in res.events],
         "onboard_stats": res.onboard_stats,
         "versions": versions(),
@@ -58,6 +75,7 @@ def summarize(res: RunResult) -> dict[str, Any]:
 def write_run(res: RunResult, out: Path, *, plots: bool = True) -> dict[str, Any]:
     """Write everything the run recorded into `out`; returns the summary dict."""
     out.mkdir(parents=True, exist_ok=True)
+    clean_run_folder(out)
     summary = summarize(res)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
     write_series(res, out / "timeseries.csv")

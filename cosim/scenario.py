@@ -181,9 +181,9 @@ def load_scenario(path: str | Path) -> Scenario:
     if not p.is_file():
         raise ScenarioError("scenario", str(p), "an existing .toml file")
     try:
-        raw = tomllib.loads(p.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError("scenario", str(p), f"valid TOML ({exc})") from None
+        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ScenarioError("scenario", str(p), f"valid UTF-8 TOML ({exc})") from None
     return parse_scenario(raw, source=str(p), base_dir=p.parent)
 
 
@@ -198,9 +198,9 @@ def _load_world(raw: dict, base_dir: Path) -> dict:
         if not fp.is_file():
             raise ScenarioError("world.file", f, f"an existing file (looked for {fp})")
         try:
-            base = tomllib.loads(fp.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ScenarioError("world.file", f, f"valid TOML ({exc})") from None
+            base = tomllib.loads(fp.read_text(encoding="utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ScenarioError("world.file", f, f"valid UTF-8 TOML ({exc})") from None
         base = base.get("world", base)
         base.update(w)  # keys given in the scenario override the file's
         w = base
@@ -309,7 +309,38 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     build_world(sc)
     if sc.camera is not None:
         build_camera_config(sc)
+    check_app(sc)
     return sc
+
+
+def check_app(sc: Scenario):
+    """Build the scenario's app once, so a bad name or parameter fails at load time.
+
+    Apps validate their parameters in their constructor (ValueError naming
+    `app.params.NAME`); a user app is imported by its `package.module:Class` path.
+    """
+    from cosim.master import make_app
+
+    try:
+        return make_app(sc)
+    except ValueError as exc:
+        msg = str(exc)
+        head, _, rest = msg.partition(":")
+        if not head.startswith("app.params"):
+            head, rest = "app.params", msg
+        rest = rest.strip()
+        if rest.startswith("got ") and ";" in rest:  # "got X; expected Y" -> "Y"
+            rest = rest.split(";", 1)[1].strip()
+        for lead in ("expected ", "allowed: "):
+            rest = rest.removeprefix(lead)
+        raise ScenarioError(head, _app_param_value(sc, head), rest) from None
+    except Exception as exc:  # ComponentError for an unloadable user app
+        raise ScenarioError("app.name", sc.app.name, f"an importable app ({exc})") from None
+
+
+def _app_param_value(sc: Scenario, path: str) -> object:
+    key = path.removeprefix("app.params.").split("[")[0]
+    return sc.app.params.get(key, sc.app.params)
 
 
 def build_world(sc: Scenario):

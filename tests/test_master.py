@@ -156,9 +156,11 @@ def test_cli_run_validate_and_help(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "FAIL" in r.stdout
     bad = tmp_path / "bad.toml"
-    bad.write_text(SQUARE.read_text().replace('preset = "mambo"', 'preset = "mambo3"')
-                   .replace('file = "worlds/seed.toml"',
-                            f'file = "{ROOT / "scenarios" / "worlds" / "seed.toml"}"'))
+    text = SQUARE.read_text()
+    world = 'file = "worlds/empty.toml"'
+    assert world in text
+    bad.write_text(text.replace('preset = "mambo"', 'preset = "mambo3"')
+                   .replace(world, f'file = "{ROOT / "scenarios" / "worlds" / "empty.toml"}"'))
     r = subprocess.run([*COSIM, "validate", str(bad)], capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 2

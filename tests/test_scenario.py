@@ -75,5 +75,12 @@ def test_with_set_overrides_and_revalidates():
 def test_invalid_toml_is_reported(tmp_path):
     p = tmp_path / "bad.toml"
     p.write_text("name = \n")
-    with pytest.raises(ScenarioError, match="valid TOML"):
+    with pytest.raises(ScenarioError, match="valid UTF-8 TOML"):
+        load_scenario(p)
+
+
+def test_non_utf8_file_is_reported(tmp_path):
+    p = tmp_path / "latin1.toml"
+    p.write_bytes('name = "caf\xe9"\n'.encode("latin-1"))
+    with pytest.raises(ScenarioError, match="valid UTF-8 TOML"):
         load_scenario(p)

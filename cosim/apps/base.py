@@ -58,12 +58,13 @@ def check_params(params: dict[str, Any], defaults: dict[str, Any], app: str) -> 
                 f"app.params.{k}: unknown parameter for {app}; known: {', '.join(sorted(defaults))}"
             )
         d = defaults[k]
+        like = "a number" if d is None else f"a value like {d!r}"
         if d is None:  # a number whose default comes from elsewhere (e.g. a preset)
             d = 0.0
         if isinstance(d, bool) != isinstance(v, bool) or (
             isinstance(d, int | float) and not isinstance(v, int | float)
         ) or (isinstance(d, str) and not isinstance(v, str)):
-            raise ValueError(f"app.params.{k}: got {v!r}; expected a value like {d!r}")
+            raise ValueError(f"app.params.{k}: got {v!r}; expected {like}")
         if isinstance(v, float) and not math.isfinite(v):
             raise ValueError(f"app.params.{k}: got {v!r}; expected a finite number")
         out[k] = v

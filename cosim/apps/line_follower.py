@@ -60,6 +60,9 @@ class LineFollowerApp:
         pl = _overrides(p, {"alpha": "gain_track", "beta": "gain_marker",
                             "deriv_gain": "deriv_gain"})
         if p["hover_alt_m"] is not None:
+            if not p["hover_alt_m"] > 0.0:
+                raise ValueError(f"app.params.hover_alt_m: got {p['hover_alt_m']!r}; "
+                                 "expected a height above the floor > 0 m")
             pl["z_hover"] = -float(p["hover_alt_m"])
         pl["search_on_loss"] = bool(p["search_on_loss"])
         pl["lost_timeout"] = float(p["lost_timeout_s"])
