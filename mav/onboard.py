@@ -189,6 +189,11 @@ class OnboardConfig:
             raise ValueError(f"compid: got {self.compid}; allowed 1..255")
         if self.signing_key is not None and len(self.signing_key) != 32:
             raise ValueError(f"signing_key: got {len(self.signing_key)} bytes; need 32")
+        for name, lim in (("origin_lat_deg", 90.0), ("origin_lon_deg", 180.0),
+                          ("origin_alt_m", 1e5)):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and -lim <= v <= lim):
+                raise ValueError(f"{name}: got {v!r}; allowed: finite, in [-{lim:g}, {lim:g}]")
         for which in ("api_rates_hz", "gcs_rates_hz"):
             for name, hz in getattr(self, which).items():
                 if name not in STREAMS:

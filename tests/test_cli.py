@@ -85,3 +85,13 @@ def test_reused_run_folder_does_not_mix_runs(tmp_path):
     assert not (out / "frames.csv").exists()
     assert not list((out / "frames").glob("*.png"))
     assert json.loads((out / "summary.json").read_text())["scenario"] == "scripted_square"
+
+
+@pytest.mark.parametrize("origin", ["nan,nan,nan", "100,0,0", "0,500,0", "0,0,inf", "1,2"])
+def test_onboard_rejects_a_bad_geodetic_origin(origin, capsys):
+    from mav.onboard import main as onboard_main
+
+    with pytest.raises(SystemExit) as ei:
+        onboard_main(["--origin", origin, "--hil-bind", "127.0.0.1:0"])
+    assert ei.value.code == 2
+    assert "origin" in capsys.readouterr().err
