@@ -1381,10 +1381,34 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--origin", metavar="LAT,LON,ALT",
                    help="geodetic origin of the local frame, deg,deg,m AMSL "
                         "(default 42.299886,-71.350447,71.3232)")
+    p.add_argument("--vehicle-param", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override an airframe value of the preset (cosim.vehicles."
+                        "VehicleParams field, SI units), e.g. mass=0.07; repeatable")
     p.add_argument("--hil-timeout", type=float, default=10.0, metavar="SECONDS",
                    help="exit (code 0) when the simulator is silent this long, wall clock "
                         "(default 10)")
     return p
+
+
+def _vehicle_with_overrides(parser, name: str, items: list[str]) -> VehicleParams:
+    """The preset with FIELD=VALUE overrides; parser.error (exit 2) names a bad one."""
+    vp = get_vehicle(name)
+    fields = set(vp.fmu_parameters())
+    kw = {}
+    for it in items:
+        key, sep, val = it.partition("=")
+        key = key.strip()
+        if not sep or key not in fields:
+            parser.error(f"--vehicle-param: got {it!r}; expected FIELD=VALUE with FIELD one of "
+                         f"{', '.join(sorted(fields))}")
+        try:
+            v = float(val)
+        except ValueError:
+            v = math.nan
+        if not (math.isfinite(v) and (v > 0.0 or (key == "drag_rot" and v == 0.0))):
+            parser.error(f"--vehicle-param {key}: got {val!r}; expected a finite number > 0")
+        kw[key] = v
+    return vp.with_overrides(**kw)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -1415,6 +1439,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = OnboardConfig(**kw)
     except ValueError as exc:
         parser.error(str(exc))
+    vehicle = _vehicle_with_overrides(parser, args.vehicle, args.vehicle_param)
     try:
         hil = UdpLink(args.hil_bind)
         api = UdpLink(args.api_bind, args.api_remote)
@@ -1424,6 +1449,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     try:
         onboard = Onboard(cfg, hil, api, gcs)
+        if args.vehicle_param:
+            onboard.set_vehicle_params(vehicle)
     except (ValueError, OSError) as exc:
         print(f"onboard: {exc}", file=sys.stderr)
         return 2

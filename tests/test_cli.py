@@ -95,3 +95,13 @@ def test_onboard_rejects_a_bad_geodetic_origin(origin, capsys):
         onboard_main(["--origin", origin, "--hil-bind", "127.0.0.1:0"])
     assert ei.value.code == 2
     assert "origin" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("item", ["mass=-1", "mass=abc", "weight=1", "mass", "motor_tau=nan"])
+def test_onboard_rejects_a_bad_vehicle_param(item, capsys):
+    from mav.onboard import main as onboard_main
+
+    with pytest.raises(SystemExit) as ei:
+        onboard_main(["--vehicle-param", item, "--hil-bind", "127.0.0.1:0"])
+    assert ei.value.code == 2
+    assert "--vehicle-param" in capsys.readouterr().err
