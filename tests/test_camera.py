@@ -46,7 +46,7 @@ def blob_centroids(img: np.ndarray) -> list[tuple[float, float]]:
 
 def test_config_defaults():
     c = CameraConfig()
-    assert (c.width, c.height, c.supersample) == (160, 120, 2)
+    assert (c.width, c.height, c.supersample, c.texture_px_per_m) == (160, 120, 1, 150.0)
     assert c.focal_px == pytest.approx(60.0 / math.tan(math.radians(22.5)))
     assert c.focal_px == pytest.approx(144.85, abs=0.01)
     assert c.center_rc == (59.5, 79.5)
@@ -257,14 +257,17 @@ def test_save_png_and_video(tmp_path):
         save_video([], tmp_path / "e.mp4", fps=5.0)
 
 
-@pytest.mark.parametrize("interpolation", ["linear", "nearest"])
-def test_rgba_sampling_matches_a_plain_rgb_warp(interpolation):
+@pytest.mark.parametrize(("interpolation", "supersample"),
+                         [("linear", 1), ("linear", 2), ("nearest", 1), ("nearest", 3)])
+def test_rgba_sampling_matches_a_plain_rgb_warp(interpolation, supersample):
     """The renderer samples an RGBA copy of the texture (faster in OpenCV); the image must be
     byte for byte the plain 3-channel warp + INTER_AREA resize, horizon cases included."""
     world = World.from_dict({"arena": ARENA, "floor_rgb": [30, 60, 90],
                              "track": [{"width": 0.02,
                                         "points": [[3.5, 3.5], [6.5, 5.0], [4.0, 6.5]]}]})
-    cam = DownwardCamera(world, CameraConfig(interpolation=interpolation))
+    cam = DownwardCamera(world, CameraConfig(interpolation=interpolation,
+                                             supersample=supersample,
+                                             texture_px_per_m=150.0 * supersample))
     tex = np.ascontiguousarray(cam.texture)
     rng = np.random.default_rng(3)
     flags = (cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR) | \
@@ -281,5 +284,5 @@ def test_rgba_sampling_matches_a_plain_rgb_warp(interpolation):
         hi[dz[0] * u + dz[1] * v + dz[2] <= 1e-9] = 0
         if (dz @ cam._corners_hi).max() <= 0.0:
             hi[...] = 0
-        ref = cv2.resize(hi, cam._size, interpolation=cv2.INTER_AREA)
+        ref = cv2.resize(hi, cam._size, interpolation=cv2.INTER_AREA) if supersample > 1 else hi
         assert np.array_equal(cam.render(p, q), ref), (i, p, q)
