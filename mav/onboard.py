@@ -1468,23 +1468,22 @@ def main(argv: list[str] | None = None) -> int:
     else:
         old = {}
     code = 0
-    fd = hil.sock.fileno()
+    # one poll() per readable event: a further datagram already queued makes the next wait
+    # return at once, and no recvfrom is spent on finding the socket empty
+    poller = select.poll()
+    poller.register(hil.sock.fileno(), select.POLLIN)
+    wait = poller.poll
     last_rx = time.monotonic()
     try:
         while not stop:
             try:
-                r, _, _ = select.select([fd], [], [], 0.1)
+                r = wait(100)
             except InterruptedError:
                 continue
             now = time.monotonic()
             if r:
                 last_rx = now
-                st = onboard.stats
-                while True:
-                    before = st["rx_hil"]
-                    onboard.poll()
-                    if st["rx_hil"] == before:
-                        break
+                onboard.poll()
             elif now - last_rx > args.hil_timeout:
                 print(f"onboard: no HIL input for {args.hil_timeout:g} s, exiting",
                       file=sys.stderr)
