@@ -50,7 +50,12 @@ def test_bench_quick_reports_every_figure(tmp_path):
                  "camera render (per tick)", "  onboard controller"):
         assert parts[name] > 0, name
     assert all(math.isfinite(v) for v in parts.values())
+    floor = res["floor_us_per_tick"]
+    assert len(floor) >= 9
+    for name, v in floor.items():
+        assert math.isfinite(v) and v > 0, name
+    assert floor["total"] < b["loop_us_per_tick"]
     # the report names every figure
     for label in ("plant step", "render 160x120 frame", "seed mission MIL (tick loop)",
-                  "seed mission SIL (end to end)", "MIL tick breakdown"):
+                  "seed mission SIL (end to end)", "MIL tick breakdown", "floor:"):
         assert label in r.stdout, label
