@@ -151,7 +151,7 @@ class OffboardClient:
             if data is None:
                 break
             n += self._datagram(data)
-        if self.heartbeat_due(t):
+        if t >= self._next_hb:          # heartbeat_due(t), inline on the per-tick path
             self.send_heartbeat(t)
         return n
 

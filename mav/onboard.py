@@ -65,6 +65,8 @@ def px4_custom_mode(mode: int) -> int:
 
 
 _FRAME_LOCAL_NED = M.MAV_FRAME_LOCAL_NED
+_FRAME_BODY_NED = M.MAV_FRAME_BODY_NED
+_SP_ID3 = wire.SET_POSITION_TARGET_LOCAL_NED.id3
 _FRAME_BODY_FRD = M.MAV_FRAME_BODY_FRD
 _HIL_MODE_DISARMED = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED       # HIL_ACTUATOR_CONTROLS.mode
 _HIL_MODE_ARMED = M.MAV_MODE_FLAG_SAFETY_ARMED | M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
@@ -222,12 +224,14 @@ class _Chan:
     """One MAVLink link of the vehicle (api or gcs): codec state, streams, pending params."""
 
     __slots__ = ("name", "link", "mav", "streams", "by_msgid", "next_due", "param_queue",
-                 "signed", "peer", "stats", "tx_key")
+                 "signed", "peer", "stats", "tx_key", "rx_key", "bad_key")
 
     def __init__(self, name: str, link, mav, stats: dict[str, int]) -> None:
         self.name = name
         self.stats = stats
         self.tx_key = "tx_" + name
+        self.rx_key = "rx_" + name
+        self.bad_key = "dropped_bad_" + name
         self.link = link
         self.mav = mav
         self.streams: list[_Stream] = []
@@ -513,7 +517,7 @@ class Onboard:
         if data is None:           # the common case: nothing arrived since the last tick
             return
         st = self.stats
-        rx_key = "rx_" + ch.name
+        rx_key = ch.rx_key
         if ch.signed:
             self._sync_signing(ch)
         for n in range(DRAIN_MAX):
@@ -525,18 +529,29 @@ class Onboard:
             try:
                 self._handle_datagram(ch, data)
             except Exception:   # a handler bug must not take the vehicle down: count it
-                st["dropped_bad_" + ch.name] += 1
+                st[ch.bad_key] += 1
                 if st["handler_errors"] < 5:
                     traceback.print_exc(file=sys.stderr)
                 st["handler_errors"] += 1
         st["drain_deferred"] += 1
 
     def _handle_datagram(self, ch: _Chan, data: bytes) -> None:
-        st = self.stats
         n = len(data)
+        # the 200 Hz case first: a datagram that is one unsigned-link MAVLink 2
+        # SET_POSITION_TARGET_LOCAL_NED frame (what the loop below does with it, minus the loop)
+        if (not ch.signed and n > 12 and data[0] == wire.MAGIC_V2 and data[7:10] == _SP_ID3
+                and wire.frame_end(data, 0) == n):
+            f = wire.decode_fast(wire.SET_POSITION_TARGET_LOCAL_NED, data, 0, n)
+            if f is None:
+                self.stats[ch.bad_key] += 1
+            else:
+                ch.peer = (data[5], data[6])
+                self._on_setpoint(ch, f)
+            return
+        st = self.stats
         i = 0
         frames = 0
-        bad_key = "dropped_bad_" + ch.name
+        bad_key = ch.bad_key
         while i < n and frames < FRAMES_MAX:
             end = wire.frame_end(data, i)
             if end < 0:
@@ -615,9 +630,9 @@ class Onboard:
         (_, x, y, z, vx, vy, vz, _ax, _ay, _az, yaw, yaw_rate, mask, tsys, tcomp, frame) = f
         if tsys != self.cfg.sysid or tcomp not in (0, self.cfg.compid):
             return self._reject_sp("target", f"setpoint for system {tsys}/{tcomp} rejected")
-        if frame == M.MAV_FRAME_BODY_NED:
+        if frame == _FRAME_BODY_NED:
             mask |= IGN_X | IGN_Y | IGN_Z          # PX4: position is ignored in BODY_NED
-        elif frame != M.MAV_FRAME_LOCAL_NED:
+        elif frame != _FRAME_LOCAL_NED:
             return self._reject_sp("frame", f"setpoint frame {frame} unsupported (1 or 8)")
         pxy = mask & (IGN_X | IGN_Y)
         vxy = mask & (IGN_VX | IGN_VY)
@@ -636,7 +651,7 @@ class Onboard:
         if use_yaw and not abs(yaw) <= SP_MAX_YAW_RAD or (
                 use_rate and not abs(yaw_rate) <= SP_MAX_YAW_RATE):
             return self._reject_sp("range", "setpoint yaw not finite or out of range")
-        if frame == M.MAV_FRAME_BODY_NED and use_vxy:
+        if frame == _FRAME_BODY_NED and use_vxy:
             yaw_now = self._heading()
             c, s = math.cos(yaw_now), math.sin(yaw_now)
             vx, vy = c * vx - s * vy, s * vx + c * vy
