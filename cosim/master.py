@@ -70,7 +70,7 @@ class RunOptions:
     # sitl: the onboard stack's API and GCS links are real UDP sockets for outside clients,
     # {'gcs': ((bind_host, port), (remote_host, port)), 'api': (...)}; MIL only
     external_links: dict[str, tuple[tuple[str, int], tuple[str, int]]] | None = None
-    sitl: bool = False                # no mission exit conditions (landed/complete)
+    sitl: bool = False                # no mission or arena exits: only crash, time, Ctrl-C
 
 
 @dataclass
@@ -138,8 +138,12 @@ class _Vehicle:
             hil_m, hil_v = MemoryLink.pair()
             if opts.external_links:
                 api_app = gcs_m = MemoryLink()  # nothing of the master's on these links
-                api_v = UdpLink(*opts.external_links["api"])
-                gcs_v = UdpLink(*opts.external_links["gcs"])
+                try:
+                    api_v = UdpLink(*opts.external_links["api"])
+                    gcs_v = UdpLink(*opts.external_links["gcs"])
+                except OSError as exc:
+                    raise ComponentError("onboard", f"cannot bind the API/GCS links: {exc}"
+                                         ) from None
             else:
                 api_app, api_v = MemoryLink.pair()
                 gcs_m, gcs_v = MemoryLink.pair()
@@ -151,29 +155,46 @@ class _Vehicle:
             self.api = TapLink(api_app, tlog)
             self.gcs = TapLink(gcs_m, tlog)
         else:
-            from cosim.sil import OnboardProcess
+            try:
+                self._start_sil(sc, opts, tlog, log_dir)
+            except BaseException:
+                self.close_partial()
+                raise
 
-            hil = UdpLink(("127.0.0.1", 0))
-            api = UdpLink(("127.0.0.1", 0))
-            gcs = UdpLink(("127.0.0.1", 0))
-            self.proc = OnboardProcess(
-                vname, api.local_address, gcs.local_address, log_dir / "onboard.log",
-                hil_timeout_s=max(10.0, 5 * opts.hil_timeout_s),
-            )
-            ports = self.proc.ports
-            hil.remote = ("127.0.0.1", ports["hil"])
-            hil._fixed_remote = True
-            api.remote = ("127.0.0.1", ports["api"])
-            api._fixed_remote = True
-            gcs.remote = ("127.0.0.1", ports["gcs"])
-            gcs._fixed_remote = True
-            hil.sock.setblocking(True)
-            hil.sock.settimeout(opts.hil_timeout_s)
-            self.hil = hil
-            self.api = TapLink(api, tlog)
-            self.gcs = TapLink(gcs, tlog)
-            if sc.vehicle != _preset(vname):
-                raise ComponentError("onboard", "vehicle.overrides are not supported in SIL yet")
+    def close_partial(self) -> None:
+        """After a failed SIL start: close what was opened (process, sockets)."""
+        for link in self._own:
+            link.close()
+        if self.proc is not None:
+            self.proc.close()
+
+    def _start_sil(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path) -> None:
+        from cosim.sil import OnboardProcess
+
+        vname = sc.vehicle.name
+        hil = UdpLink(("127.0.0.1", 0))
+        api = UdpLink(("127.0.0.1", 0))
+        gcs = UdpLink(("127.0.0.1", 0))
+        self._own = (hil, api, gcs)
+        preset = _preset(vname)
+        overrides = tuple(  # scenario vehicle.overrides, passed to the process
+            f"--vehicle-param={k}={v!r}" for k, v in sc.vehicle.fmu_parameters().items()
+            if getattr(preset, k) != v
+        )
+        self.proc = OnboardProcess(
+            vname, api.local_address, gcs.local_address, log_dir / "onboard.log",
+            hil_timeout_s=max(10.0, 5 * opts.hil_timeout_s), extra_args=overrides,
+        )
+        ports = self.proc.ports
+        for link, name in ((hil, "hil"), (api, "api"), (gcs, "gcs")):
+            link.remote = ("127.0.0.1", ports[name])
+            link._fixed_remote = True
+        hil.sock.setblocking(True)
+        hil.sock.settimeout(opts.hil_timeout_s)
+        self.hil = hil
+        self.api = TapLink(api, tlog)
+        self.gcs = TapLink(gcs, tlog)
+        self._own = ()
 
     def exchange(self, data: bytes) -> bytes:
         """Send one HIL datagram and return the answer."""
@@ -198,9 +219,10 @@ class _Vehicle:
             pass
 
     def stats(self) -> dict[str, Any]:
+        """The onboard stack's counters (SIL: as the process reported them at exit)."""
         if self.proc is None:
             return dict(getattr(self.onboard, "stats", {}))
-        return {}
+        return dict(self.proc.stats)
 
     def close(self) -> None:
         for link in (self.hil, self.api, self.gcs, *self._own):
@@ -232,14 +254,16 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     h_us = int(round(h * 1e6))
     n_ticks = int(round(sc.timing.t_final_s / h))
     cam_every = sc.timing.camera_every
-    rng = np.random.default_rng(sc.seed)
+    # one independent random stream per consumer, all from the scenario seed
+    rng = np.random.default_rng([sc.seed, 0])                       # sensor model
     tlog = Tlog()
     world = build_world(sc)
     camera = None
     if sc.camera is not None:
         from cosim.camera import DownwardCamera
 
-        camera = DownwardCamera(world, build_camera_config(sc), seed=sc.seed + 1)
+        cam_seed = int(np.random.SeedSequence([sc.seed, 2]).generate_state(1)[0])
+        camera = DownwardCamera(world, build_camera_config(sc), seed=cam_seed)
     sensor = OdometrySensor(sc.noise, rng)
     wind_n, wind_e, wind_d = sc.wind_ned_mps
     arena = world.arena
@@ -368,7 +392,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                 exit_reason, message = ExitReason.CRASHED, "flipped over"
                 k += 1
                 break
-            if (x_ < arena[0] - ARENA_MARGIN_M or x_ > arena[1] + ARENA_MARGIN_M
+            if not sitl and (x_ < arena[0] - ARENA_MARGIN_M or x_ > arena[1] + ARENA_MARGIN_M
                     or y_ < arena[2] - ARENA_MARGIN_M or y_ > arena[3] + ARENA_MARGIN_M
                     or z_ < -CEILING_M):
                 exit_reason, message = ExitReason.LEFT_ARENA, (
@@ -410,8 +434,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             print(file=sys.stderr)
         stats = {}
         if vehicle is not None:
+            vehicle.close()  # first: a SIL process reports its counters as it exits
             stats = vehicle.stats()
-            vehicle.close()
         if plant is not None:
             plant.close()
     ticks = len(rows)

@@ -31,6 +31,7 @@ class OnboardProcess:
         start_timeout_s: float = 30.0,
     ) -> None:
         self.log_path = Path(log_path)
+        self.stats: dict = {}                   # the process's counters, after close()
         self._log = open(self.log_path, "w")  # noqa: SIM115 (closed in close())
         cmd = [
             sys.executable, "-m", "mav.onboard",
@@ -81,6 +82,18 @@ class OnboardProcess:
         state = "still running" if code is None else f"exited with code {code}"
         return state + (": " + " | ".join(tail) if tail else "")
 
+    def _read_stats(self) -> dict:
+        """The counters the process prints as it exits (`onboard: exit N; stats {...}`)."""
+        import ast
+
+        try:
+            for line in reversed(self.log_path.read_text().splitlines()):
+                if line.startswith("onboard: exit") and "stats " in line:
+                    return dict(ast.literal_eval(line.split("stats ", 1)[1]))
+        except (OSError, ValueError, SyntaxError):
+            pass
+        return {}
+
     def close(self) -> None:
         if self.proc.poll() is None:
             self.proc.terminate()
@@ -91,7 +104,9 @@ class OnboardProcess:
                 self.proc.wait()
         if self.proc.stdout:
             self.proc.stdout.close()
-        self._log.close()
+        if not self._log.closed:
+            self._log.close()
+            self.stats = self._read_stats()
 
     def __enter__(self) -> OnboardProcess:
         return self

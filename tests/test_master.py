@@ -284,3 +284,16 @@ def test_onboard_process_that_hangs_is_detected(tmp_path, monkeypatch):
     assert res.exit_reason is ExitReason.COMPONENT_ERROR
     assert res.message.startswith("onboard: stopped answering")
     assert not procs[0].alive()               # the master shut the stopped process down
+
+
+def test_vehicle_overrides_fly_the_same_in_mil_and_sil():
+    sc = load_scenario(SQUARE).with_set({"vehicle.overrides.mass": 0.07,
+                                         "vehicle.overrides.drag_xy": 0.02,
+                                         "timing.t_final_s": 8.0})
+    mil = run_scenario(sc, RunOptions(mode="mil"))
+    sil = run_scenario(sc, RunOptions(mode="sil"))
+    base = run_scenario(load_scenario(SQUARE).with_set({"timing.t_final_s": 8.0}), RunOptions())
+    assert _same_bits(mil.series, sil.series)
+    assert not _same_bits(mil.series, base.series)      # the overrides did change the flight
+    # SIL reports the onboard process's counters, as MIL does
+    assert sil.onboard_stats["rx_hil"] == mil.onboard_stats["rx_hil"] == mil.ticks
