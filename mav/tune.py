@@ -408,10 +408,20 @@ def main(argv: list[str] | None = None) -> int:
         d = {}
         for it in items:
             k, sep, val = it.partition("=")
-            if not sep:
-                ap.error(f"expected NAME=VALUE, got {it!r}")
-            d[k.strip()] = float(val)
+            try:
+                v = float(val)
+            except ValueError:
+                v = math.nan
+            if not sep or not math.isfinite(v):
+                ap.error(f"expected NAME=VALUE with a finite number, got {it!r}")
+            d[k.strip()] = v
         return d
+
+    for it in args.vp:  # airframe values are physical magnitudes: > 0 (drag_rot >= 0)
+        k, _, val = it.partition("=")
+        v = kv([it])[k.strip()]
+        if not (v > 0.0 or (k.strip() == "drag_rot" and v == 0.0)):
+            ap.error(f"--vehicle-param {k.strip()}: got {val!r}; expected a number > 0")
 
     rc = 0
     for name in args.vehicle:

@@ -105,3 +105,11 @@ def test_onboard_rejects_a_bad_vehicle_param(item, capsys):
         onboard_main(["--vehicle-param", item, "--hil-bind", "127.0.0.1:0"])
     assert ei.value.code == 2
     assert "--vehicle-param" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("item", ["motor_tau=0", "mass=-1", "mass=abc", "mass"])
+def test_tune_rejects_a_bad_vehicle_param(item, capsys):
+    with pytest.raises(SystemExit) as ei:
+        main(["tune", "mambo", "--vehicle-param", item])
+    assert ei.value.code == 2
+    assert "error" in capsys.readouterr().err
