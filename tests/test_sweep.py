@@ -56,3 +56,16 @@ def test_alpha_trade_off_on_the_seed_track(tmp_path):
         assert v / a == pytest.approx(speeds[0] / alphas[0], rel=0.2)
     rms = [float(r["path_error_rms_m"]) for r in rows]
     assert rms[-1] > min(rms) * 2                       # the fastest is the least accurate
+
+
+@pytest.mark.slow
+def test_monte_carlo_on_the_textured_floor(tmp_path):
+    """8 seeds: odometry noise, camera pixel and lighting noise, distractors. Every run lands
+    on the marker, and the seeds really differ."""
+    rows = _sweep(tmp_path, "mambo_textured.toml",
+                  ["seed=0,1,2,3,4,5,6,7", "sensors.odometry_noise.pos_std_m=0.003",
+                   "sensors.odometry_noise.vel_std_mps=0.01"], "local")
+    assert len(rows) == 8
+    assert all(r["exit_reason"] == "mission_complete" and r["passed"] == "True" for r in rows)
+    assert max(float(r["landing_error_m"]) for r in rows) < 0.05
+    assert len({r["mission_time_s"] for r in rows}) > 1
