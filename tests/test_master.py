@@ -112,7 +112,9 @@ def test_app_exception_stops_the_run_and_keeps_outputs(tmp_path):
     assert len((tmp_path / "timeseries.csv").read_text().splitlines()) == res.ticks + 1
 
 
-def test_onboard_process_killed_mid_run(tmp_path, monkeypatch):
+@pytest.fixture
+def onboard_procs(monkeypatch):
+    """Every OnboardProcess the master starts during the test, in order."""
     import cosim.sil as sil
 
     procs = []
@@ -123,6 +125,11 @@ def test_onboard_process_killed_mid_run(tmp_path, monkeypatch):
         procs.append(self)
 
     monkeypatch.setattr(sil.OnboardProcess, "__init__", spy)
+    return procs
+
+
+def test_onboard_process_killed_mid_run(tmp_path, onboard_procs):
+    procs = onboard_procs
 
     class KillerApp(ScriptedApp):
         def on_tick(self, t: float) -> None:
@@ -257,17 +264,8 @@ def test_fmu_error_is_named_and_outputs_kept(tmp_path, monkeypatch):
     assert (tmp_path / "summary.json").is_file()
 
 
-def test_onboard_process_that_hangs_is_detected(tmp_path, monkeypatch):
-    import cosim.sil as sil
-
-    procs = []
-    orig = sil.OnboardProcess.__init__
-
-    def spy(self, *a, **kw):
-        orig(self, *a, **kw)
-        procs.append(self)
-
-    monkeypatch.setattr(sil.OnboardProcess, "__init__", spy)
+def test_onboard_process_that_hangs_is_detected(tmp_path, onboard_procs):
+    procs = onboard_procs
 
     class FreezerApp(ScriptedApp):
         def on_tick(self, t: float) -> None:
