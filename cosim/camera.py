@@ -54,6 +54,7 @@ import numpy as np
 
 from cosim.errors import ScenarioError
 from cosim.frames import R_from_quat
+from cosim.validate import integer, no_unknown, number, string
 from cosim.world import World
 
 __all__ = [
@@ -118,30 +119,17 @@ class CameraConfig:
         """Validate a ``[camera]`` table; unknown keys and bad values raise ScenarioError."""
         if not isinstance(d, Mapping):
             raise ScenarioError(where, d, "a table")
-        known = {"width", "height", "vfov_deg", "mount_B", "noise_std", "lighting_noise",
-                 "supersample", "texture_px_per_m", "interpolation"}
-        for k in d:
-            if k not in known:
-                raise ScenarioError(f"{where}.{k}", d[k],
-                                    f"one of the keys {', '.join(sorted(known))}")
+        no_unknown(d, {"width", "height", "vfov_deg", "mount_B", "noise_std", "lighting_noise",
+                       "supersample", "texture_px_per_m", "interpolation"}, where)
         kw: dict[str, Any] = {}
         for k, lo, hi in (("width", 8, 4096), ("height", 8, 4096), ("supersample", 1, 8)):
             if k in d:
-                v = d[k]
-                if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                    raise ScenarioError(f"{where}.{k}", v, f"an integer in [{lo}, {hi}]")
-                kw[k] = v
+                kw[k] = integer(d, k, where, lo=lo, hi=hi)
         for k, lo, hi, lo_open in (("vfov_deg", 0.0, 170.0, True), ("noise_std", 0.0, 100.0, False),
                                    ("lighting_noise", 0.0, 0.5, False),
                                    ("texture_px_per_m", 50.0, 2000.0, False)):
             if k in d:
-                v = d[k]
-                bad = (isinstance(v, bool) or not isinstance(v, (int, float))
-                       or not math.isfinite(v) or v < lo or v > hi or (lo_open and v == lo))
-                if bad:
-                    raise ScenarioError(f"{where}.{k}", v,
-                                        f"a number in {'(' if lo_open else '['}{lo}, {hi}]")
-                kw[k] = float(v)
+                kw[k] = number(d, k, where, lo=lo, hi=hi, lo_open=lo_open)
         if "mount_B" in d:
             v = d["mount_B"]
             if (not isinstance(v, list) or len(v) != 3
@@ -151,10 +139,7 @@ class CameraConfig:
                                     "[x, y, z] body FRD offset in metres, each |.| <= 1")
             kw["mount_B"] = (float(v[0]), float(v[1]), float(v[2]))
         if "interpolation" in d:
-            if d["interpolation"] not in ("linear", "nearest"):
-                raise ScenarioError(f"{where}.interpolation", d["interpolation"],
-                                    "'linear' or 'nearest'")
-            kw["interpolation"] = d["interpolation"]
+            kw["interpolation"] = string(d, "interpolation", where, choices=("linear", "nearest"))
         return cls(**kw)
 
 

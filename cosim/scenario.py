@@ -8,83 +8,17 @@ The schema is documented in scenarios/README.md.
 from __future__ import annotations
 
 import copy
-import math
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from cosim.errors import ScenarioError
+from cosim.validate import boolean, integer, no_unknown, number, string, table
 from cosim.vehicles import PRESETS, VehicleParams, get_vehicle
 
 BUILTIN_APPS = ("line_follower", "scripted", "none")
 MODES = ("mil", "sil")
-
-
-# --------------------------------------------------------------------------- field helpers
-def _table(d: dict, key: str, where: str, required: bool = False) -> dict:
-    if key not in d:
-        if required:
-            raise ScenarioError(f"{where}.{key}".lstrip("."), None, "a table (section) is required")
-        return {}
-    v = d[key]
-    if not isinstance(v, dict):
-        raise ScenarioError(f"{where}.{key}".lstrip("."), v, "a table")
-    return v
-
-
-def _number(
-    d: dict, key: str, where: str, default: float | None = None, *, lo: float = -math.inf,
-    hi: float = math.inf, lo_open: bool = False,
-) -> float:
-    path = f"{where}.{key}".lstrip(".")
-    if key not in d:
-        if default is None:
-            raise ScenarioError(path, None, "a number is required")
-        return float(default)
-    v = d[key]
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-        raise ScenarioError(path, v, "a finite number")
-    ok = (v > lo if lo_open else v >= lo) and v <= hi
-    if not ok:
-        lb = "(" if lo_open else "["
-        raise ScenarioError(path, v, f"a number in {lb}{lo}, {hi}]")
-    return float(v)
-
-
-def _int(d: dict, key: str, where: str, default: int, *, lo: int, hi: int) -> int:
-    path = f"{where}.{key}".lstrip(".")
-    v = d.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-        raise ScenarioError(path, v, f"an integer in [{lo}, {hi}]")
-    return v
-
-
-def _str(d: dict, key: str, where: str, default: str | None, choices: tuple[str, ...] = ()) -> str:
-    path = f"{where}.{key}".lstrip(".")
-    if key not in d:
-        if default is None:
-            raise ScenarioError(path, None, "a string is required")
-        return default
-    v = d[key]
-    if not isinstance(v, str) or (choices and v not in choices):
-        raise ScenarioError(path, v, f"one of {', '.join(choices)}" if choices else "a string")
-    return v
-
-
-def _bool(d: dict, key: str, where: str, default: bool) -> bool:
-    v = d.get(key, default)
-    if not isinstance(v, bool):
-        raise ScenarioError(f"{where}.{key}".lstrip("."), v, "true or false")
-    return v
-
-
-def _no_unknown(d: dict, known: set[str], where: str) -> None:
-    for k in d:
-        if k not in known:
-            raise ScenarioError(
-                f"{where}.{k}".lstrip("."), d[k], f"known keys: {', '.join(sorted(known))}"
-            )
 
 
 # --------------------------------------------------------------------------- records
@@ -188,7 +122,7 @@ def load_scenario(path: str | Path) -> Scenario:
 
 
 def _load_world(raw: dict, base_dir: Path) -> dict:
-    w = _table(raw, "world", "", required=True)
+    w = table(raw, "world", "", required=True)
     w = dict(w)
     if "file" in w:
         f = w.pop("file")
@@ -209,90 +143,90 @@ def _load_world(raw: dict, base_dir: Path) -> dict:
 
 def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None) -> Scenario:
     base_dir = base_dir or Path(".")
-    _no_unknown(raw, TOP_KEYS, "")
-    name = _str(raw, "name", "", Path(source).stem or "scenario")
-    description = _str(raw, "description", "", "")
-    seed = _int(raw, "seed", "", 0, lo=0, hi=2**63 - 1)
+    no_unknown(raw, TOP_KEYS, "")
+    name = string(raw, "name", "", Path(source).stem or "scenario")
+    description = string(raw, "description", "", "")
+    seed = integer(raw, "seed", "", 0, lo=0, hi=2**63 - 1)
 
     # vehicle
-    v = _table(raw, "vehicle", "", required=True)
-    _no_unknown(v, {"preset", "overrides", "start"}, "vehicle")
-    preset = _str(v, "preset", "vehicle", None, tuple(sorted(PRESETS)))
+    v = table(raw, "vehicle", "", required=True)
+    no_unknown(v, {"preset", "overrides", "start"}, "vehicle")
+    preset = string(v, "preset", "vehicle", choices=tuple(sorted(PRESETS)))
     vehicle = get_vehicle(preset)
-    ov = _table(v, "overrides", "vehicle")
+    ov = table(v, "overrides", "vehicle")
     fields = set(vehicle.fmu_parameters())
-    _no_unknown(ov, fields, "vehicle.overrides")
+    no_unknown(ov, fields, "vehicle.overrides")
     if ov:
         vehicle = vehicle.with_overrides(
-            **{k: _number(ov, k, "vehicle.overrides", lo=0.0, lo_open=k != "drag_rot")
+            **{k: number(ov, k, "vehicle.overrides", lo=0.0, lo_open=k != "drag_rot")
                for k in ov}
         )
     world = _load_world(raw, base_dir)
-    st = _table(v, "start", "vehicle")
+    st = table(v, "start", "vehicle")
     if "start" not in v and isinstance(world.get("start"), dict):
         st = world["start"]  # the world's suggested start pose
-    _no_unknown(st, {"n", "e", "yaw_deg"}, "vehicle.start")
+    no_unknown(st, {"n", "e", "yaw_deg"}, "vehicle.start")
     start = Start(
-        n=_number(st, "n", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
-        e=_number(st, "e", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
-        yaw_deg=_number(st, "yaw_deg", "vehicle.start", 0.0, lo=-180.0, hi=360.0),
+        n=number(st, "n", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
+        e=number(st, "e", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
+        yaw_deg=number(st, "yaw_deg", "vehicle.start", 0.0, lo=-180.0, hi=360.0),
     )
 
     # timing
-    tm = _table(raw, "timing", "")
-    _no_unknown(tm, {"tick_s", "camera_every", "t_final_s"}, "timing")
-    tick = _number(tm, "tick_s", "timing", 0.005, lo=0.005, hi=0.005)
+    tm = table(raw, "timing", "")
+    no_unknown(tm, {"tick_s", "camera_every", "t_final_s"}, "timing")
+    tick = number(tm, "tick_s", "timing", 0.005, lo=0.005, hi=0.005)
     timing = Timing(
         tick_s=tick,
-        camera_every=_int(tm, "camera_every", "timing", 40, lo=1, hi=10_000),
-        t_final_s=_number(tm, "t_final_s", "timing", 100.0, lo=0.0, hi=86_400.0, lo_open=True),
+        camera_every=integer(tm, "camera_every", "timing", 40, lo=1, hi=10_000),
+        t_final_s=number(tm, "t_final_s", "timing", 100.0, lo=0.0, hi=86_400.0, lo_open=True),
     )
 
-    camera = _table(raw, "camera", "") if "camera" in raw else None
+    camera = table(raw, "camera", "") if "camera" in raw else None
 
     # app
-    a = _table(raw, "app", "")
-    _no_unknown(a, {"name", "params"}, "app")
-    app_name = _str(a, "name", "app", "none")
+    a = table(raw, "app", "")
+    no_unknown(a, {"name", "params"}, "app")
+    app_name = string(a, "name", "app", "none")
     if app_name not in BUILTIN_APPS and ":" not in app_name:
         raise ScenarioError(
             "app.name", app_name, f"one of {', '.join(BUILTIN_APPS)} or 'package.module:Class'"
         )
-    app = AppSpec(name=app_name, params=dict(_table(a, "params", "app")))
+    app = AppSpec(name=app_name, params=dict(table(a, "params", "app")))
 
     # sensors / wind / faults
-    s = _table(raw, "sensors", "")
-    _no_unknown(s, {"odometry_noise"}, "sensors")
-    n = _table(s, "odometry_noise", "sensors")
-    _no_unknown(n, {"pos_std_m", "vel_std_mps", "att_std_rad", "rate_std_radps"},
+    s = table(raw, "sensors", "")
+    no_unknown(s, {"odometry_noise"}, "sensors")
+    n = table(s, "odometry_noise", "sensors")
+    no_unknown(n, {"pos_std_m", "vel_std_mps", "att_std_rad", "rate_std_radps"},
                 "sensors.odometry_noise")
     w = "sensors.odometry_noise"
     noise = SensorNoise(
-        pos_std_m=_number(n, "pos_std_m", w, 0.0, lo=0.0, hi=10.0),
-        vel_std_mps=_number(n, "vel_std_mps", w, 0.0, lo=0.0, hi=10.0),
-        att_std_rad=_number(n, "att_std_rad", w, 0.0, lo=0.0, hi=1.0),
-        rate_std_radps=_number(n, "rate_std_radps", w, 0.0, lo=0.0, hi=10.0),
+        pos_std_m=number(n, "pos_std_m", w, 0.0, lo=0.0, hi=10.0),
+        vel_std_mps=number(n, "vel_std_mps", w, 0.0, lo=0.0, hi=10.0),
+        att_std_rad=number(n, "att_std_rad", w, 0.0, lo=0.0, hi=1.0),
+        rate_std_radps=number(n, "rate_std_radps", w, 0.0, lo=0.0, hi=10.0),
     )
-    wd = _table(raw, "wind", "")
-    _no_unknown(wd, {"n_mps", "e_mps", "d_mps"}, "wind")
+    wd = table(raw, "wind", "")
+    no_unknown(wd, {"n_mps", "e_mps", "d_mps"}, "wind")
     wind = tuple(
-        _number(wd, k, "wind", 0.0, lo=-30.0, hi=30.0) for k in ("n_mps", "e_mps", "d_mps")
+        number(wd, k, "wind", 0.0, lo=-30.0, hi=30.0) for k in ("n_mps", "e_mps", "d_mps")
     )
-    faults = _table(raw, "faults", "")
+    faults = table(raw, "faults", "")
     if faults:
         raise ScenarioError("faults", faults, "an empty table (fault injection is reserved)")
 
     # criteria
-    c = _table(raw, "criteria", "")
+    c = table(raw, "criteria", "")
     known = {"must_complete", "landing_error_max_m", "path_rms_max_m", "path_max_m",
              "mission_time_max_s", "position_error_max_m"}
-    _no_unknown(c, known, "criteria")
+    no_unknown(c, known, "criteria")
 
     def opt(key: str) -> float | None:
-        return _number(c, key, "criteria", lo=0.0, lo_open=True) if key in c else None
+        return number(c, key, "criteria", lo=0.0, lo_open=True) if key in c else None
 
     criteria = Criteria(
-        must_complete=_bool(c, "must_complete", "criteria", True),
+        must_complete=boolean(c, "must_complete", "criteria", True),
         landing_error_max_m=opt("landing_error_max_m"),
         path_rms_max_m=opt("path_rms_max_m"),
         path_max_m=opt("path_max_m"),

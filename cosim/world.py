@@ -61,6 +61,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from cosim.errors import ScenarioError
+from cosim.validate import no_unknown, number
 
 __all__ = [
     "Arena",
@@ -175,7 +176,7 @@ class World:
         """
         if not isinstance(d, Mapping):
             raise ScenarioError(where, d, "a table")
-        _no_unknown(d, {"name", "floor_texture", "floor_rgb", "tile_rgb", "arena", "start",
+        no_unknown(d, {"name", "floor_texture", "floor_rgb", "tile_rgb", "arena", "start",
                         "track", "marker", "distractor"}, where)
         name = d.get("name", "")
         if not isinstance(name, str):
@@ -197,8 +198,8 @@ class World:
         wa = f"{where}.arena"
         if not isinstance(a, Mapping):
             raise ScenarioError(wa, a, "a table {n_min, n_max, e_min, e_max} in metres")
-        _no_unknown(a, {"n_min", "n_max", "e_min", "e_max"}, wa)
-        arena = Arena(*(_num(a, k, wa, lo=-1e5, hi=1e5)
+        no_unknown(a, {"n_min", "n_max", "e_min", "e_max"}, wa)
+        arena = Arena(*(number(a, k, wa, lo=-1e5, hi=1e5)
                         for k in ("n_min", "n_max", "e_min", "e_max")))
         if not arena.n_max - arena.n_min >= 0.5:
             raise ScenarioError(f"{wa}.n_max", arena.n_max, f"at least n_min + 0.5 = "
@@ -214,11 +215,11 @@ class World:
             s, ws = d["start"], f"{where}.start"
             if not isinstance(s, Mapping):
                 raise ScenarioError(ws, s, "a table {n, e, yaw_deg}")
-            _no_unknown(s, {"n", "e", "yaw_deg"}, ws)
-            n0, e0 = _num(s, "n", ws, lo=-1e5, hi=1e5), _num(s, "e", ws, lo=-1e5, hi=1e5)
+            no_unknown(s, {"n", "e", "yaw_deg"}, ws)
+            n0, e0 = number(s, "n", ws, lo=-1e5, hi=1e5), number(s, "e", ws, lo=-1e5, hi=1e5)
             if not arena.contains(n0, e0):
                 raise ScenarioError(ws, dict(s), "a point inside the arena")
-            yaw0 = math.radians(_num(s, "yaw_deg", ws, 0.0, lo=-360.0, hi=360.0))
+            yaw0 = math.radians(number(s, "yaw_deg", ws, 0.0, lo=-360.0, hi=360.0))
             start = (n0, e0, yaw0)
 
         raw_track = d.get("track", [])
@@ -232,9 +233,9 @@ class World:
             m, wm = d["marker"], f"{where}.marker"
             if not isinstance(m, Mapping):
                 raise ScenarioError(wm, m, "a table {center, radius, rgb}")
-            _no_unknown(m, {"center", "radius", "rgb"}, wm)
+            no_unknown(m, {"center", "radius", "rgb"}, wm)
             marker = Marker(center=_point(m, "center", wm, arena),
-                            radius=_num(m, "radius", wm, lo=0.005, hi=2.0),
+                            radius=number(m, "radius", wm, lo=0.005, hi=2.0),
                             rgb=_rgb(m, "rgb", wm, RED))
 
         raw_dis = d.get("distractor", [])
@@ -331,31 +332,6 @@ class World:
 
 
 # ====================================================================== validation helpers
-def _no_unknown(d: Mapping, known: set[str], where: str) -> None:
-    for k in d:
-        if k not in known:
-            raise ScenarioError(f"{where}.{k}" if where else k, d[k],
-                                f"one of the keys {', '.join(sorted(known))}")
-
-
-_REQUIRED = object()
-
-
-def _num(d: Mapping, key: str, where: str, default: Any = _REQUIRED, *, lo: float = -math.inf,
-         hi: float = math.inf, lo_open: bool = False) -> float:
-    f = f"{where}.{key}"
-    if key not in d:
-        if default is _REQUIRED:
-            raise ScenarioError(f, None, f"a number in [{lo}, {hi}] (required)")
-        return default
-    v = d[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ScenarioError(f, v, f"a finite number in {'(' if lo_open else '['}{lo}, {hi}]")
-    if v < lo or v > hi or (lo_open and v == lo):
-        raise ScenarioError(f, v, f"a number in {'(' if lo_open else '['}{lo}, {hi}]")
-    return float(v)
-
-
 def _rgb(d: Mapping, key: str, where: str, default: RGB) -> RGB:
     if key not in d:
         return default
@@ -388,10 +364,10 @@ def _point(d: Mapping, key: str, where: str, arena: Arena) -> NE:
 def _track_part(p: Any, where: str, arena: Arena) -> TrackPart:
     if not isinstance(p, Mapping):
         raise ScenarioError(where, p, "a table (rectangle or polyline part)")
-    width = _num(p, "width", where, lo=0.005, hi=2.0)
+    width = number(p, "width", where, lo=0.005, hi=2.0)
     rgb = _rgb(p, "rgb", where, RED)
     if "points" in p:
-        _no_unknown(p, {"points", "width", "rgb"}, where)
+        no_unknown(p, {"points", "width", "rgb"}, where)
         raw = p["points"]
         f = f"{where}.points"
         if not isinstance(raw, list) or len(raw) < 2:
@@ -405,14 +381,14 @@ def _track_part(p: Any, where: str, arena: Arena) -> TrackPart:
                 raise ScenarioError(f"{f}[{i}]", list(q),
                                     "a point at least 1 mm from the previous one")
         return PolylinePart(points=pts, width=width, rgb=rgb)
-    _no_unknown(p, {"center", "length", "width", "heading_deg", "rgb"}, where)
+    no_unknown(p, {"center", "length", "width", "heading_deg", "rgb"}, where)
     if "center" not in p:
         raise ScenarioError(where, dict(p), "a rectangle (center, length, width, heading_deg) "
                             "or a polyline (points, width)")
     part = RectPart(center=_point(p, "center", where, arena),
-                    length=_num(p, "length", where, lo=0.0, hi=200.0, lo_open=True),
+                    length=number(p, "length", where, lo=0.0, hi=200.0, lo_open=True),
                     width=width,
-                    heading=math.radians(_num(p, "heading_deg", where, lo=-360.0, hi=360.0)),
+                    heading=math.radians(number(p, "heading_deg", where, lo=-360.0, hi=360.0)),
                     rgb=rgb)
     for q in part.axis_ends():
         if not arena.contains(*q):
@@ -424,7 +400,7 @@ def _track_part(p: Any, where: str, arena: Arena) -> TrackPart:
 def _distractor(x: Any, where: str, arena: Arena) -> Distractor:
     if not isinstance(x, Mapping):
         raise ScenarioError(where, x, "a table {shape, center, size, rgb, heading_deg}")
-    _no_unknown(x, {"shape", "center", "size", "rgb", "heading_deg"}, where)
+    no_unknown(x, {"shape", "center", "size", "rgb", "heading_deg"}, where)
     shape = x.get("shape")
     if shape not in ("square", "disc"):
         raise ScenarioError(f"{where}.shape", shape, "'square' or 'disc'")
@@ -433,9 +409,9 @@ def _distractor(x: Any, where: str, arena: Arena) -> Distractor:
     if "rgb" not in x:
         raise ScenarioError(f"{where}.rgb", None, "[r, g, b] with integers 0-255 (required)")
     return Distractor(shape=shape, center=_point(x, "center", where, arena),
-                      size=_num(x, "size", where, lo=0.0, hi=10.0, lo_open=True),
+                      size=number(x, "size", where, lo=0.0, hi=10.0, lo_open=True),
                       rgb=_rgb(x, "rgb", where, (0, 0, 0)),
-                      heading=math.radians(_num(x, "heading_deg", where, 0.0,
+                      heading=math.radians(number(x, "heading_deg", where, 0.0,
                                                 lo=-360.0, hi=360.0)))
 
 
