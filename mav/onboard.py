@@ -85,8 +85,6 @@ SP_MAX_POS_M = 1.0e4        # m, |x|, |y|, |z| above this: rejected
 SP_MAX_VEL_MPS = 20.0       # m/s, |vx|, |vy|, |vz|
 SP_MAX_YAW_RAD = 2.0 * TWO_PI
 SP_MAX_YAW_RATE = 20.0      # rad/s
-OF_STREAM_GAP_US = 500_000  # a gap longer than this (< 2 Hz) restarts the setpoint stream
-OF_STREAM_MIN_US = 1_000_000  # the stream must be older than this to enter OFFBOARD
 
 # ---- ground / air detection
 AIRBORNE_AGL_M = 0.15       # m above home: airborne (ON_GROUND -> IN_AIR)
@@ -340,7 +338,6 @@ class Onboard:
         self._ground_since = -1        # landed after LAND: when (for COM_DISARM_LAND)
         # offboard stream & failsafe
         self._of_last_us = -(1 << 62)
-        self._of_start_us = 0
         self._fs_active = False
         self._fs_t0 = 0
         self._reject_text_us: dict[str, int] = {}
@@ -664,10 +661,7 @@ class Onboard:
         of.vz = vz if use_vz else NAN
         of.yaw = _wrap_pi(yaw) if use_yaw else NAN
         of.yaw_rate = yaw_rate if use_rate else NAN
-        t = self._t_us
-        if t - self._of_last_us > OF_STREAM_GAP_US:
-            self._of_start_us = t
-        self._of_last_us = t
+        self._of_last_us = self._t_us
         self.stats["setpoints"] += 1
 
     def _reject_sp(self, kind: str, text: str) -> None:
@@ -684,9 +678,10 @@ class Onboard:
             self.statustext(text, M.MAV_SEVERITY_WARNING)
 
     def _offboard_stream_ok(self) -> bool:
-        t = self._t_us
-        return (t - self._of_last_us <= OF_STREAM_GAP_US
-                and t - self._of_start_us > OF_STREAM_MIN_US)
+        # PX4 (commander, HealthAndArmingChecks/checks/offboardCheck.cpp): offboard is
+        # available while the newest setpoint is younger than COM_OF_LOSS_T; no minimum
+        # stream duration (MAVSDK's Offboard.start() sends one setpoint, then the mode).
+        return self._t_us - self._of_last_us <= self._of_loss_us
 
     # ------------------------------------------------------------------ modes
     def _set_mode(self, mode: int) -> None:
@@ -986,7 +981,7 @@ class Onboard:
         if mode == self.mode:
             return M.MAV_RESULT_ACCEPTED
         if mode == OFFBOARD and not self._offboard_stream_ok():
-            self.statustext("Switching to OFFBOARD denied: no setpoint stream (>= 2 Hz, > 1 s)",
+            self.statustext("Switching to OFFBOARD denied: no setpoint stream",
                             M.MAV_SEVERITY_WARNING)
             return M.MAV_RESULT_TEMPORARILY_REJECTED
         if mode == TAKEOFF:

@@ -480,16 +480,21 @@ def test_setpoints_act_only_in_offboard():
 
 
 # ------------------------------------------------------------------ offboard entry & loss
-@pytest.mark.parametrize("hz,seconds,ok", [
-    (1.0, 3.0, False),      # too slow
-    (20.0, 0.5, False),     # too short
-    (20.0, 1.2, True),
-    (2.5, 1.5, True),
+@pytest.mark.parametrize("age_s,loss_s,ok", [
+    (None, 1.0, False),     # no setpoint ever
+    (0.005, 1.0, True),     # one setpoint just before the mode (MAVSDK's Offboard.start())
+    (0.9, 1.0, True),
+    (1.2, 1.0, False),      # older than COM_OF_LOSS_T
+    (1.2, 2.0, True),       # ... which is the parameter
 ])
-def test_offboard_entry_rule(hz, seconds, ok):
-    rig = Rig()
+def test_offboard_entry_rule(age_s, loss_s, ok):
+    """PX4 (offboardCheck.cpp): OFFBOARD is available while the newest setpoint is younger
+    than COM_OF_LOSS_T; there is no minimum stream duration."""
+    rig = Rig(offboard_loss_s=loss_s)
     rig.tick()
-    stream_setpoints(rig, seconds, hz)
+    if age_s is not None:
+        rig.setpoint(POS_ONLY)
+        rig.tick(round(age_s * 200))
     rig.set_mode(6)
     rig.tick()
     want = M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_TEMPORARILY_REJECTED
