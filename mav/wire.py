@@ -244,67 +244,43 @@ def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | N
     return m.st.unpack(data[i + HEADER_LEN_V2:crc_at] + m.zeros[plen:])
 
 
-_ODO_USED = struct.Struct("<Q13f168xBB")   # the fields the onboard stack uses, same offsets
-_ODO_ID3 = ODOMETRY.id3
-_ODO_EXTRA = ODOMETRY.extra
-_ODO_USED_LEN = _ODO_USED.size            # 230: payload bytes up to child_frame_id
+def _one_frame_decoder(m: FastMsg, used: struct.Struct):
+    """A decoder for a datagram holding exactly one frame of `m`: the leading fields that
+    `used` unpacks (same offsets as m's payload), or None. Same checks and values as
+    `decode_fast(m, ...)` on those fields; for the per-tick HIL paths, which need only them."""
+    id3, extra, zeros, used_len = m.id3, m.extra, m.zeros, used.size
+    unpack, unpack_from = used.unpack, used.unpack_from
 
-
-def decode_odometry(data: bytes) -> tuple | None:
-    """A datagram holding exactly one ODOMETRY frame -> (time_usec, x, y, z, qw, qx, qy, qz,
-    vx, vy, vz, rollspeed, pitchspeed, yawspeed, frame_id, child_frame_id), or None.
-
-    Same checks and values as `decode_fast(ODOMETRY, ...)`, minus the covariances and the
-    trailing fields the onboard stack does not use; the per-tick HIL path.
-    """
-    n = len(data)
-    if n < 12 or data[0] != MAGIC_V2 or data[7:10] != _ODO_ID3:
-        return None
-    flags = data[2]
-    plen = data[1]
-    crc_at = HEADER_LEN_V2 + plen
-    if flags == 0:
-        if n != crc_at + 2:
+    def decode(data: bytes) -> tuple | None:
+        n = len(data)
+        if n < 12 or data[0] != MAGIC_V2 or data[7:10] != id3:
             return None
-    elif flags != IFLAG_SIGNED or n != crc_at + 2 + SIGNATURE_LEN:
-        return None
-    if crc16(data[1:crc_at] + _ODO_EXTRA) != (data[crc_at] | data[crc_at + 1] << 8):
-        return None
-    if plen >= _ODO_USED_LEN:
-        return _ODO_USED.unpack_from(data, HEADER_LEN_V2)
-    return _ODO_USED.unpack(data[HEADER_LEN_V2:crc_at] + ODOMETRY.zeros[plen:_ODO_USED_LEN])
-
-
-_HIL_USED = struct.Struct("<Q8x4f")          # time_usec, (flags), controls[0..3]
-_HIL_ID3 = HIL_ACTUATOR_CONTROLS.id3
-_HIL_EXTRA = HIL_ACTUATOR_CONTROLS.extra
-_HIL_USED_LEN = _HIL_USED.size               # 32: payload bytes up to controls[3]
-
-
-def decode_hil_actuator_controls(data: bytes) -> tuple | None:
-    """A datagram holding exactly one HIL_ACTUATOR_CONTROLS frame -> (time_usec, controls[0],
-    controls[1], controls[2], controls[3]), or None.
-
-    Same checks and values as `decode_fast(HIL_ACTUATOR_CONTROLS, ...)` restricted to those
-    fields (the four motors the simulator applies); the per-tick HIL path of the simulator.
-    """
-    n = len(data)
-    if n < 12 or data[0] != MAGIC_V2 or data[7:10] != _HIL_ID3:
-        return None
-    flags = data[2]
-    plen = data[1]
-    crc_at = HEADER_LEN_V2 + plen
-    if flags == 0:
-        if n != crc_at + 2:
+        flags = data[2]
+        crc_at = HEADER_LEN_V2 + data[1]
+        if flags == 0:
+            if n != crc_at + 2:
+                return None
+        elif flags != IFLAG_SIGNED or n != crc_at + 2 + SIGNATURE_LEN:
             return None
-    elif flags != IFLAG_SIGNED or n != crc_at + 2 + SIGNATURE_LEN:
-        return None
-    if crc16(data[1:crc_at] + _HIL_EXTRA) != (data[crc_at] | data[crc_at + 1] << 8):
-        return None
-    if plen >= _HIL_USED_LEN:
-        return _HIL_USED.unpack_from(data, HEADER_LEN_V2)
-    return _HIL_USED.unpack(data[HEADER_LEN_V2:crc_at]
-                            + HIL_ACTUATOR_CONTROLS.zeros[plen:_HIL_USED_LEN])
+        if crc16(data[1:crc_at] + extra) != (data[crc_at] | data[crc_at + 1] << 8):
+            return None
+        plen = data[1]
+        if plen >= used_len:
+            return unpack_from(data, HEADER_LEN_V2)
+        return unpack(data[HEADER_LEN_V2:crc_at] + zeros[plen:used_len])
+
+    return decode
+
+
+# ODOMETRY -> (time_usec, x, y, z, qw, qx, qy, qz, vx, vy, vz, rollspeed, pitchspeed, yawspeed,
+# frame_id, child_frame_id): the covariances and trailing fields the onboard stack does not use
+# are skipped (the onboard stack's per-tick HIL input).
+decode_odometry = _one_frame_decoder(ODOMETRY, struct.Struct("<Q13f168xBB"))
+
+# HIL_ACTUATOR_CONTROLS -> (time_usec, controls[0..3]): the four motors the simulator applies
+# (the simulator's per-tick HIL input).
+decode_hil_actuator_controls = _one_frame_decoder(HIL_ACTUATOR_CONTROLS,
+                                                  struct.Struct("<Q8x4f"))
 
 
 def header_of(data: bytes, i: int = 0) -> tuple[int, int, int]:
