@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _dispatch(args) -> int:
     if args.cmd == "validate":
-        from cosim.scenario import load_scenario
+        from cosim.scenario.parse import load_scenario
 
         for path in args.scenarios:
             sc = load_scenario(path)
@@ -135,7 +135,7 @@ def _dispatch(args) -> int:
     if args.cmd == "sitl":
         return _sitl(args)
     if args.cmd == "bench":
-        from cosim.bench import main as bench_main
+        from cosim.studies.bench import main as bench_main
 
         if args.json is not None and args.json.is_dir():
             raise ScenarioError("--json", str(args.json), "a file path (this is a folder)")
@@ -145,10 +145,10 @@ def _dispatch(args) -> int:
 
 
 def _run(args) -> int:
-    from cosim.master import ExitReason, RunOptions, run_scenario
-    from cosim.report import one_screen, write_run
-    from cosim.scenario import load_scenario
-    from cosim.sweep import parse_sets
+    from cosim.outputs.report import one_screen, write_run
+    from cosim.scenario.parse import load_scenario
+    from cosim.sim.master import ExitReason, RunOptions, run_scenario
+    from cosim.studies.sweep import parse_sets
 
     sc = load_scenario(args.scenario)
     if args.set:
@@ -175,8 +175,15 @@ def _run(args) -> int:
 
 
 def _sweep(args) -> int:
-    from cosim.scenario import load_scenario
-    from cosim.sweep import EXECUTORS, make_jobs, parse_sets, plot_sweep, run_job, write_table
+    from cosim.scenario.parse import load_scenario
+    from cosim.studies.sweep import (
+        EXECUTORS,
+        make_jobs,
+        parse_sets,
+        plot_sweep,
+        run_job,
+        write_table,
+    )
 
     sc = load_scenario(args.scenario)
     grid = parse_sets(args.set, multi=True)
@@ -200,9 +207,9 @@ def _sweep(args) -> int:
 
 
 def _sitl(args) -> int:
-    from cosim.master import ExitReason, RunOptions, run_scenario
-    from cosim.report import one_screen, write_run
-    from cosim.scenario import parse_scenario
+    from cosim.outputs.report import one_screen, write_run
+    from cosim.scenario.parse import parse_scenario
+    from cosim.sim.master import ExitReason, RunOptions, run_scenario
 
     def hp(s: str, name: str) -> tuple[str, int]:
         host, _, port = s.rpartition(":")

@@ -37,7 +37,7 @@ import math
 from dataclasses import dataclass
 from typing import Protocol
 
-from cosim.vehicles import VehicleParams
+from cosim.plant.vehicles import VehicleParams
 from mav.types import Setpoint, VehicleState
 
 _sqrt, _atan2, _asin, _cos, _sin = math.sqrt, math.atan2, math.asin, math.cos, math.sin

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from cosim.vehicles import VehicleParams, get_vehicle
+from cosim.plant.vehicles import VehicleParams, get_vehicle
 from mav import wire
 from mav.battery import BATTERIES, Battery
 from mav.params import ONBOARD_PARAMS, ParamError, ParamTable, f32, read_param_file

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import control as ct
 import numpy as np
 
-from cosim.vehicles import VehicleParams, get_vehicle
+from cosim.plant.vehicles import VehicleParams, get_vehicle
 from mav.control import make_controller
 
 __all__ = [

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
-from cosim.camera import (
+from cosim.errors import ScenarioError
+from cosim.frames import quat_from_euler
+from cosim.sensors.camera import (
     CameraConfig,
     DownwardCamera,
     Renderer,
@@ -16,9 +18,7 @@ from cosim.camera import (
     save_png,
     save_video,
 )
-from cosim.errors import ScenarioError
-from cosim.frames import quat_from_euler
-from cosim.world import World
+from cosim.world.floor import World
 
 ARENA = {"n_min": 3.0, "n_max": 7.0, "e_min": 3.0, "e_max": 7.0}
 P0 = np.array([5.0, 5.0, -1.1])        # body CoG 1.1 m above the floor: camera at 1.0 m

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from cosim.vehicles import BEBOP2, MAMBO, VehicleParams
+from cosim.plant.vehicles import BEBOP2, MAMBO, VehicleParams
 from mav.control import (
     Bebop2Controller,
     MamboController,
@@ -388,7 +388,7 @@ def test_disarmed_outputs_zero_and_resets(v):
 
 
 # ----------------------------------------------------------------------------- closed loop
-plant_mod = pytest.importorskip("cosim.plant")
+plant_mod = pytest.importorskip("cosim.plant.fmu")
 
 
 def state_from_plant_outputs(y: list[float], t: float, out: VehicleState) -> VehicleState:

@@ -25,8 +25,8 @@ from fmpy.fmi2 import (
 from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 
-from cosim.plant import OUTPUT_NAMES
-from cosim.vehicles import BEBOP2, MAMBO, PRESETS
+from cosim.plant.fmu import OUTPUT_NAMES
+from cosim.plant.vehicles import BEBOP2, MAMBO, PRESETS
 from fmus import build as fb
 
 SRC = Path(fb.SOURCE_DIR)
@@ -199,7 +199,7 @@ def test_model_exchange_cvode_agrees_with_cosimulation_rk4(fmu):
     """Same 10 s manoeuvre two ways. In flight (t < 8.9 s): position within 1 mm, velocity
     1 mm/s, quaternion 1e-5, body rates 1e-3 rad/s, rotor speeds 1e-3 rad/s. After landing
     (t >= 9.5 s, at rest): position within 1 mm, both on the ground."""
-    from cosim.plant import Plant
+    from cosim.plant.fmu import Plant
 
     h, T = 0.005, 10.0
     sched = _schedule(MAMBO)

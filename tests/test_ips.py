@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from cosim.apps.ips import ImageProcessor, IPSParams
-from cosim.camera import DownwardCamera
 from cosim.frames import quat_from_euler
-from cosim.world import load_world
+from cosim.sensors.camera import DownwardCamera
+from cosim.world.floor import load_world
 
 FLOOR = (180, 180, 180)
 RED = (255, 0, 0)

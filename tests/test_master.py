@@ -15,10 +15,10 @@ import pytest
 from pymavlink import mavutil
 
 from cosim.apps.scripted import ScriptedApp
-from cosim.master import ExitReason, RunOptions, run_scenario
-from cosim.report import write_run
-from cosim.scenario import load_scenario
-from cosim.tlog import read_tlog
+from cosim.outputs.report import write_run
+from cosim.outputs.tlog import read_tlog
+from cosim.scenario.parse import load_scenario
+from cosim.sim.master import ExitReason, RunOptions, run_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 SEED = ROOT / "scenarios" / "mambo_seed_track.toml"
@@ -115,7 +115,7 @@ def test_app_exception_stops_the_run_and_keeps_outputs(tmp_path):
 @pytest.fixture
 def onboard_procs(monkeypatch):
     """Every OnboardProcess the master starts during the test, in order."""
-    import cosim.sil as sil
+    import cosim.sim.sil as sil
 
     procs = []
     orig = sil.OnboardProcess.__init__

@@ -22,7 +22,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 from test_onboard_rig import UdpSim
 
-from cosim.sil import OnboardProcess
+from cosim.sim.sil import OnboardProcess
 from mav.links import UdpLink
 
 M = mavlink2

@@ -12,7 +12,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 from test_onboard_rig import Rig
 
-from cosim.plant import Y_VX, Y_VY, Y_X, Y_Y, Y_Z
+from cosim.plant.fmu import Y_VX, Y_VY, Y_X, Y_Y, Y_Z
 
 M = mavlink2
 HOLD_TOL_M = 0.05          # m, position hold after takeoff / at square corners

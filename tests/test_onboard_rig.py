@@ -55,8 +55,8 @@ class Rig:
         self.answers: list[tuple] = []
         self.plant = None
         if plant:
-            from cosim.plant import Plant
-            from cosim.vehicles import get_vehicle
+            from cosim.plant.fmu import Plant
+            from cosim.plant.vehicles import get_vehicle
 
             self.plant = Plant(get_vehicle(vehicle))
 
@@ -89,7 +89,7 @@ class Rig:
             if each is not None:
                 each(self)
             if self.plant is not None:
-                from cosim.plant import Y_P, Y_QW, Y_VX, Y_X
+                from cosim.plant.fmu import Y_P, Y_QW, Y_VX, Y_X
 
                 y = self.plant.y
                 o = (y[Y_X:Y_X + 3] + y[Y_QW:Y_QW + 4] + y[Y_VX:Y_VX + 3] + y[Y_P:Y_P + 3])
@@ -197,8 +197,8 @@ class UdpSim:
         self.u = (0.0, 0.0, 0.0, 0.0)
         self.plant = None
         if plant:
-            from cosim.plant import Plant
-            from cosim.vehicles import get_vehicle
+            from cosim.plant.fmu import Plant
+            from cosim.plant.vehicles import get_vehicle
 
             self.plant = Plant(get_vehicle(vehicle))
 
@@ -213,7 +213,7 @@ class UdpSim:
         return tuple(self.plant.y[:3])
 
     def tick(self) -> None:
-        from cosim.plant import Y_P, Y_QW, Y_VX, Y_X
+        from cosim.plant.fmu import Y_P, Y_QW, Y_VX, Y_X
 
         if self.plant is not None:
             y = self.plant.y

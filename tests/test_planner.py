@@ -9,9 +9,9 @@ import pytest
 
 from cosim.apps.ips import ImageProcessor, IPSResult
 from cosim.apps.planner import Action, MissionLogic, MissionState, PlannerParams
-from cosim.camera import DownwardCamera
 from cosim.frames import quat_from_euler
-from cosim.world import load_world
+from cosim.sensors.camera import DownwardCamera
+from cosim.world.floor import load_world
 
 S = MissionState
 Z = -1.1           # hover height (NED) of the released preset

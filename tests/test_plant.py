@@ -6,10 +6,10 @@ import math
 
 import pytest
 
-import cosim.plant as cp
+import cosim.plant.fmu as cp
 from cosim.errors import ComponentError
-from cosim.plant import OUTPUT_NAMES, Plant, PlantState
-from cosim.vehicles import BEBOP2, MAMBO, PRESETS
+from cosim.plant.fmu import OUTPUT_NAMES, Plant, PlantState
+from cosim.plant.vehicles import BEBOP2, MAMBO, PRESETS
 
 VEHICLES = list(PRESETS.values())
 

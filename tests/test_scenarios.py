@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from cosim.master import RunOptions, run_scenario
-from cosim.report import summarize
-from cosim.scenario import load_scenario
+from cosim.outputs.report import summarize
+from cosim.scenario.parse import load_scenario
+from cosim.sim.master import RunOptions, run_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = sorted((ROOT / "scenarios").glob("*.toml"))

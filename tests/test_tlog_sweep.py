@@ -7,8 +7,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
 from cosim.errors import ScenarioError
-from cosim.sweep import make_jobs, parse_sets, split_values
-from cosim.tlog import Tlog, read_tlog
+from cosim.outputs.tlog import Tlog, read_tlog
+from cosim.studies.sweep import make_jobs, parse_sets, split_values
 
 
 def test_tlog_roundtrip_readable_by_pymavlink(tmp_path):

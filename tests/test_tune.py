@@ -12,7 +12,7 @@ import control as ct
 import numpy as np
 import pytest
 
-from cosim.vehicles import get_vehicle
+from cosim.plant.vehicles import get_vehicle
 from mav import tune
 from mav.control import make_controller
 from mav.types import Setpoint, VehicleState
@@ -112,7 +112,7 @@ def test_margins_agree_with_python_control():
 
 
 # ----------------------------------------------------------------------------- linear vs FMU
-plant_mod = pytest.importorskip("cosim.plant")
+plant_mod = pytest.importorskip("cosim.plant.fmu")
 
 
 def _fmu_step(name: str, field: str, amp: float, t_end: float) -> np.ndarray:

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from cosim.vehicles import BEBOP2, MAMBO, PRESETS, VehicleParams, get_vehicle
+from cosim.plant.vehicles import BEBOP2, MAMBO, PRESETS, VehicleParams, get_vehicle
 
 
 def test_presets_and_lookup():

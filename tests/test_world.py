@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.world import (
+from cosim.world.floor import (
     Arena,
     PolylinePart,
     RectPart,

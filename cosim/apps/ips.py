@@ -29,8 +29,8 @@ Image conventions (reference §3): row down, col right, 0-based; errors in pixel
 ``e_x = -(row - 59.5)`` (image up = body forward, positive) and ``e_y = col - 79.5`` (image
 right = body right, positive). Directions are ``atan2(e_x, e_y)`` in rad (0 = right,
 +pi/2 = up). The centre is the exact image centre ((H-1)/2, (W-1)/2), the camera's principal
-point (cosim.camera); the released MATLAB uses COG = (60, 80) in 1-based indices, i.e. half a
-pixel off the exact centre.
+point (cosim.sensors.camera); the released MATLAB uses COG = (60, 80) in 1-based indices,
+i.e. half a pixel off the exact centre.
 
 Paper (Table I) vs released code (``variables.m``), both available as presets:
 

@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from cosim.metrics import COL  # noqa: E402
+from cosim.outputs.metrics import COL  # noqa: E402
 
 
 def plot_run(res, world, out: Path) -> list[Path]:

@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from cosim.errors import ScenarioError
-from cosim.validate import boolean, integer, no_unknown, number, string, table
-from cosim.vehicles import PRESETS, VehicleParams, get_vehicle
+from cosim.plant.vehicles import PRESETS, VehicleParams, get_vehicle
+from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
 
 BUILTIN_APPS = ("line_follower", "scripted", "none")
 MODES = ("mil", "sil")
@@ -253,7 +253,7 @@ def check_app(sc: Scenario):
     Apps validate their parameters in their constructor (ValueError naming
     `app.params.NAME`); a user app is imported by its `package.module:Class` path.
     """
-    from cosim.master import make_app
+    from cosim.sim.master import make_app
 
     try:
         return make_app(sc)
@@ -278,13 +278,13 @@ def _app_param_value(sc: Scenario, path: str) -> object:
 
 
 def build_world(sc: Scenario):
-    from cosim.world import World
+    from cosim.world.floor import World
 
     return World.from_dict(sc.world, "world")
 
 
 def build_camera_config(sc: Scenario):
-    from cosim.camera import CameraConfig
+    from cosim.sensors.camera import CameraConfig
 
     return CameraConfig.from_dict(sc.camera or {}, "camera")
 

@@ -54,8 +54,8 @@ import numpy as np
 
 from cosim.errors import ScenarioError
 from cosim.frames import R_from_quat
-from cosim.validate import integer, no_unknown, number, string
-from cosim.world import World
+from cosim.scenario.validate import integer, no_unknown, number, string
+from cosim.world.floor import World
 
 __all__ = [
     "Renderer",

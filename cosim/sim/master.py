@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import ComponentError
-from cosim.plant import OUTPUT_NAMES, Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_Z, Plant
-from cosim.scenario import Scenario, build_camera_config, build_world
-from cosim.sensors import OdometrySensor
-from cosim.tlog import TapLink, Tlog
+from cosim.outputs.tlog import TapLink, Tlog
+from cosim.plant.fmu import OUTPUT_NAMES, Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_Z, Plant
+from cosim.scenario.parse import Scenario, build_camera_config, build_world
+from cosim.sensors.odometry import OdometrySensor
 from mav.hil import HilSimulatorCodec
 from mav.links import MemoryLink, UdpLink
 
@@ -169,7 +169,7 @@ class _Vehicle:
             self.proc.close()
 
     def _start_sil(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path) -> None:
-        from cosim.sil import OnboardProcess
+        from cosim.sim.sil import OnboardProcess
 
         vname = sc.vehicle.name
         hil = UdpLink(("127.0.0.1", 0))
@@ -235,7 +235,7 @@ class _Vehicle:
 
 
 def _preset(name: str):
-    from cosim.vehicles import get_vehicle
+    from cosim.plant.vehicles import get_vehicle
 
     return get_vehicle(name)
 
@@ -260,7 +260,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     world = build_world(sc)
     camera = None
     if sc.camera is not None:
-        from cosim.camera import DownwardCamera
+        from cosim.sensors.camera import DownwardCamera
 
         cam_seed = int(np.random.SeedSequence([sc.seed, 2]).generate_state(1)[0])
         camera = DownwardCamera(world, build_camera_config(sc), seed=cam_seed)
@@ -469,6 +469,6 @@ def _call_app(fn, *args) -> None:
 
 
 def _quat(y: list[float]) -> tuple[float, float, float, float]:
-    from cosim.plant import Y_QW, Y_QZ
+    from cosim.plant.fmu import Y_QW, Y_QZ
 
     return tuple(y[Y_QW:Y_QZ + 1])

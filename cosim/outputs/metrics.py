@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from cosim.master import SERIES_COLUMNS, ExitReason, RunResult
-from cosim.scenario import Criteria
+from cosim.scenario.parse import Criteria
+from cosim.sim.master import SERIES_COLUMNS, ExitReason, RunResult
 
 COL = {name: i for i, name in enumerate(SERIES_COLUMNS)}
 

@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from cosim.plant import Y_P, Y_Q, Y_QW, Y_QX, Y_QY, Y_QZ, Y_R, Y_VX, Y_VY, Y_VZ, Y_X, Y_Y, Y_Z
-from cosim.scenario import SensorNoise
+from cosim.plant.fmu import Y_P, Y_Q, Y_QW, Y_QX, Y_QY, Y_QZ, Y_R, Y_VX, Y_VY, Y_VZ, Y_X, Y_Y, Y_Z
+from cosim.scenario.parse import SensorNoise
 
 
 class OdometrySensor:

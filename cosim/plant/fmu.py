@@ -16,8 +16,8 @@ processes and after :meth:`Plant.reset` / :meth:`Plant.set_state`.
 
 Example::
 
-    from cosim.plant import Plant
-    from cosim.vehicles import MAMBO
+    from cosim.plant.fmu import Plant
+    from cosim.plant.vehicles import MAMBO
     with Plant(MAMBO) as plant:
         for _ in range(200):                       # 1 s
             y = plant.step(*(4 * [MAMBO.u_hover]))
@@ -38,7 +38,7 @@ from ctypes import POINTER, byref, c_char, c_double, c_int, c_size_t, c_uint, c_
 from dataclasses import dataclass
 
 from cosim.errors import ComponentError
-from cosim.vehicles import VehicleParams
+from cosim.plant.vehicles import VehicleParams
 
 __all__ = [
     "OUTPUT_NAMES", "INPUT_NAMES", "Plant", "PlantState", "bench_step",
@@ -394,7 +394,7 @@ def bench_step(n: int = 20000, vehicle: VehicleParams | None = None) -> dict[str
     ``{"step_us", "step_us_min", "do_step_us", "do_step_us_min", "n"}``. Report, do not gate:
     on a loaded machine the numbers are dominated by scheduling noise (compare the minima).
     """
-    from cosim.vehicles import MAMBO
+    from cosim.plant.vehicles import MAMBO
 
     vehicle = MAMBO if vehicle is None else vehicle
     u = vehicle.u_hover
@@ -426,5 +426,5 @@ def bench_step(n: int = 20000, vehicle: VehicleParams | None = None) -> dict[str
     }
 
 
-if __name__ == "__main__":  # python -m cosim.plant  -> prints the benchmark
+if __name__ == "__main__":  # python -m cosim.plant.fmu  -> prints the benchmark
     print(bench_step())

@@ -98,9 +98,9 @@ class Job:
 
 
 def run_job(job: Job) -> dict[str, Any]:
-    from cosim.master import RunOptions, run_scenario
-    from cosim.report import write_run
-    from cosim.scenario import load_scenario
+    from cosim.outputs.report import write_run
+    from cosim.scenario.parse import load_scenario
+    from cosim.sim.master import RunOptions, run_scenario
 
     sc = load_scenario(job.scenario).with_set(dict(job.overrides))
     out = Path(job.out_dir)

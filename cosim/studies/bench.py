@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 SEED = ROOT / "scenarios" / "mambo_seed_track.toml"
 
 
@@ -57,8 +57,8 @@ def machine() -> dict[str, Any]:
 
 
 def bench_plant(n: int, repeats: int) -> dict[str, Any]:
-    from cosim.plant import Plant
-    from cosim.vehicles import MAMBO
+    from cosim.plant.fmu import Plant
+    from cosim.plant.vehicles import MAMBO
 
     with Plant(MAMBO, x0=0.0, y0=0.0) as plant:
         u = MAMBO.u_hover
@@ -69,7 +69,7 @@ def bench_plant(n: int, repeats: int) -> dict[str, Any]:
 
 
 def bench_controller(n: int, repeats: int) -> dict[str, Any]:
-    from cosim.vehicles import MAMBO
+    from cosim.plant.vehicles import MAMBO
     from mav.control import make_controller
     from mav.types import Setpoint, VehicleState
 
@@ -139,7 +139,7 @@ def bench_udp_roundtrip(n: int, repeats: int) -> dict[str, Any]:
     """ODOMETRY -> HIL_ACTUATOR_CONTROLS through the onboard process over loopback UDP."""
     import tempfile
 
-    from cosim.sil import OnboardProcess
+    from cosim.sim.sil import OnboardProcess
     from mav.hil import HilSimulatorCodec
     from mav.links import UdpLink
 
@@ -167,8 +167,8 @@ def bench_udp_roundtrip(n: int, repeats: int) -> dict[str, Any]:
 
 def bench_render_ips(n: int, repeats: int) -> dict[str, Any]:
     from cosim.apps.ips import ImageProcessor
-    from cosim.camera import DownwardCamera
-    from cosim.scenario import build_camera_config, build_world, load_scenario
+    from cosim.scenario.parse import build_camera_config, build_world, load_scenario
+    from cosim.sensors.camera import DownwardCamera
 
     sc = load_scenario(SEED)
     cam = DownwardCamera(build_world(sc), build_camera_config(sc), seed=0)
@@ -184,8 +184,8 @@ def bench_render_ips(n: int, repeats: int) -> dict[str, Any]:
 
 
 def bench_mission(mode: str, repeats: int) -> dict[str, Any]:
-    from cosim.master import RunOptions, run_scenario
-    from cosim.scenario import load_scenario
+    from cosim.scenario.parse import load_scenario
+    from cosim.sim.master import RunOptions, run_scenario
 
     sc = load_scenario(SEED)
     rtf, loop_rtf, sim = [], [], []
@@ -208,15 +208,15 @@ def bench_mission(mode: str, repeats: int) -> dict[str, Any]:
 # (module, class, method, label, parent label or None): the parts of a MIL tick, timed by
 # wrapping the methods for one run (bench_tick_breakdown)
 _TICK_PARTS = (
-    ("cosim.sensors", "OdometrySensor", "measure", "sensor model", None),
-    ("cosim.camera", "DownwardCamera", "render", "camera render (per tick)", None),
+    ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None),
+    ("cosim.sensors.camera", "DownwardCamera", "render", "camera render (per tick)", None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None),
     ("mav.client", "OffboardClient", "poll", "  client poll (telemetry in)", "app on_tick"),
     ("mav.client", "OffboardClient", "_setpoint", "  setpoint encode+send",
      "app on_tick"),
     ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None),
-    ("cosim.master", "_Vehicle", "exchange", "HIL exchange (onboard)", None),
+    ("cosim.sim.master", "_Vehicle", "exchange", "HIL exchange (onboard)", None),
     ("mav.onboard", "Onboard", "_drain", "  onboard drain api+gcs", "HIL exchange (onboard)"),
     ("mav.onboard", "Onboard", "_step_modes", "  onboard modes", "HIL exchange (onboard)"),
     ("mav.control", "_QuadController", "update", "  onboard controller",
@@ -224,8 +224,8 @@ _TICK_PARTS = (
     ("mav.battery", "Battery", "step", "  onboard battery", "HIL exchange (onboard)"),
     ("mav.onboard", "Onboard", "_publish", "  onboard telemetry out", "HIL exchange (onboard)"),
     ("mav.hil", "HilSimulatorCodec", "decode_actuators", "HIL_ACTUATOR_CONTROLS decode", None),
-    ("cosim.master", "_Vehicle", "drain_gcs", "GCS link drain", None),
-    ("cosim.plant", "Plant", "step", "plant step", None),
+    ("cosim.sim.master", "_Vehicle", "drain_gcs", "GCS link drain", None),
+    ("cosim.plant.fmu", "Plant", "step", "plant step", None),
 )
 
 
@@ -239,8 +239,8 @@ def bench_tick_breakdown() -> dict[str, Any]:
     """
     import importlib
 
-    from cosim.master import RunOptions, run_scenario
-    from cosim.scenario import load_scenario
+    from cosim.scenario.parse import load_scenario
+    from cosim.sim.master import RunOptions, run_scenario
 
     acc: dict[str, list[int]] = {}
 

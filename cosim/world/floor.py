@@ -61,7 +61,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from cosim.errors import ScenarioError
-from cosim.validate import no_unknown, number
+from cosim.scenario.validate import no_unknown, number
 
 __all__ = [
     "Arena",
@@ -82,7 +82,7 @@ COMPETITION_TILE_RGB = (122, 104, 86)    # darker brown tiles
 TILE_PITCH_M = 0.25                      # m, competition floor grid
 TILE_SIZE_M = (0.15, 0.05)               # m, (long, short) side of a competition tile
 
-WORLDS_DIR = Path(__file__).resolve().parent.parent / "scenarios" / "worlds"
+WORLDS_DIR = Path(__file__).resolve().parents[2] / "scenarios" / "worlds"
 
 RGB = tuple[int, int, int]
 NE = tuple[float, float]

@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from cosim.master import SERIES_COLUMNS, RunResult
-from cosim.metrics import COL, compute_metrics, evaluate
-from cosim.scenario import build_world
+from cosim.outputs.metrics import COL, compute_metrics, evaluate
+from cosim.scenario.parse import build_world
+from cosim.sim.master import SERIES_COLUMNS, RunResult
 
 FAILED_EXITS = {"component_error", "crashed", "left_arena", "interrupted"}
 # files a run folder may hold; removed before a run writes there, so folders never mix runs
@@ -86,11 +86,11 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True) -> dict[str, Any
                 f.write(",".join(repr(float(v)) for v in r) + "\n")
     res.tlog.write(out / "flight.tlog")
     if plots and res.ticks > 1:
-        from cosim.plots import plot_run
+        from cosim.outputs.plots import plot_run
 
         plot_run(res, build_world(res.scenario), out)
     if res.frames:
-        from cosim.camera import save_video
+        from cosim.sensors.camera import save_video
 
         fps = 1.0 / (res.scenario.timing.camera_every * res.scenario.timing.tick_s)
         save_video(res.frames, out / "camera.mp4", fps)
