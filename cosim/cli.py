@@ -146,13 +146,13 @@ def _dispatch(args) -> int:
 
 def _run(args) -> int:
     from cosim.outputs.report import one_screen, write_run
-    from cosim.scenario.parse import load_scenario
+    from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import ExitReason, RunOptions, run_scenario
     from cosim.studies.sweep import parse_sets
 
     sc = load_scenario(args.scenario)
     if args.set:
-        sc = sc.with_set({k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
+        sc = with_set(sc, {k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
     _check_speed(args.speed)
     if args.speed != 1.0 and not args.realtime:
         raise ScenarioError("--speed", args.speed, "only with --realtime")
@@ -175,7 +175,7 @@ def _run(args) -> int:
 
 
 def _sweep(args) -> int:
-    from cosim.scenario.parse import load_scenario
+    from cosim.scenario.parse import load_scenario, with_set
     from cosim.studies.sweep import (
         EXECUTORS,
         make_jobs,
@@ -189,7 +189,7 @@ def _sweep(args) -> int:
     grid = parse_sets(args.set, multi=True)
     for key, values in grid.items():  # validate every value before starting any run
         for v in values:
-            sc.with_set({key: v})
+            with_set(sc, {key: v})
     if args.workers is not None and args.workers < 1:
         raise ScenarioError("--workers", args.workers, "an integer >= 1")
     out = args.out or Path("runs") / f"sweep-{sc.name}"
@@ -221,7 +221,7 @@ def _sitl(args) -> int:
     world = _world_table(args.world)
     sc = parse_scenario({
         "name": f"sitl-{args.vehicle}",
-        "vehicle": {"preset": args.vehicle, "start": _world_start(args.world)},
+        "vehicle": {"preset": args.vehicle},
         "world": world,
         "timing": {"t_final_s": args.duration},
         "criteria": {"must_complete": False},
@@ -252,21 +252,14 @@ def _check_out_dir(out: Path, flag: str) -> None:
 
 
 def _world_table(world: str) -> dict:
+    """The [world] table naming a world file or a built-in world (its start pose is the
+    vehicle's: the scenario parser takes it from the world)."""
     p = Path(world)
     if not p.suffix:
         p = Path(__file__).resolve().parent.parent / "scenarios" / "worlds" / f"{world}.toml"
-    return {"file": str(p.resolve())}
-
-
-def _world_start(world: str) -> dict:
-    import tomllib
-
-    p = Path(_world_table(world)["file"])
     if not p.is_file():
         raise ScenarioError("--world", world, "a world file or a built-in world name")
-    raw = tomllib.loads(p.read_text())
-    start = raw.get("start") or raw.get("world", {}).get("start")
-    return dict(start) if isinstance(start, dict) else {}
+    return {"file": str(p.resolve())}
 
 
 if __name__ == "__main__":

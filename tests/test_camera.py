@@ -10,14 +10,8 @@ from scipy.ndimage import map_coordinates
 
 from cosim.errors import ScenarioError
 from cosim.frames import quat_from_euler
-from cosim.sensors.camera import (
-    CameraConfig,
-    DownwardCamera,
-    Renderer,
-    project_floor_point,
-    save_png,
-    save_video,
-)
+from cosim.sensors.camera import Renderer, save_png, save_video
+from cosim.sensors.down import CameraConfig, DownwardCamera, project_floor_point
 from cosim.world.floor import World
 
 ARENA = {"n_min": 3.0, "n_max": 7.0, "e_min": 3.0, "e_max": 7.0}

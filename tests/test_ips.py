@@ -9,7 +9,7 @@ import pytest
 
 from cosim.apps.ips import ImageProcessor, IPSParams
 from cosim.frames import quat_from_euler
-from cosim.sensors.camera import DownwardCamera
+from cosim.sensors.down import DownwardCamera
 from cosim.world.floor import load_world
 
 FLOOR = (180, 180, 180)

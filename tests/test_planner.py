@@ -10,7 +10,7 @@ import pytest
 from cosim.apps.ips import ImageProcessor, IPSResult
 from cosim.apps.planner import Action, MissionLogic, MissionState, PlannerParams
 from cosim.frames import quat_from_euler
-from cosim.sensors.camera import DownwardCamera
+from cosim.sensors.down import DownwardCamera
 from cosim.world.floor import load_world
 
 S = MissionState

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, parse_scenario
+from cosim.scenario.parse import load_scenario, parse_scenario, with_set
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = sorted((ROOT / "scenarios").glob("*.toml"))
@@ -65,11 +65,11 @@ def test_bad_field_is_named(mutate, field):
 
 def test_with_set_overrides_and_revalidates():
     sc = load_scenario(ROOT / "scenarios" / "scripted_square.toml")
-    sc2 = sc.with_set({"seed": 7, "app.tolerance_m": 0.2})
+    sc2 = with_set(sc, {"seed": 7, "app.tolerance_m": 0.2})
     assert sc2.seed == 7 and sc2.app.params["tolerance_m"] == 0.2
     assert sc.seed == 0 and sc.app.params["tolerance_m"] == 0.10  # original untouched
     with pytest.raises(ScenarioError, match="timing.camera_every"):
-        sc.with_set({"timing.camera_every": -3})
+        with_set(sc, {"timing.camera_every": -3})
 
 
 def test_invalid_toml_is_reported(tmp_path):

@@ -13,7 +13,7 @@ from cosim.studies.sweep import make_jobs, parse_sets, split_values
 
 def test_tlog_roundtrip_readable_by_pymavlink(tmp_path):
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
-    log = Tlog()
+    log = Tlog(tmp_path / "stream.tlog")   # streamed as the datagrams pass
     msgs = []
     for i in range(5):
         log.t_us = 5000 * i
@@ -21,7 +21,9 @@ def test_tlog_roundtrip_readable_by_pymavlink(tmp_path):
         msgs.append(data)
         log.add(data)
     path = tmp_path / "flight.tlog"
-    log.write(path)
+    log.write(path)   # a copy elsewhere
+    log.close()
+    assert path.read_bytes() == log.read() == (tmp_path / "stream.tlog").read_bytes()
     recs = read_tlog(path)
     assert [t for t, _ in recs] == [0, 5000, 10000, 15000, 20000]
     assert [d for _, d in recs] == msgs

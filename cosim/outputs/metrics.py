@@ -16,14 +16,15 @@ from typing import Any
 
 import numpy as np
 
-from cosim.scenario.parse import Criteria
-from cosim.sim.master import SERIES_COLUMNS, ExitReason, RunResult
+from cosim.scenario.records import Criteria
+from cosim.sim.exits import ExitReason
+from cosim.sim.master import RunResult
+from cosim.sim.recorder import COL
 
-COL = {name: i for i, name in enumerate(SERIES_COLUMNS)}
+__all__ = ["COL", "compute_metrics", "evaluate"]
 
 
 def compute_metrics(res: RunResult, world) -> dict[str, Any]:
-    s = res.series
     m: dict[str, Any] = {}
     ev = {}
     for t, name in res.events:
@@ -31,17 +32,18 @@ def compute_metrics(res: RunResult, world) -> dict[str, Any]:
     t_takeoff = ev.get("takeoff_command")
     if res.touchdown is not None and t_takeoff is not None:
         m["mission_time_s"] = res.touchdown[0] - t_takeoff
-    if "following" in res.phases and len(s) and world.centreline():
-        mask = s[:, COL["phase"]] == res.phases.index("following")
+    if "following" in res.phases and res.ticks and world.centreline():
+        phase, x, y, vx, vy = res.recorded.columns("phase", "x", "y", "vx", "vy")
+        mask = phase == res.phases.index("following")
         if mask.any():
-            xy = s[mask][:, [COL["x"], COL["y"]]]
+            xy = np.column_stack((x[mask], y[mask]))
             d, part = world.distance_to_track(xy)
             m["path_error_rms_m"] = float(np.sqrt(np.mean(d**2)))
             m["path_error_max_m"] = float(d.max())
             m["path_error_rms_by_part_m"] = {
                 str(int(p)): float(np.sqrt(np.mean(d[part == p] ** 2))) for p in np.unique(part)
             }
-            vh = np.hypot(s[mask, COL["vx"]], s[mask, COL["vy"]])
+            vh = np.hypot(vx[mask], vy[mask])
             m["speed_mean_mps"] = float(vh.mean())
             m["speed_max_mps"] = float(vh.max())
             m["following_time_s"] = float(mask.sum() * res.scenario.timing.tick_s)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import platform
+import shutil
 import sys
 from importlib import metadata
 from pathlib import Path
@@ -11,26 +12,12 @@ from typing import Any
 
 import numpy as np
 
+from cosim.outputs.folder import clean_run_folder
 from cosim.outputs.metrics import COL, compute_metrics, evaluate
-from cosim.scenario.parse import build_world
-from cosim.sim.master import SERIES_COLUMNS, RunResult
+from cosim.sim.master import RunResult
+from cosim.sim.recorder import SERIES_COLUMNS
 
 FAILED_EXITS = {"component_error", "crashed", "left_arena", "interrupted"}
-# files a run folder may hold; removed before a run writes there, so folders never mix runs
-OUTPUT_FILES = ("summary.json", "timeseries.csv", "frames.csv", "flight.tlog", "trajectory.png",
-                "timeseries.png", "camera.mp4", "camera.avi")
-
-
-def clean_run_folder(out: Path) -> None:
-    """Remove what an earlier run wrote into `out` (only the files a run writes)."""
-    for name in OUTPUT_FILES:
-        (out / name).unlink(missing_ok=True)
-    frames = out / "frames"
-    if frames.is_dir():
-        for f in frames.glob("frame_*.png"):
-            f.unlink()
-
-
 def versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
     for pkg in ("cosim", "fmpy", "pymavlink", "numpy", "opencv-python-headless", "control"):
@@ -42,8 +29,7 @@ def versions() -> dict[str, str]:
 
 
 def summarize(res: RunResult) -> dict[str, Any]:
-    world = build_world(res.scenario)
-    metrics = compute_metrics(res, world)
+    metrics = compute_metrics(res, res.scenario.world)
     crit = evaluate(res.scenario.criteria, metrics, res.exit_reason)
     sc = res.scenario
     return {
@@ -73,9 +59,15 @@ def summarize(res: RunResult) -> dict[str, Any]:
 
 
 def write_run(res: RunResult, out: Path, *, plots: bool = True) -> dict[str, Any]:
-    """Write everything the run recorded into `out`; returns the summary dict."""
+    """Write everything the run recorded into `out`; returns the summary dict.
+
+    The run streamed its tlog, video and PNG frames into `res.run_dir`; they are copied when
+    `out` is another folder.
+    """
     out.mkdir(parents=True, exist_ok=True)
-    clean_run_folder(out)
+    same = out.resolve() == res.run_dir.resolve()
+    if not same:
+        clean_run_folder(out)
     summary = summarize(res)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
     write_series(res, out / "timeseries.csv")
@@ -88,31 +80,24 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True) -> dict[str, Any
     if plots and res.ticks > 1:
         from cosim.outputs.plots import plot_run
 
-        plot_run(res, build_world(res.scenario), out)
-    if res.frames:
-        from cosim.sensors.camera import save_video
-
-        fps = 1.0 / (res.scenario.timing.camera_every * res.scenario.timing.tick_s)
-        save_video(res.frames, out / "camera.mp4", fps)
-    if res.png_frames:
-        import cv2
-
-        d = out / "frames"
-        d.mkdir(exist_ok=True)
-        for t, img in res.png_frames:
-            cv2.imwrite(str(d / f"frame_{t:08.3f}.png"), img[:, :, ::-1])
+        plot_run(res, res.scenario.world, out)
+    if not same:
+        if res.video is not None:
+            shutil.copyfile(res.video, out / res.video.name)
+        if res.png_count:
+            shutil.copytree(res.run_dir / "frames", out / "frames", dirs_exist_ok=True)
     return summary
 
 
 def write_series(res: RunResult, path: Path) -> None:
-    s = res.series
     phase_names = np.array(res.phases + ["?"], dtype=object)
     with open(path, "w") as f:
         f.write(",".join(SERIES_COLUMNS) + ",phase_name\n")
         pcol = COL["phase"]
-        for row in s:
-            f.write(",".join(repr(float(v)) for v in row))
-            f.write("," + phase_names[int(row[pcol])] + "\n")
+        for block in res.recorded.blocks():
+            for row in block:
+                f.write(",".join(repr(float(v)) for v in row))
+                f.write("," + phase_names[int(row[pcol])] + "\n")
 
 
 def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:

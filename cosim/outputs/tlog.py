@@ -7,6 +7,7 @@ Stamps are simulation time (us since t = 0), so the log of a run is deterministi
 
 from __future__ import annotations
 
+import shutil
 import struct
 from pathlib import Path
 
@@ -14,20 +15,39 @@ _STAMP = struct.Struct(">Q")
 
 
 class Tlog:
-    __slots__ = ("buf", "t_us", "count")
+    """A tlog streamed to `path` as the datagrams pass (memory stays flat); `t_us` is the stamp
+    the master sets each tick, `count` the datagrams logged."""
 
-    def __init__(self) -> None:
-        self.buf = bytearray()
+    __slots__ = ("path", "t_us", "count", "_f", "_write")
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
         self.t_us = 0
         self.count = 0
+        self._f = open(self.path, "wb", buffering=1 << 16)  # noqa: SIM115 (closed in close())
+        self._write = self._f.write
 
     def add(self, data: bytes) -> None:
-        self.buf += _STAMP.pack(self.t_us)
-        self.buf += data
+        self._write(_STAMP.pack(self.t_us) + data)
         self.count += 1
 
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
+
+    def read(self) -> bytes:
+        """Everything logged so far."""
+        if not self._f.closed:
+            self._f.flush()
+        return self.path.read_bytes()
+
     def write(self, path: Path) -> None:
-        path.write_bytes(bytes(self.buf))
+        """Copy the log to `path` (nothing to do when it is already there)."""
+        path = Path(path)
+        if path.resolve() != self.path.resolve():
+            if not self._f.closed:
+                self._f.flush()
+            shutil.copyfile(self.path, path)
 
 
 class TapLink:

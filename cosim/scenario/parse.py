@@ -9,100 +9,17 @@ from __future__ import annotations
 
 import copy
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from cosim.apps.registry import BUILTIN_APPS, check_app
 from cosim.errors import ScenarioError
-from cosim.plant.vehicles import PRESETS, VehicleParams, get_vehicle
+from cosim.plant.vehicles import PRESETS, get_vehicle
+from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
-
-BUILTIN_APPS = ("line_follower", "scripted", "none")
-MODES = ("mil", "sil")
-
-
-# --------------------------------------------------------------------------- records
-@dataclass(frozen=True)
-class Timing:
-    tick_s: float = 0.005          # s, HIL / onboard control period (fixed at 5 ms)
-    camera_every: int = 40         # ticks between camera frames (Mambo: 40 -> 5 Hz)
-    t_final_s: float = 100.0       # s, time limit (the template's TFinal)
-
-
-@dataclass(frozen=True)
-class Start:
-    n: float = 0.0                 # m, world NED north of the start (on the floor, z = 0)
-    e: float = 0.0                 # m
-    yaw_deg: float = 0.0           # deg, heading at start (0 = facing north)
-
-
-@dataclass(frozen=True)
-class SensorNoise:
-    pos_std_m: float = 0.0         # m, white noise on ODOMETRY position
-    vel_std_mps: float = 0.0       # m/s, on velocity
-    att_std_rad: float = 0.0       # rad, small-angle noise on attitude
-    rate_std_radps: float = 0.0    # rad/s, on body rates
-
-    @property
-    def any(self) -> bool:
-        return any(v > 0 for v in (self.pos_std_m, self.vel_std_mps, self.att_std_rad,
-                                   self.rate_std_radps))
-
-
-@dataclass(frozen=True)
-class Criteria:
-    """Pass criteria; None means not checked."""
-
-    must_complete: bool = True               # the app reports its mission complete and landed
-    landing_error_max_m: float | None = None
-    path_rms_max_m: float | None = None
-    path_max_m: float | None = None
-    mission_time_max_s: float | None = None
-    position_error_max_m: float | None = None  # scripted apps: max distance to reached waypoints
-
-
-@dataclass(frozen=True)
-class AppSpec:
-    name: str = "none"             # built-in name or 'package.module:Class'
-    params: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class Scenario:
-    name: str
-    description: str
-    seed: int
-    vehicle: VehicleParams
-    start: Start
-    timing: Timing
-    world: dict[str, Any]                    # validated by cosim.world.World.from_dict
-    camera: dict[str, Any] | None            # validated by cosim.camera.CameraConfig.from_dict
-    app: AppSpec
-    noise: SensorNoise
-    wind_ned_mps: tuple[float, float, float]
-    criteria: Criteria
-    source: str = ""                          # path of the file, for the summary
-    raw: dict[str, Any] = field(default_factory=dict, repr=False)
-
-    def with_set(self, assignments: dict[str, Any]) -> Scenario:
-        """A copy with dotted-path overrides applied to the raw TOML and re-validated.
-
-        `{"app.params.alpha": 0.005, "seed": 3}`: the path names keys of the file; for the app's
-        parameters `app.X` is accepted as a short form of `app.params.X`.
-        """
-        raw = copy.deepcopy(self.raw)
-        for path, value in assignments.items():
-            keys = path.split(".")
-            if keys[0] == "app" and len(keys) == 2 and keys[1] not in ("name", "params"):
-                keys = ["app", "params", keys[1]]
-            node = raw
-            for k in keys[:-1]:
-                node = node.setdefault(k, {})
-                if not isinstance(node, dict):
-                    raise ScenarioError(path, value, "a path through tables of the scenario")
-            node[keys[-1]] = value
-        return parse_scenario(raw, source=self.source, base_dir=Path(self.source).parent)
-
+from cosim.sensors.camera import parse_camera
+from cosim.world.floor import World
 
 # --------------------------------------------------------------------------- parsing
 TOP_KEYS = {"name", "description", "seed", "vehicle", "timing", "world", "camera", "app",
@@ -161,10 +78,10 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
             **{k: number(ov, k, "vehicle.overrides", lo=0.0, lo_open=k != "drag_rot")
                for k in ov}
         )
-    world = _load_world(raw, base_dir)
+    world_table = _load_world(raw, base_dir)
     st = table(v, "start", "vehicle")
-    if "start" not in v and isinstance(world.get("start"), dict):
-        st = world["start"]  # the world's suggested start pose
+    if "start" not in v and isinstance(world_table.get("start"), dict):
+        st = world_table["start"]  # the world's suggested start pose
     no_unknown(st, {"n", "e", "yaw_deg"}, "vehicle.start")
     start = Start(
         n=number(st, "n", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
@@ -182,7 +99,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         t_final_s=number(tm, "t_final_s", "timing", 100.0, lo=0.0, hi=86_400.0, lo_open=True),
     )
 
-    camera = table(raw, "camera", "") if "camera" in raw else None
+    camera_table = table(raw, "camera", "") if "camera" in raw else None
 
     # app
     a = table(raw, "app", "")
@@ -234,59 +151,35 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         position_error_max_m=opt("position_error_max_m"),
     )
 
-    sc = Scenario(
+    # the parts owned by other modules, parsed here once into their records
+    world = World.from_dict(world_table, "world")
+    camera = parse_camera(camera_table, "camera") if camera_table is not None else None
+    check_app(app)
+    return Scenario(
         name=name, description=description, seed=seed, vehicle=vehicle, start=start,
         timing=timing, world=world, camera=camera, app=app, noise=noise,
         wind_ned_mps=wind, criteria=criteria, source=source, raw=raw,
     )
-    # validate the parts owned by other modules now, so `cosim validate` catches everything
-    build_world(sc)
-    if sc.camera is not None:
-        build_camera_config(sc)
-    check_app(sc)
-    return sc
 
 
-def check_app(sc: Scenario):
-    """Build the scenario's app once, so a bad name or parameter fails at load time.
+def with_set(sc: Scenario, assignments: dict[str, Any]) -> Scenario:
+    """A copy of `sc` with dotted-path overrides applied to its TOML and parsed again.
 
-    Apps validate their parameters in their constructor (ValueError naming
-    `app.params.NAME`); a user app is imported by its `package.module:Class` path.
+    `{"app.params.alpha": 0.005, "seed": 3}`: the path names keys of the file; for the app's
+    parameters `app.X` is accepted as a short form of `app.params.X`.
     """
-    from cosim.sim.master import make_app
-
-    try:
-        return make_app(sc)
-    except ValueError as exc:
-        msg = str(exc)
-        head, _, rest = msg.partition(":")
-        if not head.startswith("app.params"):
-            head, rest = "app.params", msg
-        rest = rest.strip()
-        if rest.startswith("got ") and ";" in rest:  # "got X; expected Y" -> "Y"
-            rest = rest.split(";", 1)[1].strip()
-        for lead in ("expected ", "allowed: "):
-            rest = rest.removeprefix(lead)
-        raise ScenarioError(head, _app_param_value(sc, head), rest) from None
-    except Exception as exc:  # ComponentError for an unloadable user app
-        raise ScenarioError("app.name", sc.app.name, f"an importable app ({exc})") from None
-
-
-def _app_param_value(sc: Scenario, path: str) -> object:
-    key = path.removeprefix("app.params.").split("[")[0]
-    return sc.app.params.get(key, sc.app.params)
-
-
-def build_world(sc: Scenario):
-    from cosim.world.floor import World
-
-    return World.from_dict(sc.world, "world")
-
-
-def build_camera_config(sc: Scenario):
-    from cosim.sensors.camera import CameraConfig
-
-    return CameraConfig.from_dict(sc.camera or {}, "camera")
+    raw = copy.deepcopy(sc.raw)
+    for path, value in assignments.items():
+        keys = path.split(".")
+        if keys[0] == "app" and len(keys) == 2 and keys[1] not in ("name", "params"):
+            keys = ["app", "params", keys[1]]
+        node = raw
+        for k in keys[:-1]:
+            node = node.setdefault(k, {})
+            if not isinstance(node, dict):
+                raise ScenarioError(path, value, "a path through tables of the scenario")
+        node[keys[-1]] = value
+    return parse_scenario(raw, source=sc.source, base_dir=Path(sc.source).parent)
 
 
 def with_seed(sc: Scenario, seed: int) -> Scenario:

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from cosim.plant.fmu import Y_P, Y_Q, Y_QW, Y_QX, Y_QY, Y_QZ, Y_R, Y_VX, Y_VY, Y_VZ, Y_X, Y_Y, Y_Z
-from cosim.scenario.parse import SensorNoise
+from cosim.scenario.records import SensorNoise
 
 
 class OdometrySensor:

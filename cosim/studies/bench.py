@@ -167,11 +167,11 @@ def bench_udp_roundtrip(n: int, repeats: int) -> dict[str, Any]:
 
 def bench_render_ips(n: int, repeats: int) -> dict[str, Any]:
     from cosim.apps.ips import ImageProcessor
-    from cosim.scenario.parse import build_camera_config, build_world, load_scenario
-    from cosim.sensors.camera import DownwardCamera
+    from cosim.scenario.parse import load_scenario
+    from cosim.sensors.camera import make_camera
 
     sc = load_scenario(SEED)
-    cam = DownwardCamera(build_world(sc), build_camera_config(sc), seed=0)
+    cam = make_camera(sc.camera, sc.world, seed=0)
     p_W = [56.5, 95.0, -1.1]
     q = [0.9990482, 0.0, 0.0436194, 0.0]  # 5 deg nose up
     img = cam.render(p_W, q)
@@ -209,14 +209,14 @@ def bench_mission(mode: str, repeats: int) -> dict[str, Any]:
 # wrapping the methods for one run (bench_tick_breakdown)
 _TICK_PARTS = (
     ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None),
-    ("cosim.sensors.camera", "DownwardCamera", "render", "camera render (per tick)", None),
+    ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None),
     ("mav.client", "OffboardClient", "poll", "  client poll (telemetry in)", "app on_tick"),
     ("mav.client", "OffboardClient", "_setpoint", "  setpoint encode+send",
      "app on_tick"),
     ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None),
-    ("cosim.sim.master", "_Vehicle", "exchange", "HIL exchange (onboard)", None),
+    ("cosim.sim.onboard", "OnboardHandle", "exchange", "HIL exchange (onboard)", None),
     ("mav.onboard", "Onboard", "_drain", "  onboard drain api+gcs", "HIL exchange (onboard)"),
     ("mav.onboard", "Onboard", "_step_modes", "  onboard modes", "HIL exchange (onboard)"),
     ("mav.control", "_QuadController", "update", "  onboard controller",
@@ -224,7 +224,7 @@ _TICK_PARTS = (
     ("mav.battery", "Battery", "step", "  onboard battery", "HIL exchange (onboard)"),
     ("mav.onboard", "Onboard", "_publish", "  onboard telemetry out", "HIL exchange (onboard)"),
     ("mav.hil", "HilSimulatorCodec", "decode_actuators", "HIL_ACTUATOR_CONTROLS decode", None),
-    ("cosim.sim.master", "_Vehicle", "drain_gcs", "GCS link drain", None),
+    ("cosim.sim.onboard", "OnboardHandle", "drain_gcs", "GCS link drain", None),
     ("cosim.plant.fmu", "Plant", "step", "plant step", None),
 )
 

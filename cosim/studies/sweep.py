@@ -99,10 +99,10 @@ class Job:
 
 def run_job(job: Job) -> dict[str, Any]:
     from cosim.outputs.report import write_run
-    from cosim.scenario.parse import load_scenario
+    from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import RunOptions, run_scenario
 
-    sc = load_scenario(job.scenario).with_set(dict(job.overrides))
+    sc = with_set(load_scenario(job.scenario), dict(job.overrides))
     out = Path(job.out_dir)
     res = run_scenario(sc, RunOptions(mode=job.mode, out_dir=out))
     summary = write_run(res, out)

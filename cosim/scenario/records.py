@@ -1,0 +1,78 @@
+"""Scenario records: what a scenario file says, typed, with units. Built once by
+`cosim.scenario.parse` at the edge; everything inside trusts them.
+
+This module imports no other part of the simulator but the record types it holds, so any part
+(sensors, the loop, outputs) may import it without an import circle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from cosim.plant.vehicles import VehicleParams
+    from cosim.sensors.camera import CameraConfigAny
+    from cosim.world.floor import World
+
+@dataclass(frozen=True)
+class Timing:
+    tick_s: float = 0.005          # s, HIL / onboard control period (fixed at 5 ms)
+    camera_every: int = 40         # ticks between camera frames (Mambo: 40 -> 5 Hz)
+    t_final_s: float = 100.0       # s, time limit (the template's TFinal)
+
+
+@dataclass(frozen=True)
+class Start:
+    n: float = 0.0                 # m, world NED north of the start (on the floor, z = 0)
+    e: float = 0.0                 # m
+    yaw_deg: float = 0.0           # deg, heading at start (0 = facing north)
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    pos_std_m: float = 0.0         # m, white noise on ODOMETRY position
+    vel_std_mps: float = 0.0       # m/s, on velocity
+    att_std_rad: float = 0.0       # rad, small-angle noise on attitude
+    rate_std_radps: float = 0.0    # rad/s, on body rates
+
+    @property
+    def any(self) -> bool:
+        return any(v > 0 for v in (self.pos_std_m, self.vel_std_mps, self.att_std_rad,
+                                   self.rate_std_radps))
+
+
+@dataclass(frozen=True)
+class Criteria:
+    """Pass criteria; None means not checked."""
+
+    must_complete: bool = True               # the app reports its mission complete and landed
+    landing_error_max_m: float | None = None
+    path_rms_max_m: float | None = None
+    path_max_m: float | None = None
+    mission_time_max_s: float | None = None
+    position_error_max_m: float | None = None  # scripted apps: max distance to reached waypoints
+
+
+@dataclass(frozen=True)
+class AppSpec:
+    name: str = "none"             # built-in name or 'package.module:Class'
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    seed: int
+    vehicle: VehicleParams
+    start: Start
+    timing: Timing
+    world: World                             # the parsed world (cosim.world.floor.World)
+    camera: CameraConfigAny | None           # the parsed camera config, chosen by its kind
+    app: AppSpec
+    noise: SensorNoise
+    wind_ned_mps: tuple[float, float, float]
+    criteria: Criteria
+    source: str = ""                          # path of the file, for the summary
+    raw: dict[str, Any] = field(default_factory=dict, repr=False)  # the TOML, for re-parsing

@@ -1,0 +1,117 @@
+"""Why a run ends: the exit reasons and the conditions checked after every plant step.
+
+`ExitMonitor.check` runs once per tick on the plant state at t_k+1 and returns the first
+condition met (in this order: non-finite state, hard touchdown, flipped over, left the arena,
+landed), or None to go on. The time limit and failures of a part are decided by the loop.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+from cosim.errors import ComponentError
+from cosim.plant.fmu import Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_Z
+
+
+class ExitReason(enum.Enum):
+    MISSION_COMPLETE = "mission_complete"   # the app finished and the vehicle is down, disarmed
+    LANDED = "landed"                       # down and disarmed, but the app did not finish
+    CRASHED = "crashed"                     # hard touchdown or flipped
+    LEFT_ARENA = "left_arena"               # outside the world's arena or above the ceiling
+    TIME_LIMIT = "time_limit"               # timing.t_final_s reached
+    COMPONENT_ERROR = "component_error"     # a part failed (plant, onboard, app, camera)
+    INTERRUPTED = "interrupted"             # Ctrl-C
+
+
+CEILING_M = 5.0            # m above the floor: higher is "left the arena"
+ARENA_MARGIN_M = 0.5       # m outside the arena bounds before LEFT_ARENA
+CRASH_VZ_MPS = 2.0         # m/s, touchdown faster than this is a crash
+CRASH_TILT_COS = 0.0       # cos(90 deg): flipped over
+AIRBORNE_Z_M = -0.10       # m, higher than this counts as having flown
+REST_TIMEOUT_S = 3.0       # s on the ground, armed, after flying: LANDED anyway
+
+Exit = tuple[ExitReason, str]
+
+
+def hard_touchdown(vz_mps: float) -> Exit | None:
+    if abs(vz_mps) > CRASH_VZ_MPS:
+        return ExitReason.CRASHED, f"hard touchdown at {vz_mps:.2f} m/s"
+    return None
+
+
+def flipped(qx: float, qy: float) -> Exit | None:
+    if 1.0 - 2.0 * (qx * qx + qy * qy) < CRASH_TILT_COS:
+        return ExitReason.CRASHED, "flipped over"
+    return None
+
+
+def left_arena(arena, n: float, e: float, d: float) -> Exit | None:
+    if (n < arena[0] - ARENA_MARGIN_M or n > arena[1] + ARENA_MARGIN_M
+            or e < arena[2] - ARENA_MARGIN_M or e > arena[3] + ARENA_MARGIN_M or d < -CEILING_M):
+        return ExitReason.LEFT_ARENA, f"left the arena at N {n:.2f} E {e:.2f} D {d:.2f} m"
+    return None
+
+
+class ExitMonitor:
+    """The exit conditions and the touchdown bookkeeping they need.
+
+    `sitl`: only crashes end the run (a vehicle for outside clients has no mission and no
+    arena). `app`: the app object or None; a landed, disarmed vehicle whose app is done (or
+    that has no app) completes the mission.
+    """
+
+    def __init__(self, arena, tick_s: float, app, *, sitl: bool = False) -> None:
+        self.arena = arena
+        self.h = tick_s
+        self.app = app
+        self.sitl = sitl
+        self.airborne = False
+        self.ground_ticks = 0
+        self.t_touch: tuple[float, float, float] | None = None   # (t, n, e) of the touchdown
+        self.touchdown: tuple[float, float, float] | None = None  # the final one, at exit
+        self.rest_ticks = int(round(REST_TIMEOUT_S / tick_s))
+
+    def check(self, t: float, y, vz_before: float, disarmed: bool) -> Exit | None:
+        """State `y` at t_k+1 = t + h; `vz_before` the vertical speed at t_k; `disarmed` all
+        four motor commands zero."""
+        n, e, d = y[Y_X], y[Y_Y], y[Y_Z]
+        if not math.isfinite(d):
+            raise ComponentError("plant", "non-finite state")
+        if d < AIRBORNE_Z_M:
+            self.airborne = True
+        if self.airborne:
+            if y[Y_ON_GROUND] > 0.5:
+                if self.ground_ticks == 0:
+                    self.t_touch = (t + self.h, n, e)
+                    hard = hard_touchdown(vz_before)
+                    if hard:
+                        self.touchdown = self.t_touch
+                        return hard
+                self.ground_ticks += 1
+            else:
+                self.ground_ticks = 0
+        out = flipped(y[Y_QX], y[Y_QY])
+        if out:
+            return out
+        if self.sitl:
+            return None
+        out = left_arena(self.arena, n, e, d)
+        if out:
+            return out
+        if self.airborne and self.ground_ticks > 0:
+            return self.landed(disarmed)
+        return None
+
+    def landed(self, disarmed: bool) -> Exit | None:
+        """On the ground after flying: complete when disarmed and the app is done; LANDED when
+        disarmed a while (or armed too long) without the app finishing."""
+        app = self.app
+        if disarmed and (app is None or app.done):
+            self.touchdown = self.t_touch
+            return ExitReason.MISSION_COMPLETE, "mission complete"
+        if (disarmed and self.ground_ticks > self.rest_ticks // 3
+                or self.ground_ticks > self.rest_ticks):
+            self.touchdown = self.t_touch
+            return ExitReason.LANDED, "landed before the app finished"
+        return None

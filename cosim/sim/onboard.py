@@ -1,0 +1,128 @@
+"""The onboard flight stack seen from the master: in this process (MIL) or as its own OS
+process (SIL), behind one interface: `exchange` one HIL datagram for the answer, the API and
+GCS links (tapped into the run's tlog), `stats`, `close`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from cosim.errors import ComponentError
+from cosim.outputs.tlog import TapLink, Tlog
+from cosim.plant.vehicles import get_vehicle
+from cosim.scenario.records import Scenario
+from cosim.sim.options import RunOptions
+from mav.links import MemoryLink, UdpLink
+
+
+class OnboardHandle:
+    """The onboard stack seen from the master: MIL in-process or SIL subprocess."""
+
+    def __init__(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path) -> None:
+        self.mode = opts.mode
+        self.proc = None
+        self._own: tuple = ()
+        vname = sc.vehicle.name
+        if opts.mode == "mil":
+            from mav.onboard import Onboard, OnboardConfig
+
+            hil_m, hil_v = MemoryLink.pair()
+            if opts.external_links:
+                api_app = gcs_m = MemoryLink()  # nothing of the master's on these links
+                try:
+                    api_v = UdpLink(*opts.external_links["api"])
+                    gcs_v = UdpLink(*opts.external_links["gcs"])
+                except OSError as exc:
+                    raise ComponentError("onboard", f"cannot bind the API/GCS links: {exc}"
+                                         ) from None
+            else:
+                api_app, api_v = MemoryLink.pair()
+                gcs_m, gcs_v = MemoryLink.pair()
+            self.onboard = Onboard(OnboardConfig(vehicle=vname), hil_v, api_v, gcs_v)
+            self._own = (api_v, gcs_v) if opts.external_links else ()
+            if sc.vehicle != get_vehicle(vname):
+                self.onboard.set_vehicle_params(sc.vehicle)
+            self.hil = hil_m
+            self.api = TapLink(api_app, tlog)
+            self.gcs = TapLink(gcs_m, tlog)
+        else:
+            try:
+                self._start_sil(sc, opts, tlog, log_dir)
+            except BaseException:
+                self.close_partial()
+                raise
+        if opts.hooks is not None:  # faults between the app / GCS and the vehicle
+            self.api.inner = opts.hooks.wrap_link("api", self.api.inner)
+            self.gcs.inner = opts.hooks.wrap_link("gcs", self.gcs.inner)
+
+    def close_partial(self) -> None:
+        """After a failed SIL start: close what was opened (process, sockets)."""
+        for link in self._own:
+            link.close()
+        if self.proc is not None:
+            self.proc.close()
+
+    def _start_sil(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path) -> None:
+        from cosim.sim.sil import OnboardProcess
+
+        vname = sc.vehicle.name
+        hil = UdpLink(("127.0.0.1", 0))
+        api = UdpLink(("127.0.0.1", 0))
+        gcs = UdpLink(("127.0.0.1", 0))
+        self._own = (hil, api, gcs)
+        preset = get_vehicle(vname)
+        overrides = tuple(  # scenario vehicle.overrides, passed to the process
+            f"--vehicle-param={k}={v!r}" for k, v in sc.vehicle.fmu_parameters().items()
+            if getattr(preset, k) != v
+        )
+        self.proc = OnboardProcess(
+            vname, api.local_address, gcs.local_address, log_dir / "onboard.log",
+            hil_timeout_s=max(10.0, 5 * opts.hil_timeout_s), extra_args=overrides,
+        )
+        ports = self.proc.ports
+        for link, name in ((hil, "hil"), (api, "api"), (gcs, "gcs")):
+            link.remote = ("127.0.0.1", ports[name])
+            link._fixed_remote = True
+        hil.sock.setblocking(True)
+        hil.sock.settimeout(opts.hil_timeout_s)
+        self.hil = hil
+        self.api = TapLink(api, tlog)
+        self.gcs = TapLink(gcs, tlog)
+        self._own = ()
+
+    def exchange(self, data: bytes) -> bytes:
+        """Send one HIL datagram and return the answer."""
+        self.hil.send(data)
+        if self.proc is None:
+            try:
+                self.onboard.poll()
+            except Exception as exc:  # the onboard stack is a separate part: name it
+                raise ComponentError("onboard", f"{type(exc).__name__}: {exc}") from exc
+            ans = self.hil.recv()
+            if ans is None:
+                raise ComponentError("onboard", "no HIL_ACTUATOR_CONTROLS answer")
+            return ans
+        try:
+            return self.hil.sock.recv(65535)
+        except (TimeoutError, ConnectionRefusedError, OSError):
+            what = self.proc.failure_text()
+            raise ComponentError("onboard", f"stopped answering HIL ({what})") from None
+
+    def drain_gcs(self) -> None:
+        while self.gcs.recv() is not None:
+            pass
+
+    def stats(self) -> dict[str, Any]:
+        """The onboard stack's counters (SIL: as the process reported them at exit)."""
+        if self.proc is None:
+            return dict(getattr(self.onboard, "stats", {}))
+        return dict(self.proc.stats)
+
+    def close(self) -> None:
+        for link in (self.hil, self.api, self.gcs, *self._own):
+            try:
+                link.close()
+            except Exception:
+                pass
+        if self.proc is not None:
+            self.proc.close()

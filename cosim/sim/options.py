@@ -1,0 +1,27 @@
+"""How to run a scenario (the options that are not part of the scenario itself)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cosim.sim.hooks import Hooks
+
+
+@dataclass
+class RunOptions:
+    mode: str = "mil"                 # 'mil' | 'sil'
+    realtime: bool = False
+    speed: float = 1.0                # real-time factor target when realtime
+    video: bool = False               # keep camera frames for a video
+    png_every: int = 0                # save every Nth frame as PNG (0: none)
+    progress: bool = False
+    out_dir: Path | None = None       # where the SIL onboard log goes (None: a temp dir)
+    hil_timeout_s: float = 2.0        # s wall clock without a HIL answer -> onboard failed
+    app_override: Any = None          # an app object to use instead of the scenario's
+    # sitl: the onboard stack's API and GCS links are real UDP sockets for outside clients,
+    # {'gcs': ((bind_host, port), (remote_host, port)), 'api': (...)}; MIL only
+    external_links: dict[str, tuple[tuple[str, int], tuple[str, int]]] | None = None
+    sitl: bool = False                # no mission or arena exits: only crash, time, Ctrl-C
+    hooks: Hooks | None = None        # fault injection (cosim.sim.hooks); None: no faults

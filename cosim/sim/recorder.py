@@ -1,0 +1,106 @@
+"""Recording a run without growing memory: per-tick rows spooled to disk, one chunk at a time.
+
+The tick loop appends one tuple per tick (`SeriesSpool.append`, a bound `list.append`) and calls
+`flush()` every `CHUNK` ticks: the rows become one float64 block written to a spool file, and
+the list is emptied. Memory stays at one chunk whatever the mission length. A finished run's
+series (`SeriesFile`) is read back from the file: whole (a read-only memory map, for short runs
+and tests), by column, or block by block (what the outputs use, so a long run's report does not
+pull the whole file into memory either).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from cosim.plant.fmu import OUTPUT_NAMES
+
+# the recorded columns, one row per tick (units: see the README's outputs section)
+SERIES_COLUMNS = (
+    ("t",) + OUTPUT_NAMES + ("u1", "u2", "u3", "u4", "est_x", "est_y", "est_z",
+                             "sp_x", "sp_y", "sp_z", "phase")
+)
+COL = {name: i for i, name in enumerate(SERIES_COLUMNS)}
+CHUNK = 4096               # rows per spooled block (4096 x 30 x 8 B ~ 1 MB)
+READ_BLOCK = 8192          # rows per block when reading back (~2 MB)
+
+
+class SeriesSpool:
+    """Rows in, float64 blocks out to `path`; `append` is the per-tick call."""
+
+    def __init__(self, path: Path, ncols: int = len(SERIES_COLUMNS)) -> None:
+        self.path = Path(path)
+        self.ncols = ncols
+        self.rows: list[tuple] = []
+        self.append = self.rows.append
+        self.ticks = 0                       # rows already written to the file
+        self._f = open(self.path, "wb")  # noqa: SIM115 (closed in finish())
+
+    def flush(self) -> None:
+        rows = self.rows
+        if rows:
+            self._f.write(np.array(rows, dtype=np.float64).reshape(len(rows), self.ncols)
+                          .tobytes())
+            self.ticks += len(rows)
+            rows.clear()
+
+    def finish(self) -> SeriesFile:
+        """Write what is left and close; the recorded series, read from the file."""
+        if not self._f.closed:
+            self.flush()
+            self._f.close()
+        return SeriesFile(self.path, self.ncols, self.ticks)
+
+
+class SeriesFile:
+    """A recorded series on disk: `ticks` rows of `ncols` float64 values."""
+
+    def __init__(self, path: Path, ncols: int, ticks: int) -> None:
+        self.path, self.ncols, self.ticks = Path(path), ncols, ticks
+        self._map: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return self.ticks
+
+    def array(self) -> np.ndarray:
+        """All of it as a read-only (ticks, ncols) array, memory-mapped (pages load on use)."""
+        if self._map is None:
+            if self.ticks == 0:
+                self._map = np.empty((0, self.ncols))
+            else:
+                self._map = np.memmap(self.path, dtype=np.float64, mode="r",
+                                      shape=(self.ticks, self.ncols))
+        return self._map
+
+    def blocks(self, rows: int = READ_BLOCK) -> Iterator[np.ndarray]:
+        """Consecutive (<= rows, ncols) arrays, read with plain file reads (no mapping)."""
+        with open(self.path, "rb") as f:
+            left = self.ticks
+            while left > 0:
+                n = min(rows, left)
+                yield np.fromfile(f, dtype=np.float64, count=n * self.ncols).reshape(
+                    n, self.ncols)
+                left -= n
+
+    def decimated(self, max_rows: int = 20_000) -> np.ndarray:
+        """Every n-th row so that at most about `max_rows` remain (all rows of a short run)."""
+        step = max(1, -(-self.ticks // max_rows))
+        parts, offset = [], 0
+        for b in self.blocks():
+            first = (-offset) % step
+            parts.append(b[first::step].copy())   # a copy: a view would keep the block
+            offset += len(b)
+        return np.concatenate(parts) if parts else np.empty((0, self.ncols))
+
+    def columns(self, *names: str) -> tuple[np.ndarray, ...]:
+        """Whole columns by name, read block by block (memory: the columns asked for)."""
+        idx = [COL[n] for n in names]
+        out = [np.empty(self.ticks) for _ in idx]
+        i = 0
+        for b in self.blocks():
+            for o, j in zip(out, idx, strict=True):
+                o[i:i + len(b)] = b[:, j]
+            i += len(b)
+        return tuple(out)
