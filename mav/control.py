@@ -37,7 +37,7 @@ import math
 from dataclasses import dataclass
 from typing import Protocol
 
-from cosim.plant.vehicles import VehicleParams
+from mav.airframe import Airframe
 from mav.types import Setpoint, VehicleState
 
 _sqrt, _atan2, _asin, _cos, _sin = math.sqrt, math.atan2, math.asin, math.cos, math.sin
@@ -82,7 +82,7 @@ class Controller(Protocol):
     def update(self, s: VehicleState, sp: Setpoint, out: list[float]) -> None: ...
 
 
-def mixer_matrix(v: VehicleParams) -> list[list[float]]:
+def mixer_matrix(v: Airframe) -> list[list[float]]:
     """A (4x4): [T; N; M; L] = A @ [T1, T2, T3, T4] for PX4 quad-X order (rows: total thrust N,
     yaw torque N m, pitch torque N m, roll torque N m; columns: rotor thrusts N)."""
     a = v.arm_length * _sqrt(2.0) / 2.0  # m, rotor offset along body x and y
@@ -125,7 +125,7 @@ class _QuadController:
     # False: yaw-rate setpoints close a pure rate loop (Parrot PCMD style).
     YAW_RATE_INTEGRATES = True
 
-    def __init__(self, vehicle: VehicleParams, dt: float = 0.005, preset: str = "default"):
+    def __init__(self, vehicle: Airframe, dt: float = 0.005, preset: str = "default"):
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
         self.vehicle = vehicle
@@ -527,7 +527,7 @@ class MamboController(_QuadController):
 class Bebop2Controller(_QuadController):
     """Velocity-commanded low level with Parrot's limits (max tilt, vertical speed, rotation
     speed). Gains are normalised (per unit inertia or mass), so the loop dynamics follow
-    the VehicleParams; the defaults give first-order velocity responses close to the
+    the Airframe; the defaults give first-order velocity responses close to the
     identified Bebop 2 model (Pinto et al. 2020): tau_z = 0.25 s, tau_yawrate = 0.21 s."""
 
     PARAMS = (
@@ -581,7 +581,7 @@ class Bebop2Controller(_QuadController):
         }
 
 
-def make_controller(vehicle: VehicleParams, dt: float = 0.005) -> Controller:
+def make_controller(vehicle: Airframe, dt: float = 0.005) -> Controller:
     """The low-level controller for `vehicle` ('mambo' -> MamboController, 'bebop2' ->
     Bebop2Controller), with default parameters."""
     if vehicle.name == "mambo":

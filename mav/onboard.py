@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from cosim.plant.vehicles import VehicleParams, get_vehicle
 from mav import wire
+from mav.airframe import Airframe, get_airframe
 from mav.battery import BATTERIES, Battery
 from mav.params import ONBOARD_PARAMS, ParamError, ParamTable, f32, read_param_file
 from mav.types import Setpoint, VehicleState
@@ -182,7 +182,7 @@ class OnboardConfig:
     control_dt_s: float = 0.005            # s, controller period (= HIL tick)
 
     def __post_init__(self) -> None:
-        get_vehicle(self.vehicle)          # ValueError naming the choices
+        get_airframe(self.vehicle)          # ValueError naming the choices
         if not 1 <= self.sysid <= 255:
             raise ValueError(f"sysid: got {self.sysid}; allowed 1..255")
         if not 1 <= self.compid <= 255:
@@ -274,7 +274,7 @@ class Onboard:
     def __init__(self, config: OnboardConfig, hil, api, gcs, *, controller=None) -> None:
         self.cfg = cfg = config
         self._hil = hil
-        self.vehicle: VehicleParams = get_vehicle(cfg.vehicle)
+        self.vehicle: Airframe = get_airframe(cfg.vehicle)
         self.geo = wire.FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
         self.stats: dict[str, int] = {
             "ticks": 0,
@@ -395,7 +395,7 @@ class Onboard:
     def home(self) -> tuple[float, float, float] | None:
         return self._home
 
-    def set_vehicle_params(self, vehicle: VehicleParams) -> None:
+    def set_airframe(self, vehicle: Airframe) -> None:
         """Use other airframe values (scenario overrides): rebuilds the controller, keeps
         parameters the user set."""
         self.vehicle = vehicle
@@ -1392,18 +1392,18 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="geodetic origin of the local frame, deg,deg,m AMSL "
                         "(default 42.299886,-71.350447,71.3232)")
     p.add_argument("--vehicle-param", action="append", default=[], metavar="FIELD=VALUE",
-                   help="override an airframe value of the preset (cosim.vehicles."
-                        "VehicleParams field, SI units), e.g. mass=0.07; repeatable")
+                   help="override an airframe value of the preset (a mav.airframe."
+                        "Airframe field, SI units), e.g. mass=0.07; repeatable")
     p.add_argument("--hil-timeout", type=float, default=10.0, metavar="SECONDS",
                    help="exit (code 0) when the simulator is silent this long, wall clock "
                         "(default 10)")
     return p
 
 
-def _vehicle_with_overrides(parser, name: str, items: list[str]) -> VehicleParams:
+def _vehicle_with_overrides(parser, name: str, items: list[str]) -> Airframe:
     """The preset with FIELD=VALUE overrides; parser.error (exit 2) names a bad one."""
-    vp = get_vehicle(name)
-    fields = set(vp.fmu_parameters())
+    vp = get_airframe(name)
+    fields = set(vp.values())
     kw = {}
     for it in items:
         key, sep, val = it.partition("=")
@@ -1460,7 +1460,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         onboard = Onboard(cfg, hil, api, gcs)
         if args.vehicle_param:
-            onboard.set_vehicle_params(vehicle)
+            onboard.set_airframe(vehicle)
     except (ValueError, OSError) as exc:
         print(f"onboard: {exc}", file=sys.stderr)
         return 2

@@ -1,6 +1,6 @@
 """Loop analysis of the onboard controllers with python-control (`python -m mav.tune mambo`).
 
-Every loop is linearised about hover from the VehicleParams: small-angle rigid body, first-order
+Every loop is linearised about hover from the Airframe: small-angle rigid body, first-order
 motor lag (motor_tau, on thrust and reaction torque alike), linear airframe drag and rotational
 damping. The plant is discretised with the exact zero-order hold at the controller period
 (5 ms) and closed with the controller's own discrete law (forward-Euler integrators, D on the
@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import control as ct
 import numpy as np
 
-from cosim.plant.vehicles import VehicleParams, get_vehicle
+from mav.airframe import Airframe, get_airframe
 from mav.control import make_controller
 
 __all__ = [
@@ -68,12 +68,12 @@ def _drop_pos(sys_c: ct.StateSpace) -> ct.StateSpace:
     return ct.ss(A[1:, 1:], B[1:], C[1:, 1:], np.zeros((C.shape[0] - 1, 1)))
 
 
-def _vertical(v: VehicleParams) -> ct.StateSpace:
+def _vertical(v: Airframe) -> ct.StateSpace:
     """Downward force deviation command (= -thrust deviation) -> [z, vz] (NED, m, m/s)."""
     return _rot_axis(v.mass, v.drag_z, v.motor_tau)
 
 
-def _lateral(v: VehicleParams, axis: str) -> ct.StateSpace:
+def _lateral(v: Airframe, axis: str) -> ct.StateSpace:
     """Torque command -> [pos, vel, tilt, rate] for x (through pitch) or y (through roll).
     Small angle: x'' = -g*theta - (drag/m)*x', y'' = +g*phi - (drag/m)*y'."""
     J = v.Iyy if axis == "x" else v.Ixx
@@ -227,7 +227,7 @@ def _step(cl: ct.StateSpace, out: int, t_end: float) -> dict[str, float]:
 # ----------------------------------------------------------------------------- analysis
 def _controller(vehicle_name: str, params: dict[str, float] | None, preset: str,
                 vehicle_overrides: dict[str, float] | None):
-    v = get_vehicle(vehicle_name)
+    v = get_airframe(vehicle_name)
     if vehicle_overrides:
         v = v.with_overrides(**vehicle_overrides)
     ctrl = make_controller(v)
@@ -238,7 +238,7 @@ def _controller(vehicle_name: str, params: dict[str, float] | None, preset: str,
     return v, ctrl
 
 
-def _loops(v: VehicleParams, ctrl) -> dict[str, tuple[ct.StateSpace, _Law, float]]:
+def _loops(v: Airframe, ctrl) -> dict[str, tuple[ct.StateSpace, _Law, float]]:
     """Every loop as (discrete plant seen by the law, law, step horizon s); output 0 of the
     plant is the loop's controlled variable."""
     g = ctrl.linear_gains()
@@ -292,7 +292,7 @@ def analyse(
     vehicle_name : 'mambo' or 'bebop2'
     params : controller parameters to set (MAVLink names, units of the param table)
     preset : controller preset applied before `params` ('default', or e.g. 'template')
-    vehicle_overrides : VehicleParams fields to replace (e.g. {'motor_tau': 0.05}, s)
+    vehicle_overrides : Airframe fields to replace (e.g. {'motor_tau': 0.05}, s)
 
     Returns
     -------
@@ -401,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="controller parameter")
     ap.add_argument("--vehicle-param", "--vehicle", dest="vp", action="append", default=[],
-                    metavar="FIELD=VALUE", help="VehicleParams override, e.g. motor_tau=0.05")
+                    metavar="FIELD=VALUE", help="Airframe override, e.g. motor_tau=0.05")
     args = ap.parse_args(argv)
 
     def kv(items: list[str]) -> dict[str, float]:

@@ -7,7 +7,8 @@ import math
 
 import pytest
 
-from cosim.plant.vehicles import BEBOP2, MAMBO, VehicleParams
+from cosim.plant.vehicles import PRESETS
+from mav.airframe import BEBOP2, MAMBO, Airframe
 from mav.control import (
     Bebop2Controller,
     MamboController,
@@ -37,7 +38,7 @@ def hold_setpoint(s: VehicleState, yaw: float = 0.0) -> Setpoint:
     return sp
 
 
-def wrench(v: VehicleParams, u: list[float]) -> list[float]:
+def wrench(v: Airframe, u: list[float]) -> list[float]:
     """[T, N, M, L] (N, N m) the rotors produce at steady state for commands u."""
     t = [v.k_thrust * (ui * v.omega_max) ** 2 for ui in u]
     return [sum(a * b for a, b in zip(row, t, strict=True)) for row in mixer_matrix(v)]
@@ -138,7 +139,7 @@ def test_climb_command_adds_thrust_equally(v):
 
 
 # ----------------------------------------------------------------------------- limits
-def _pitch_ref(v: VehicleParams, ctrl, s: VehicleState, sp: Setpoint) -> float:
+def _pitch_ref(v: Airframe, ctrl, s: VehicleState, sp: Setpoint) -> float:
     """The pitch reference of a first tick at rest and level: torque = kp * pitch_ref."""
     M = wrench(v, one_tick(ctrl, s, sp))[2]
     return M / ctrl.linear_gains()["pitch_kp"]
@@ -405,9 +406,9 @@ def state_from_plant_outputs(y: list[float], t: float, out: VehicleState) -> Veh
 class Flight:
     """Plant + controller in the master's order: read y(t_k), control, step to t_k+1."""
 
-    def __init__(self, v: VehicleParams, preset: str = "default"):
+    def __init__(self, v: Airframe, preset: str = "default"):
         self.v = v
-        self.plant = plant_mod.Plant(v)
+        self.plant = plant_mod.Plant(PRESETS[v.name])   # the plant's preset of this airframe
         self.ctrl = make_controller(v)
         if preset != "default":
             self.ctrl.apply_preset(preset)

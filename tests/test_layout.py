@@ -78,3 +78,10 @@ def test_cycle_finder_finds_a_cycle():
 def test_import_graph_sees_function_level_imports():
     g = import_graph()
     assert "cosim.apps.line_follower" in g["cosim.apps.registry"]   # imported inside make_app
+
+
+def test_flight_software_stands_alone():
+    g = import_graph()
+    bad = {m: sorted(d for d in deps if d.startswith("cosim")) for m, deps in g.items()
+           if m.startswith("mav")}
+    assert not {m: d for m, d in bad.items() if d}, bad

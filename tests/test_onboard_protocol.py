@@ -672,7 +672,7 @@ def test_deterministic_bytes_mil():
     assert run() == run()
 
 
-def test_set_vehicle_params_rebuilds_controller_and_keeps_user_params():
+def test_set_airframe_rebuilds_controller_and_keeps_user_params():
     rig = Rig()
     rig.tick()
     name = rig.ob._ctrl.param_table()[0].name
@@ -685,7 +685,7 @@ def test_set_vehicle_params_rebuilds_controller_and_keeps_user_params():
     rig.tick()
     old_ctrl = rig.ob._ctrl
     heavier = rig.ob.vehicle.with_overrides(mass=0.07)
-    rig.ob.set_vehicle_params(heavier)
+    rig.ob.set_airframe(heavier)
     assert rig.ob._ctrl is not old_ctrl and rig.ob._ctrl.vehicle.mass == 0.07
     assert rig.ob.params.get(name) == pytest.approx(new, rel=1e-6)
     assert rig.ob.params.get("MPC_LAND_SPEED") == pytest.approx(0.25)

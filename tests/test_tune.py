@@ -12,8 +12,9 @@ import control as ct
 import numpy as np
 import pytest
 
-from cosim.plant.vehicles import get_vehicle
+from cosim.plant.vehicles import PRESETS
 from mav import tune
+from mav.airframe import get_airframe
 from mav.control import make_controller
 from mav.types import Setpoint, VehicleState
 
@@ -94,7 +95,7 @@ def test_template_preset_xy_loop_misses_the_margins():
 
 def test_margins_agree_with_python_control():
     """Our dense-grid margins vs control.stability_margins on the same loops."""
-    v = get_vehicle("mambo")
+    v = get_airframe("mambo")
     loops = tune._loops(v, make_controller(v))
     for name in ("pitch", "x", "alt"):
         G, law, _ = loops[name]
@@ -118,7 +119,7 @@ plant_mod = pytest.importorskip("cosim.plant.fmu")
 def _fmu_step(name: str, field: str, amp: float, t_end: float) -> np.ndarray:
     """Closed loop on the FMU from hover at 1 m; normalised response to a small step."""
     P = plant_mod
-    v = get_vehicle(name)
+    v = get_airframe(name)
     ctrl = make_controller(v)
     s, sp, u = VehicleState(), Setpoint(), [0.0] * 4
     sp.armed = True
@@ -131,7 +132,7 @@ def _fmu_step(name: str, field: str, amp: float, t_end: float) -> np.ndarray:
     else:
         setattr(sp, field, amp)
     idx = {"x": P.Y_X, "y": P.Y_Y, "z": P.Y_Z, "vx": P.Y_VX}.get(field)
-    with P.Plant(v, z0=-1.0, omega0=v.omega_hover) as plant:
+    with P.Plant(PRESETS[v.name], z0=-1.0, omega0=v.omega_hover) as plant:
         y = plant.y
         y0 = list(y)
         out = []

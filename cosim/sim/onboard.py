@@ -12,6 +12,7 @@ from cosim.outputs.tlog import TapLink, Tlog
 from cosim.plant.vehicles import get_vehicle
 from cosim.scenario.records import Scenario
 from cosim.sim.options import RunOptions
+from mav.airframe import Airframe
 from mav.links import MemoryLink, UdpLink
 
 
@@ -40,8 +41,8 @@ class OnboardHandle:
                 gcs_m, gcs_v = MemoryLink.pair()
             self.onboard = Onboard(OnboardConfig(vehicle=vname), hil_v, api_v, gcs_v)
             self._own = (api_v, gcs_v) if opts.external_links else ()
-            if sc.vehicle != get_vehicle(vname):
-                self.onboard.set_vehicle_params(sc.vehicle)
+            if sc.vehicle != get_vehicle(vname):   # the flight stack flies the changed plant
+                self.onboard.set_airframe(Airframe(name=vname, **sc.vehicle.fmu_parameters()))
             self.hil = hil_m
             self.api = TapLink(api_app, tlog)
             self.gcs = TapLink(gcs_m, tlog)

@@ -69,7 +69,7 @@ def bench_plant(n: int, repeats: int) -> dict[str, Any]:
 
 
 def bench_controller(n: int, repeats: int) -> dict[str, Any]:
-    from cosim.plant.vehicles import MAMBO
+    from mav.airframe import MAMBO
     from mav.control import make_controller
     from mav.types import Setpoint, VehicleState
 
