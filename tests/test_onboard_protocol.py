@@ -202,7 +202,7 @@ def test_arm_disarm_and_refusals():
     assert rig.ob.home == (0.0, 0.0, 0.0)
     # in the air: disarm refused unless forced
     rig.odo[2] = -1.0
-    rig.ob.landed_state = IN_AIR
+    rig.ob.status.landed_state = IN_AIR
     rig.cmd(M.MAV_CMD_COMPONENT_ARM_DISARM, 0)
     rig.tick()
     assert rig.ack(400) == M.MAV_RESULT_DENIED and rig.ob.armed
@@ -213,7 +213,7 @@ def test_arm_disarm_and_refusals():
     assert rig.u == (0.0, 0.0, 0.0, 0.0)
     # arming refused in AUTO.LAND
     rig.odo[2] = 0.0
-    rig.ob.landed_state = ON_GROUND
+    rig.ob.status.landed_state = ON_GROUND
     rig.cmd(M.MAV_CMD_NAV_LAND)
     rig.cmd(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     rig.tick()
@@ -238,7 +238,7 @@ def test_takeoff_altitude_conventions():
         rig.tick()
         assert rig.ack(22) == M.MAV_RESULT_ACCEPTED, what
         assert rig.ob.mode == TAKEOFF
-        assert rig.ob._tko_z == pytest.approx(-rel, abs=1e-3), what
+        assert rig.ob.navigator.tko_z == pytest.approx(-rel, abs=1e-3), what
     rig.set_mode(3)
     for bad in (home_amsl - 1.0, home_amsl + 500.0, math.inf):
         rig.cmd(22, 0, 0, 0, math.nan, 0, 0, bad)
@@ -402,7 +402,7 @@ def test_type_mask_semantics(mask, kw, want):
     rig.tick()
     rig.setpoint(mask, **kw)
     rig.tick()
-    of = rig.ob._of
+    of = rig.ob.status.of
     if want is None:
         assert rig.ob.stats["rejected_setpoints"] == 1
         return
@@ -422,7 +422,7 @@ def test_body_ned_rotates_velocity_by_yaw_and_ignores_position():
     rig.setpoint(POS_VEL, x=5, y=5, z=-5, vx=1.0, vy=0.5, vz=-0.2,
                  frame=M.MAV_FRAME_BODY_NED)
     rig.tick()
-    of = rig.ob._of
+    of = rig.ob.status.of
     assert math.isnan(of.x) and math.isnan(of.y) and math.isnan(of.z)
     assert (of.vx, of.vy, of.vz) == pytest.approx((-0.5, 1.0, -0.2), abs=1e-6)
     rig.setpoint(POS_ONLY, x=1, y=1, z=-1, frame=M.MAV_FRAME_BODY_NED)   # position only: empty
@@ -453,9 +453,9 @@ def test_bad_setpoints_are_rejected_counted_and_reported_once(kind, kw):
         rig.tick()
     st = rig.ob.stats
     assert st["rejected_setpoints"] == 20 and st["sp_reject_" + kind] == 20
-    assert st["setpoints"] == 0 and rig.ob._of_last_us < 0
+    assert st["setpoints"] == 0 and rig.ob.status.of_last_us < 0
     assert len([t for t in rig.texts("api")]) == 1
-    assert all(math.isnan(v) for v in (rig.ob._of.x, rig.ob._of.vx))
+    assert all(math.isnan(v) for v in (rig.ob.status.of.x, rig.ob.status.of.vx))
 
 
 def test_nan_in_ignored_fields_is_fine():
@@ -506,8 +506,8 @@ def test_offboard_loss_failsafe_hold_then_land():
     rig = Rig(failsafe_land_s=2.0)
     rig.tick()
     rig.odo[2] = -1.0                      # pretend to fly at 1 m
-    rig.ob.landed_state = IN_AIR
-    rig.ob.armed = True
+    rig.ob.status.landed_state = IN_AIR
+    rig.ob.status.armed = True
     stream_setpoints(rig, 1.2, 20, x=0.5, y=0.0, z=-1.0)
     rig.set_mode(6)
     stream_setpoints(rig, 1.0, 20, x=0.5, y=0.0, z=-1.0)
@@ -517,7 +517,7 @@ def test_offboard_loss_failsafe_hold_then_land():
     rig.tick(199)                          # COM_OF_LOSS_T = 1 s: not yet
     assert rig.ob.mode == OFFBOARD
     rig.tick()
-    assert rig.ob.mode == LOITER and rig.ob._fs_active
+    assert rig.ob.mode == LOITER and rig.ob.status.fs_active
     assert (rig.ob.setpoint.x, rig.ob.setpoint.z) == (0.0, -1.0)   # hold where it is
     assert any("offboard setpoints lost" in t for t in rig.texts())
     stream_setpoints(rig, 0.5, 20)         # the stream coming back does not re-enter OFFBOARD
@@ -530,7 +530,7 @@ def test_offboard_loss_failsafe_hold_then_land():
 def test_failsafe_cancelled_by_mode_change():
     rig = Rig(failsafe_land_s=1.0)
     rig.tick()
-    rig.ob.landed_state = IN_AIR
+    rig.ob.status.landed_state = IN_AIR
     stream_setpoints(rig, 1.2, 20)
     rig.set_mode(6)
     rig.setpoint(POS_ONLY)
@@ -568,7 +568,7 @@ def test_param_protocol_over_memory_links(tmp_path):
     assert all(m.param_type == M.MAV_PARAM_TYPE_REAL32 for m in pv)
     names = [m.param_id for m in pv]
     assert names == sorted(names) and "COM_OF_LOSS_T" in names and "MIS_TAKEOFF_ALT" in names
-    ctrl_names = [s.name for s in rig.ob._ctrl.param_table()]
+    ctrl_names = [s.name for s in rig.ob.status.ctrl.param_table()]
     assert set(ctrl_names) <= set(names)
     # read by name and by index
     rig.send("gcs", M.MAVLink_param_request_read_message(1, 1, b"MPC_LAND_SPEED", -1))
@@ -582,13 +582,13 @@ def test_param_protocol_over_memory_links(tmp_path):
     rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"COM_OF_LOSS_T", 2.5,
                                                 M.MAV_PARAM_TYPE_REAL32))
     name = ctrl_names[0]
-    spec = rig.ob._ctrl.param_table()[0]
+    spec = rig.ob.status.ctrl.param_table()[0]
     new = (spec.default + spec.max) / 2 if spec.max > spec.default else spec.min
     rig.send("gcs", M.MAVLink_param_set_message(1, 1, name.encode(), new,
                                                 M.MAV_PARAM_TYPE_REAL32))
     rig.tick()
-    assert rig.ob._of_loss_us == 2_500_000
-    assert rig.ob._ctrl.get_param(name) == pytest.approx(new, rel=1e-6)
+    assert rig.ob.status.of_loss_us == 2_500_000
+    assert rig.ob.status.ctrl.get_param(name) == pytest.approx(new, rel=1e-6)
     for link in ("gcs", "api"):
         echo = [m for m in rig.msgs(link, "PARAM_VALUE") if m.param_id == "COM_OF_LOSS_T"]
         assert echo[-1].param_value == 2.5 and echo[-1].param_index == idx
@@ -675,7 +675,7 @@ def test_deterministic_bytes_mil():
 def test_set_airframe_rebuilds_controller_and_keeps_user_params():
     rig = Rig()
     rig.tick()
-    name = rig.ob._ctrl.param_table()[0].name
+    name = rig.ob.status.ctrl.param_table()[0].name
     spec = rig.ob.params.spec(name)
     new = spec.max if spec.max != spec.default else spec.min
     rig.send("gcs", M.MAVLink_param_set_message(1, 1, name.encode(), new,
@@ -683,10 +683,10 @@ def test_set_airframe_rebuilds_controller_and_keeps_user_params():
     rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"MPC_LAND_SPEED", 0.25,
                                                 M.MAV_PARAM_TYPE_REAL32))
     rig.tick()
-    old_ctrl = rig.ob._ctrl
+    old_ctrl = rig.ob.status.ctrl
     heavier = rig.ob.vehicle.with_overrides(mass=0.07)
     rig.ob.set_airframe(heavier)
-    assert rig.ob._ctrl is not old_ctrl and rig.ob._ctrl.vehicle.mass == 0.07
+    assert rig.ob.status.ctrl is not old_ctrl and rig.ob.status.ctrl.vehicle.mass == 0.07
     assert rig.ob.params.get(name) == pytest.approx(new, rel=1e-6)
     assert rig.ob.params.get("MPC_LAND_SPEED") == pytest.approx(0.25)
     assert rig.ob.battery.u_hover == pytest.approx(heavier.u_hover)
@@ -712,5 +712,5 @@ def test_mavlink1_packets_are_understood():
     rig.send_raw("gcs", M.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)
                  .pack(v1, force_mavlink1=True))
     rig.tick()
-    assert rig.ob.stats["setpoints"] == 1 and rig.ob._of.x == 1.0
+    assert rig.ob.stats["setpoints"] == 1 and rig.ob.status.of.x == 1.0
     assert rig.ob.armed and rig.ob.stats["dropped_bad_api"] == 0

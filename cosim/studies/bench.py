@@ -207,6 +207,7 @@ def bench_mission(mode: str, repeats: int) -> dict[str, Any]:
 
 # (module, class, method, label, parent label or None): the parts of a MIL tick, timed by
 # wrapping the methods for one run (bench_tick_breakdown)
+_HIL = "HIL exchange (onboard)"
 _TICK_PARTS = (
     ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None),
     ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None),
@@ -217,12 +218,12 @@ _TICK_PARTS = (
      "app on_tick"),
     ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None),
     ("cosim.sim.onboard", "OnboardHandle", "exchange", "HIL exchange (onboard)", None),
-    ("mav.onboard", "Onboard", "_drain", "  onboard drain api+gcs", "HIL exchange (onboard)"),
-    ("mav.onboard", "Onboard", "_step_modes", "  onboard modes", "HIL exchange (onboard)"),
+    ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL),
+    ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", "HIL exchange (onboard)"),
     ("mav.control", "_QuadController", "update", "  onboard controller",
      "HIL exchange (onboard)"),
     ("mav.battery", "Battery", "step", "  onboard battery", "HIL exchange (onboard)"),
-    ("mav.onboard", "Onboard", "_publish", "  onboard telemetry out", "HIL exchange (onboard)"),
+    ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL),
     ("mav.hil", "HilSimulatorCodec", "decode_actuators", "HIL_ACTUATOR_CONTROLS decode", None),
     ("cosim.sim.onboard", "OnboardHandle", "drain_gcs", "GCS link drain", None),
     ("cosim.plant.fmu", "Plant", "step", "plant step", None),

@@ -1,0 +1,5 @@
+import sys
+
+from mav.onboard.process import main
+
+sys.exit(main())

@@ -1,0 +1,170 @@
+"""Commander: arming and disarming, modes and the rules for changing them, landed state, home.
+
+A mode's entry actions set the setpoint that mode flies (the navigator runs the automatic
+modes; the offboard part owns the offboard setpoint).
+"""
+
+from __future__ import annotations
+
+import math
+
+from mav import wire
+from mav.onboard.defs import (
+    AIRBORNE_AGL_M,
+    IN_AIR,
+    LAND,
+    LANDING,
+    LOITER,
+    MODE_BY_PX4,
+    OFFBOARD,
+    ON_GROUND,
+    POSCTL,
+    PX4_MAIN_AUTO,
+    TAKEOFF,
+    TAKING_OFF,
+    M,
+)
+from mav.onboard.links import Outbox
+from mav.onboard.status import VehicleStatus
+
+
+class Commander:
+    def __init__(self, vs: VehicleStatus, outbox: Outbox) -> None:
+        self.vs = vs
+        self.out = outbox
+        self.navigator = None      # set by the vehicle (mav.onboard.navigator.Navigator)
+        self.offboard = None       # set by the vehicle (mav.onboard.offboard.Offboard)
+
+    # ------------------------------------------------------------------ state helpers
+    def heading(self) -> float:
+        """Heading (rad) of the current state; computed on demand, not every tick."""
+        s = self.vs.state
+        return wire.yaw_from_quat(s.qw, s.qx, s.qy, s.qz)
+
+    def hold_here(self) -> None:
+        sp = self.vs.sp
+        s = self.vs.state
+        sp.clear()
+        sp.x, sp.y, sp.z, sp.yaw = s.x, s.y, s.z, self.heading()
+
+    def set_landed(self, ls: int) -> None:
+        vs = self.vs
+        if ls != vs.landed_state:
+            vs.landed_state = ls
+            vs.ext_now = True
+
+    def agl(self) -> float:
+        """Height above home, m (0 before there is a home)."""
+        home = self.vs.home
+        return home[2] - self.vs.state.z if home is not None else 0.0
+
+    def motors_idle(self) -> bool:
+        """Armed but on the ground in a mode that does not take off: idle speed."""
+        vs = self.vs
+        return vs.landed_state == ON_GROUND and vs.mode in (POSCTL, LOITER, LAND)
+
+    def set_home(self) -> None:
+        s = self.vs.state
+        self.vs.home = (s.x, s.y, s.z)
+        self.vs.home_now = True
+
+    # ------------------------------------------------------------------ modes
+    def set_mode(self, mode: int) -> None:
+        """Enter `mode` (already checked allowed). Entry actions set the mode's setpoint."""
+        vs = self.vs
+        prev = vs.mode
+        vs.mode = mode
+        vs.fs_active = False
+        if mode != prev:
+            vs.hb_now = True
+        sp = vs.sp
+        if mode in (POSCTL, LOITER):
+            if prev != mode:
+                self.hold_here()
+            if vs.landed_state in (TAKING_OFF, LANDING):
+                self.set_landed(IN_AIR if self.agl() > AIRBORNE_AGL_M else ON_GROUND)
+        elif mode == LAND:
+            self.navigator.enter_land()
+            sp.clear()
+            sp.x, sp.y = vs.state.x, vs.state.y
+            sp.vz = vs.own["MPC_LAND_SPEED"]
+            sp.yaw = self.heading()
+            if vs.landed_state != ON_GROUND:
+                self.set_landed(LANDING)
+            elif vs.armed and vs.ground_since < 0:
+                vs.ground_since = vs.t_us     # already down: disarm after the delay
+        elif mode == OFFBOARD:
+            if vs.armed and vs.landed_state == ON_GROUND:
+                vs.ctrl.reset()
+            if vs.landed_state in (TAKING_OFF, LANDING):
+                self.set_landed(IN_AIR)
+        elif mode == TAKEOFF:
+            self.navigator.enter_takeoff()
+        vs.setpoint = vs.of if mode == OFFBOARD else sp
+
+    def request_mode(self, base_mode: float, main: float, sub: float) -> int:
+        """A PX4 custom mode (main, sub) asked by SET_MODE or MAV_CMD_DO_SET_MODE."""
+        if not (math.isfinite(base_mode) and int(base_mode) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED):
+            self.out.statustext("Mode change denied: base_mode needs CUSTOM_MODE_ENABLED",
+                                M.MAV_SEVERITY_WARNING)
+            return M.MAV_RESULT_DENIED
+        key = (int(main) if math.isfinite(main) else -1, int(sub) if math.isfinite(sub) else -1)
+        if key[0] != PX4_MAIN_AUTO and key[1] == -1:
+            key = (key[0], 0)
+        mode = MODE_BY_PX4.get(key)
+        if mode is None:
+            self.out.statustext(f"Mode change denied: mode {key[0]}/{key[1]} unsupported",
+                                M.MAV_SEVERITY_WARNING)
+            return M.MAV_RESULT_DENIED
+        return self.try_mode(mode)
+
+    def try_mode(self, mode: int) -> int:
+        vs = self.vs
+        if mode == vs.mode:
+            return M.MAV_RESULT_ACCEPTED
+        if mode == OFFBOARD and not self.offboard.stream_ok():
+            self.out.statustext("Switching to OFFBOARD denied: no setpoint stream",
+                                M.MAV_SEVERITY_WARNING)
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
+        if mode == TAKEOFF:
+            if not vs.have_state:
+                return M.MAV_RESULT_TEMPORARILY_REJECTED
+            return self.navigator.cmd_takeoff(math.nan, math.nan, None)
+        if not vs.have_state:
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
+        self.set_mode(mode)
+        return M.MAV_RESULT_ACCEPTED
+
+    # ------------------------------------------------------------------ arming
+    def arm(self) -> int:
+        vs = self.vs
+        if vs.armed:
+            return M.MAV_RESULT_ACCEPTED
+        if not vs.have_state:
+            self.out.statustext("Arming denied: no position estimate yet",
+                                M.MAV_SEVERITY_CRITICAL)
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
+        if vs.mode == LAND:
+            self.out.statustext("Arming denied: vehicle is in AUTO.LAND", M.MAV_SEVERITY_CRITICAL)
+            return M.MAV_RESULT_DENIED
+        if vs.mode == OFFBOARD and not self.offboard.stream_ok():
+            self.out.statustext("Arming denied: no offboard setpoints", M.MAV_SEVERITY_CRITICAL)
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
+        if vs.landed_state == ON_GROUND:
+            self.set_home()
+            if vs.mode == TAKEOFF:
+                self.navigator.takeoff_from_here()
+        vs.armed = True
+        vs.ground_since = -1
+        vs.ctrl.reset()
+        vs.hb_now = True
+        self.out.statustext("Armed", M.MAV_SEVERITY_INFO)
+        return M.MAV_RESULT_ACCEPTED
+
+    def disarm(self, text: str = "Disarmed") -> None:
+        vs = self.vs
+        if vs.armed:
+            vs.armed = False
+            vs.hb_now = True
+            vs.ground_since = -1
+            self.out.statustext(text, M.MAV_SEVERITY_INFO)

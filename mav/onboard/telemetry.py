@@ -1,0 +1,220 @@
+"""Telemetry: the periodic streams of each link and the messages sent on request.
+
+To add a message: write its `emit_<name>(ch)` here, register it in `emitters()`, and (for a
+periodic stream) add it to `defs.STREAMS` with default rates in `defs.API_RATES_HZ` /
+`GCS_RATES_HZ`. SET_MESSAGE_INTERVAL, REQUEST_MESSAGE and REQUEST_DATA_STREAM then work for it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from mav import wire
+from mav.onboard.commander import Commander
+from mav.onboard.defs import (
+    CAPABILITIES,
+    FLIGHT_SW_VERSION,
+    IGN_ACCEL,
+    IGN_VX,
+    IGN_VY,
+    IGN_VZ,
+    IGN_X,
+    IGN_Y,
+    IGN_YAW,
+    IGN_YAW_RATE,
+    IGN_Z,
+    MAV_AUTOPILOT,
+    MAV_TYPE,
+    PARAM_BURST,
+    SENSORS,
+    M,
+    px4_custom_mode,
+)
+from mav.onboard.links import Chan, Outbox
+from mav.onboard.parameters import Parameters
+from mav.onboard.status import VehicleStatus
+
+
+class Telemetry:
+    def __init__(self, vs: VehicleStatus, outbox: Outbox, commander: Commander,
+                 params: Parameters, geo: wire.FlatEarth, sysid: int, origin_alt_m: float
+                 ) -> None:
+        self.vs = vs
+        self.out = outbox
+        self.cmd = commander
+        self.params = params
+        self.geo = geo
+        self.sysid = sysid
+        self.origin_alt_m = origin_alt_m
+        self.chans = outbox.chans
+        self._emitters = self.emitters()
+
+    def emitters(self) -> dict[int, Callable[[Chan], None]]:
+        """message id -> the function that sends it on a link."""
+        return {
+            M.MAVLINK_MSG_ID_HEARTBEAT: self.emit_heartbeat,
+            M.MAVLINK_MSG_ID_SYS_STATUS: self.emit_sys_status,
+            M.MAVLINK_MSG_ID_ATTITUDE: self.emit_attitude,
+            M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self.emit_local_position,
+            M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self.emit_global_position,
+            M.MAVLINK_MSG_ID_HOME_POSITION: self.emit_home_position,
+            M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self.emit_extended_sys_state,
+            M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: self.emit_position_target,
+            M.MAVLINK_MSG_ID_BATTERY_STATUS: self.emit_battery_status,
+            M.MAVLINK_MSG_ID_VFR_HUD: self.emit_vfr_hud,
+            M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.emit_autopilot_version,
+        }
+
+    def emitter(self, msgid: int) -> Callable[[Chan], None] | None:
+        return self._emitters.get(msgid)
+
+    def request_message(self, msgid: int) -> tuple[int, int | None]:
+        """MAV_CMD_REQUEST_MESSAGE: (result, the message id to send after the ACK or None)."""
+        if msgid not in self._emitters:
+            self.vs.stats["commands_unsupported"] += 1
+            return M.MAV_RESULT_UNSUPPORTED, None
+        if msgid == M.MAVLINK_MSG_ID_HOME_POSITION and self.vs.home is None:
+            return M.MAV_RESULT_TEMPORARILY_REJECTED, None
+        return M.MAV_RESULT_ACCEPTED, msgid
+
+    # ------------------------------------------------------------------ per tick
+    def publish(self, t: int) -> None:
+        """Everything due at t on each link: event messages, streams, queued PARAM_VALUEs."""
+        vs = self.vs
+        api, gcs = self.chans
+        if (t < api.next_due and t < gcs.next_due and not api.param_queue
+                and not gcs.param_queue and not (vs.hb_now or vs.ext_now or vs.home_now)):
+            return
+        for ch in self.chans:
+            if ch.signed:
+                self.out.sync_signing(ch)
+            if vs.hb_now:
+                self.emit_heartbeat(ch)
+            if vs.ext_now:
+                self.emit_extended_sys_state(ch)
+            if vs.home_now:
+                self.emit_home_position(ch)
+            if t >= ch.next_due:
+                due = 1 << 62
+                for s in ch.streams:
+                    iv = s.interval_us
+                    if iv > 0:
+                        nxt = s.next_us
+                        if t >= nxt:
+                            s.emit(ch)
+                            nxt += iv
+                            if nxt <= t:
+                                nxt = t + iv
+                            s.next_us = nxt
+                        if nxt < due:
+                            due = nxt
+                ch.next_due = due
+            q = ch.param_queue
+            if q:
+                n = len(self.params.table)
+                for idx in q[:PARAM_BURST]:
+                    if idx < n:
+                        self.params.send_value(ch, idx)
+                del q[:PARAM_BURST]
+        vs.hb_now = vs.ext_now = vs.home_now = False
+
+    # ------------------------------------------------------------------ the messages
+    def _time_boot_ms(self) -> int:
+        return (self.vs.t_us // 1000) & 0xFFFFFFFF
+
+    def emit_heartbeat(self, ch: Chan) -> None:
+        vs = self.vs
+        base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if vs.armed:
+            base |= M.MAV_MODE_FLAG_SAFETY_ARMED
+        status = M.MAV_STATE_ACTIVE if vs.armed else M.MAV_STATE_STANDBY
+        ch.send(wire.pack(ch.mav, wire.HEARTBEAT, px4_custom_mode(vs.mode), MAV_TYPE,
+                          MAV_AUTOPILOT, base, status, 3))
+
+    def emit_sys_status(self, ch: Chan) -> None:
+        b = self.vs.battery
+        # wire order: sensors present/enabled/health, load, voltage mV, current cA, drop rate,
+        # errors comm, errors 1..4, remaining %, extended present/enabled/health
+        ch.send(wire.pack(ch.mav, wire.SYS_STATUS, SENSORS, SENSORS, SENSORS, 0,
+                          wire.clamp_int(b.voltage * 1000.0, 0, 65534),
+                          wire.clamp_int(b.current * 100.0, 0, 32767), 0, 0, 0, 0, 0, 0,
+                          wire.clamp_int(100.0 * b.remaining, 0, 100), 0, 0, 0))
+
+    def emit_attitude(self, ch: Chan) -> None:
+        s = self.vs.state
+        roll, pitch, yaw = wire.euler_from_quat(s.qw, s.qx, s.qy, s.qz)
+        ch.send(wire.encode_attitude(ch.mav, self._time_boot_ms(), roll, pitch, yaw,
+                                     s.p, s.q, s.r))
+
+    def emit_local_position(self, ch: Chan) -> None:
+        s = self.vs.state
+        ch.send(wire.encode_local_position_ned(ch.mav, self._time_boot_ms(), s.x, s.y, s.z,
+                                               s.vx, s.vy, s.vz))
+
+    def emit_global_position(self, ch: Chan) -> None:
+        s = self.vs.state
+        lat, lon, alt = self.geo.to_int(s.x, s.y, s.z)
+        rel = wire.clamp_int(self.cmd.agl() * 1000.0, -(1 << 31), (1 << 31) - 1)
+        hdg = wire.clamp_int(math.degrees(self.cmd.heading()) % 360.0 * 100.0, 0, 35999)
+        ci = wire.clamp_int
+        ch.send(wire.pack(ch.mav, wire.GLOBAL_POSITION_INT, self._time_boot_ms(), lat, lon, alt,
+                          rel, ci(s.vx * 100.0, -32768, 32767), ci(s.vy * 100.0, -32768, 32767),
+                          ci(s.vz * 100.0, -32768, 32767), hdg))
+
+    def emit_home_position(self, ch: Chan) -> None:
+        home = self.vs.home
+        if home is None:
+            return
+        hx, hy, hz = home
+        lat, lon, alt = self.geo.to_int(hx, hy, hz)
+        ch.send(wire.send_msg(ch.mav, M.MAVLink_home_position_message(
+            lat, lon, alt, hx, hy, hz, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, self.vs.t_us)))
+
+    def emit_extended_sys_state(self, ch: Chan) -> None:
+        ch.send(wire.pack(ch.mav, wire.EXTENDED_SYS_STATE, M.MAV_VTOL_STATE_UNDEFINED,
+                          self.vs.landed_state))
+
+    def emit_position_target(self, ch: Chan) -> None:
+        sp = self.vs.setpoint
+        mask = IGN_ACCEL
+        vals = []
+        for bit, v in ((IGN_X, sp.x), (IGN_Y, sp.y), (IGN_Z, sp.z), (IGN_VX, sp.vx),
+                       (IGN_VY, sp.vy), (IGN_VZ, sp.vz), (IGN_YAW, sp.yaw),
+                       (IGN_YAW_RATE, sp.yaw_rate)):
+            if v != v:
+                mask |= bit
+                v = 0.0
+            vals.append(v)
+        x, y, z, vx, vy, vz, yaw, yaw_rate = vals
+        ch.send(wire.pack(ch.mav, wire.POSITION_TARGET_LOCAL_NED, self._time_boot_ms(), x, y, z,
+                          vx, vy, vz, 0.0, 0.0, 0.0, yaw, yaw_rate, mask, M.MAV_FRAME_LOCAL_NED))
+
+    def emit_battery_status(self, ch: Chan) -> None:
+        vs = self.vs
+        b = vs.battery
+        cells = [wire.clamp_int(b.voltage * 1000.0, 0, 65534)] + [65535] * 9
+        ch.send(wire.send_msg(ch.mav, M.MAVLink_battery_status_message(
+            0, M.MAV_BATTERY_FUNCTION_ALL, M.MAV_BATTERY_TYPE_LIPO, 32767, cells,
+            wire.clamp_int(b.current * 100.0, 0, 32767),
+            wire.clamp_int(b.consumed_mah, 0, (1 << 31) - 1),
+            wire.clamp_int(b.energy_j / 100.0, 0, (1 << 31) - 1),
+            wire.clamp_int(100.0 * b.remaining, 0, 100),
+            wire.clamp_int(b.time_remaining_s(), 0, (1 << 31) - 1),
+            M.MAV_BATTERY_CHARGE_STATE_OK if vs.bat_warned == 0 else (
+                M.MAV_BATTERY_CHARGE_STATE_LOW if vs.bat_warned == 1
+                else M.MAV_BATTERY_CHARGE_STATE_CRITICAL),
+            [0, 0, 0, 0], 0, 0)))
+
+    def emit_vfr_hud(self, ch: Chan) -> None:
+        s = self.vs.state
+        gs = math.hypot(s.vx, s.vy)
+        u = self.vs.u
+        thr = wire.clamp_int(25.0 * (u[0] + u[1] + u[2] + u[3]), 0, 100)
+        ch.send(wire.pack(ch.mav, wire.VFR_HUD, gs, gs, self.origin_alt_m - s.z, -s.vz,
+                          wire.clamp_int(math.degrees(self.cmd.heading()) % 360.0, 0, 359), thr))
+
+    def emit_autopilot_version(self, ch: Chan) -> None:
+        ch.send(wire.send_msg(ch.mav, M.MAVLink_autopilot_version_message(
+            CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, list(b"cosim\x00\x00\x00"), [0] * 8,
+            [0] * 8, 0, 0, self.sysid, [0] * 18)))

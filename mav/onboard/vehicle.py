@@ -1,0 +1,298 @@
+"""The vehicle: the onboard stack's parts put together, and its tick.
+
+Three links (see `mav/links.py`): `hil` (the simulator: ODOMETRY in, HIL_ACTUATOR_CONTROLS out),
+`api` (offboard apps, like PX4's link to 14540) and `gcs` (ground stations, like 14550).
+
+Lockstep contract (ARCHITECTURE.md, "Time and order within a tick"): `poll()` does nothing
+unless a HIL datagram is waiting. With a valid ODOMETRY it first drains and handles everything
+queued on `api` and `gcs` (on the vehicle clock of the previous tick), then sets the vehicle
+clock to the ODOMETRY's time_usec, copies the state (the estimator, today), runs modes and
+failsafes and the controller, publishes due telemetry and answers on `hil` with exactly one
+HIL_ACTUATOR_CONTROLS stamped with the same time_usec. Every timer runs on this clock, so a
+run is deterministic; the api/gcs links are read only at HIL time.
+
+Embedded style: the state, setpoint and motor-command records are preallocated and updated in
+place; the per-tick path uses the fast codec of `mav/wire.py`; telemetry is only encoded when
+due.
+
+The parts (one job each, sharing the `VehicleStatus` record): links.py (link input, signing,
+STATUSTEXT), commander.py (arming, modes), navigator.py (take-off, land, ground detection),
+offboard.py (setpoints), failsafe.py, parameters.py, commands.py, telemetry.py.
+"""
+
+from __future__ import annotations
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from mav import wire
+from mav.airframe import Airframe, get_airframe
+from mav.battery import BATTERIES, Battery
+from mav.onboard.commander import Commander
+from mav.onboard.commands import Commands
+from mav.onboard.config import OnboardConfig
+from mav.onboard.defs import (
+    FRAME_BODY_FRD,
+    FRAME_LOCAL_NED,
+    HIL_MODE_ARMED,
+    HIL_MODE_DISARMED,
+    LAND,
+    LOITER,
+    MODE_NAMES,
+    OFFBOARD,
+    STREAMS,
+    TAKEOFF,
+    hz_to_us,
+    rotate_body_to_world,
+)
+from mav.onboard.failsafe import Failsafe
+from mav.onboard.links import Chan, LinkInput, Outbox, Stream
+from mav.onboard.navigator import Navigator
+from mav.onboard.offboard import Offboard
+from mav.onboard.parameters import Parameters
+from mav.onboard.status import VehicleStatus
+from mav.onboard.telemetry import Telemetry
+
+M = mavlink2
+
+STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
+         "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "hil_ignored", "hil_bad_values",
+         "unknown_msgs", "unhandled_msgs", "not_for_us", "unsigned_rejected", "badsig_rejected",
+         "setpoints", "rejected_setpoints", "commands", "commands_unsupported", "param_sets",
+         "param_rejected", "drain_deferred", "handler_errors")
+
+
+class Onboard:
+    """The vehicle. `poll()` once per HIL datagram; see the module docstring for the contract.
+
+    Attributes for the master and tests: `stats` (dict of counters), `mode` (int, see
+    MODE_NAMES), `mode_name`, `armed`, `landed_state`, `state` (VehicleState), `setpoint`
+    (the Setpoint in use), `u` (the last motor commands), `params` (ParamTable),
+    `warnings` (parameter-file notes), `status` (the shared VehicleStatus record).
+    """
+
+    def __init__(self, config: OnboardConfig, hil, api, gcs, *, controller=None) -> None:
+        self.cfg = cfg = config
+        self._hil = hil
+        self.vehicle: Airframe = get_airframe(cfg.vehicle)
+        self.status = vs = VehicleStatus(stats=dict.fromkeys(STATS, 0))
+        self.stats = vs.stats
+        self._hil_mav = M.MAVLink(None, cfg.sysid, cfg.compid)
+        chans: list[Chan] = []
+        self.outbox = out = Outbox(vs, chans, cfg.signing_epoch_unix_s)
+        for i, (name, link) in enumerate((("api", api), ("gcs", gcs))):
+            ch = Chan(name, link, M.MAVLink(None, cfg.sysid, cfg.compid), self.stats)
+            if cfg.signing_key is not None:
+                sg = ch.mav.signing
+                sg.secret_key = bytes(cfg.signing_key)
+                sg.sign_outgoing = True
+                sg.allow_unsigned_callback = None
+                sg.link_id = i
+                sg.timestamp = out.signing_ts(0)
+                ch.signed = True
+            chans.append(ch)
+        self._api, self._gcs = chans
+        self._chans = chans
+
+        # ---- the parts
+        self.commander = cmd = Commander(vs, out)
+        self.navigator = nav = Navigator(vs, out, cmd, cfg.control_dt_s, cfg.origin_alt_m)
+        self.offboard = ofb = Offboard(vs, out, cmd, cfg.sysid, cfg.compid)
+        cmd.navigator, cmd.offboard = nav, ofb
+        self.parameters = prm = Parameters(vs, out, chans, lambda s, c: self.commands.for_us(s, c))
+        self.failsafe = Failsafe(vs, out, cmd, prm.apply)
+        self.geo = wire.FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
+        self.telemetry = tel = Telemetry(vs, out, cmd, prm, self.geo, cfg.sysid,
+                                         cfg.origin_alt_m)
+        self.commands = Commands(vs, out, cmd, nav, tel, cfg.sysid, cfg.compid)
+        self.input = LinkInput(vs, out, self.commands.handlers(ofb.on_setpoint_msg, prm),
+                               ofb.on_setpoint)
+        for ch, rates in zip(chans, (cfg.api_rates_hz, cfg.gcs_rates_hz), strict=True):
+            for sname, msgid in STREAMS.items():
+                st = Stream(msgid, hz_to_us(rates.get(sname, 0.0)), tel.emitter(msgid))
+                ch.streams.append(st)
+                ch.by_msgid[msgid] = st
+
+        # ---- controller, parameters, battery
+        self._ctrl_factory = None
+        if controller is None:
+            from mav.control import make_controller
+
+            self._ctrl_factory = make_controller
+            controller = make_controller(self.vehicle, dt=cfg.control_dt_s)
+        vs.ctrl = controller
+        vs.battery = Battery(BATTERIES[cfg.vehicle], self.vehicle.u_hover)
+        prm.build()
+        vs.own["COM_OF_LOSS_T"] = cfg.offboard_loss_s
+        vs.own["COM_FAIL_ACT_T"] = cfg.failsafe_land_s
+        if cfg.param_file:
+            prm.load_file(cfg.param_file)
+        prm.apply()
+
+    # ------------------------------------------------------------------ public helpers
+    @property
+    def mode(self) -> int:
+        return self.status.mode
+
+    @property
+    def mode_name(self) -> str:
+        return MODE_NAMES[self.status.mode]
+
+    @property
+    def armed(self) -> bool:
+        return self.status.armed
+
+    @property
+    def landed_state(self) -> int:
+        return self.status.landed_state
+
+    @property
+    def state(self):
+        return self.status.state
+
+    @property
+    def setpoint(self):
+        return self.status.setpoint
+
+    @property
+    def u(self) -> list[float]:
+        return self.status.u
+
+    @property
+    def battery(self) -> Battery:
+        return self.status.battery
+
+    @property
+    def params(self):
+        return self.parameters.table
+
+    @property
+    def warnings(self) -> list[str]:
+        return self.parameters.warnings
+
+    @property
+    def t(self) -> float:
+        """Vehicle clock, s."""
+        return self.status.t_us * 1e-6
+
+    @property
+    def home(self) -> tuple[float, float, float] | None:
+        return self.status.home
+
+    def statustext(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
+        """Send a STATUSTEXT (<= 50 characters) on the api and gcs links."""
+        self.outbox.statustext(text, severity)
+
+    def set_airframe(self, vehicle: Airframe) -> None:
+        """Use other airframe values (scenario overrides): rebuilds the controller, keeps
+        parameters the user set."""
+        vs = self.status
+        self.vehicle = vehicle
+        if self._ctrl_factory is not None:
+            vs.ctrl = self._ctrl_factory(vehicle, dt=self.cfg.control_dt_s)
+        vs.battery = Battery(vs.battery.p, vehicle.u_hover)
+        self.parameters.rebuild_keeping_user_values()
+
+    def load_params(self, path: str) -> None:
+        """Apply a parameter file; unknown names are noted in `warnings`, bad values raise."""
+        self.parameters.load_file(path)
+
+    # ------------------------------------------------------------------ the tick
+    def poll(self) -> bool:
+        """Handle one waiting HIL datagram (see module docstring). False if none was waiting
+        or it was not a usable ODOMETRY (then nothing else is touched)."""
+        data = self._hil.recv()
+        if data is None:
+            return False
+        vs = self.status
+        st = vs.stats
+        st["rx_hil"] += 1
+        try:
+            od = wire.decode_odometry(data)
+        except Exception:   # defensive: the decoder is total on bytes, but never crash here
+            od = None
+        if od is None:
+            self._hil_not_odometry(data)
+            return False
+        (t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r, frame_id, child) = od
+        chk = x + y + z + qw + qx + qy + qz + vx + vy + vz + p + q + r
+        if chk - chk != 0.0 or frame_id != FRAME_LOCAL_NED or (
+                child != FRAME_LOCAL_NED and child != FRAME_BODY_FRD):
+            st["hil_bad_values"] += 1
+            return False
+        if not vs.have_state:
+            vs.t_us = t_us
+        # 1. the offboard and GCS links, at the clock of the previous tick
+        drain = self.input.drain
+        drain(self._api)
+        drain(self._gcs)
+        # 2. clock and estimator (ground truth from ODOMETRY)
+        dt_us = t_us - vs.t_us
+        vs.t_us = t_us
+        s = vs.state
+        s.t = t_us * 1e-6
+        s.x, s.y, s.z = x, y, z
+        s.qw, s.qx, s.qy, s.qz = qw, qx, qy, qz
+        if child == FRAME_LOCAL_NED:
+            s.vx, s.vy, s.vz = vx, vy, vz
+        else:   # body FRD velocity -> world NED
+            s.vx, s.vy, s.vz = rotate_body_to_world(qw, qx, qy, qz, vx, vy, vz)
+        s.p, s.q, s.r = p, q, r
+        if not vs.have_state:
+            vs.have_state = True
+            self.commander.set_home()
+            self.commander.hold_here()
+        # 3. modes, failsafes, ground detection, controller
+        self._step_modes(t_us)
+        u = vs.u
+        if vs.armed:
+            if self.commander.motors_idle():
+                idle = vs.own["MOT_IDLE_RATIO"] * self.vehicle.u_hover
+                u[0] = u[1] = u[2] = u[3] = idle
+            else:
+                sp = vs.setpoint
+                sp.armed = True
+                vs.ctrl.update(s, sp, u)
+        else:
+            u[0] = u[1] = u[2] = u[3] = 0.0
+        if dt_us > 0:
+            vs.battery.step(dt_us * 1e-6, u[0], u[1], u[2], u[3])
+        # 4. telemetry when due, then the HIL answer
+        self.telemetry.publish(t_us)
+        self._hil.send(wire.encode_hil_actuator_controls(
+            self._hil_mav, t_us, u[0], u[1], u[2], u[3],
+            HIL_MODE_ARMED if vs.armed else HIL_MODE_DISARMED))
+        st["ticks"] += 1
+        return True
+
+    def _step_modes(self, t: int) -> None:
+        """The modes' work for this tick, failsafes first (in PX4's order of precedence)."""
+        vs = self.status
+        mode = vs.mode
+        if mode == OFFBOARD:
+            if t - vs.of_last_us > vs.of_loss_us:
+                self.failsafe.offboard_lost(t)
+                mode = LOITER
+        elif mode == TAKEOFF:
+            if vs.armed:
+                self.navigator.step_takeoff(t)
+        elif mode == LAND:
+            if vs.armed:
+                self.navigator.step_land(t)
+        if vs.fs_active and mode == LOITER and t - vs.fs_t0 > vs.fail_act_us:
+            self.failsafe.hold_expired()
+        self.navigator.detect_air_and_ground(t)
+        if vs.battery.consumed_mah > vs.bat_warn_mah:
+            self.failsafe.battery_warning()
+
+    def _hil_not_odometry(self, data: bytes) -> None:
+        """Count a HIL datagram that is not a valid ODOMETRY: another message or garbage."""
+        end = wire.frame_end(data, 0)
+        if end == len(data):
+            try:
+                msg = self._hil_mav.decode(bytearray(data))
+            except Exception:
+                msg = None
+            if msg is not None and not isinstance(msg, M.MAVLink_unknown):
+                self.stats["hil_ignored"] += 1     # e.g. a HEARTBEAT, HIL_SENSOR (later)
+                return
+        self.stats["dropped_bad_hil"] += 1
