@@ -30,18 +30,16 @@ class Setpoint:
     Horizontal: position (x, y) with optional velocity feed-forward (vx, vy), or velocity only
     (x, y NaN). Vertical: position z, or velocity vz only (z NaN). Heading: yaw (rad), or
     yaw_rate (rad/s) when yaw is NaN; both NaN holds the current heading.
-    `armed` False means motors off (u = 0). `takeoff_boost` asks the Mambo altitude loop for
-    the template's take-off boost.
+    `armed` False means motors off (u = 0).
     """
 
-    __slots__ = ("x", "y", "z", "vx", "vy", "vz", "yaw", "yaw_rate", "armed", "takeoff_boost")
+    __slots__ = ("x", "y", "z", "vx", "vy", "vz", "yaw", "yaw_rate", "armed")
 
     def __init__(self) -> None:
         self.x = self.y = self.z = NAN
         self.vx = self.vy = self.vz = NAN
         self.yaw = self.yaw_rate = NAN
         self.armed = False
-        self.takeoff_boost = False
 
     def clear(self) -> None:
         self.x = self.y = self.z = NAN

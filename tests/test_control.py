@@ -9,14 +9,8 @@ import pytest
 
 from cosim.plant.vehicles import PRESETS
 from mav.airframe import BEBOP2, MAMBO, Airframe
-from mav.control import (
-    Bebop2Controller,
-    MamboController,
-    ParamSpec,
-    _inverse4,
-    make_controller,
-    mixer_matrix,
-)
+from mav.control import Bebop2Controller, MamboController, ParamSpec, make_controller
+from mav.mixer import inverse4, mixer_matrix
 from mav.types import Setpoint, VehicleState
 
 VEHICLES = [MAMBO, BEBOP2]
@@ -54,7 +48,7 @@ def one_tick(ctrl, s: VehicleState, sp: Setpoint) -> list[float]:
 @pytest.mark.parametrize("v", VEHICLES, ids=IDS)
 def test_mixer_inverse_round_trip(v):
     A = mixer_matrix(v)
-    Ai = _inverse4(A)
+    Ai = inverse4(A)
     for i in range(4):
         for j in range(4):
             prod = sum(A[i][k] * Ai[k][j] for k in range(4))
@@ -235,27 +229,6 @@ def test_yaw_rate_setpoint_is_limited(v):
     sp.yaw_rate = 100.0
     N = wrench(v, one_tick(ctrl, s, sp))[1]
     assert N == pytest.approx(g["k_r"] * math.radians(30.0), rel=1e-9)
-
-
-def test_mambo_takeoff_boost_first_ticks_after_arming():
-    ctrl = make_controller(MAMBO)
-    s = hover_state(z=0.0)
-    sp = hold_setpoint(s)
-    sp.takeoff_boost = True
-    ticks = int(ctrl.get_param("MC_TKO_TICKS"))
-    boost = ctrl.get_param("MC_TKO_BOOST") * MAMBO.weight
-    thrusts = [wrench(MAMBO, one_tick(ctrl, s, sp))[0] for _ in range(ticks + 2)]
-    assert thrusts[0] == pytest.approx(MAMBO.weight + boost, rel=1e-9)
-    assert thrusts[ticks - 1] == pytest.approx(MAMBO.weight + boost, rel=1e-9)
-    assert thrusts[ticks] == pytest.approx(MAMBO.weight, rel=1e-9)
-    # no boost without the flag, and the counter restarts at the next arming
-    sp.armed = False
-    one_tick(ctrl, s, sp)
-    sp.armed = True
-    assert wrench(MAMBO, one_tick(ctrl, s, sp))[0] == pytest.approx(MAMBO.weight + boost)
-    fresh = make_controller(MAMBO)
-    sp.takeoff_boost = False
-    assert wrench(MAMBO, one_tick(fresh, s, sp))[0] == pytest.approx(MAMBO.weight)
 
 
 @pytest.mark.parametrize("v", VEHICLES, ids=IDS)
@@ -447,10 +420,9 @@ def test_closed_loop_mission(v):
     sp = f.sp
     try:
         assert f.plant.y[P.Y_ON_GROUND] == 1.0
-        # take off (Mambo: with the template's boost) and hold
+        # take off by a step of the altitude setpoint (no boost: 6 s to settle) and hold
         sp.x, sp.y, sp.z, sp.yaw = 0.0, 0.0, -1.0, 0.0
-        sp.takeoff_boost = v is MAMBO
-        leg = f.fly(4.0)
+        leg = f.fly(6.0)
         assert min(y[P.Y_Z] for y in leg) > -1.15  # overshoot < 15 cm
         hold = f.fly(4.0)
         assert max(abs(y[P.Y_Z] + 1.0) for y in hold) < 0.06
@@ -518,7 +490,6 @@ def test_closed_loop_mambo_template_preset_flies():
     sp = f.sp
     try:
         sp.x, sp.y, sp.z, sp.yaw = 0.0, 0.0, -1.0, 0.0
-        sp.takeoff_boost = True
         f.fly(5.0)
         sp.x = 0.5
         leg = f.fly(8.0)

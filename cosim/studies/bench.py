@@ -220,7 +220,7 @@ _TICK_PARTS = (
     ("cosim.sim.onboard", "OnboardHandle", "exchange", "HIL exchange (onboard)", None),
     ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL),
     ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", "HIL exchange (onboard)"),
-    ("mav.control", "_QuadController", "update", "  onboard controller",
+    ("mav.cascade", "QuadCascade", "update", "  onboard controller",
      "HIL exchange (onboard)"),
     ("mav.battery", "Battery", "step", "  onboard battery", "HIL exchange (onboard)"),
     ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL),

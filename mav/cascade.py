@@ -1,0 +1,444 @@
+"""The cascade both onboard low-level controllers share (mav/control.py builds them).
+
+Contract (used by the onboard MAVLink vehicle; see mav/README.md, "Controllers"):
+
+    ctrl = make_controller(vehicle, dt=0.005)      # MamboController or Bebop2Controller
+    ctrl.update(state, setpoint, out)              # 200 Hz; writes u1..u4 in [0, 1] to out[0:4]
+
+Motor order and spin (PX4 quad-X, viewed from above): 1 front-right CCW, 2 rear-left CCW,
+3 front-left CW, 4 rear-right CW. Body FRD, world NED. Rotor i sits at (+-a, +-a) with
+a = arm_length*sqrt(2)/2 and pushes k_thrust*w^2 along -z_body; a CCW rotor's reaction torque
+is +yaw (about +z down). So roll right (+L) = more thrust on 2, 3; pitch up (+M) = more thrust
+on 1, 3; yaw right (+N) = faster 1, 2. Motor command u = w_cmd/omega_max.
+
+Both controllers share one hot path (`QuadCascade.update`), a cascade that is, in its
+linear range, identical to the template's PID structure:
+
+- horizontal: v_cmd = K_xy*e_pos (error in the body-yaw frame, each axis saturated) + v_ff,
+  limited to a horizontal speed; tilt = K_vxy*(v_cmd - v) + C_drag*v_ff, limited to a tilt.
+  With K_xy = P/D and K_vxy = D this is the template's pitch_ref = -P*e_x + D*vx exactly.
+- vertical: vz_cmd = K_z*e_z + vz_ff, limited to a climb rate; thrust = m*g + K_vz*(vz - vz_cmd)
+  - integrator, divided by the tilt cosine, saturated. With K_z = P/D and
+  K_vz = D this is the template's P/I/D altitude law exactly.
+- attitude: torque = K_p*(angle_ref - angle) + integrator - K_d*rate (the template's PID
+  with D on the measured body rate).
+- yaw: r_cmd = K_psi*wrap(yaw_ref - yaw) + r_ff, limited; torque = K_r*(r_cmd - r)
+  (= template P*e - D*r with K_psi = P/D, K_r = D).
+- mixer: the inverse of [T; N; M; L] = A [T1..T4], thrusts clipped to [0, T_max], yaw given
+  only the headroom the other axes leave, then u = sqrt(T/k_thrust)/omega_max.
+
+The hot path is plain-float Python: gains live in one record (`Gains`) rebuilt by `set_param`,
+so a tick does no dict look-ups and allocates nothing but floats.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple, Protocol
+
+from mav.airframe import Airframe
+from mav.mixer import inverse4, mixer_matrix
+from mav.types import Setpoint, VehicleState
+
+_sqrt, _atan2, _asin, _cos, _sin = math.sqrt, math.atan2, math.asin, math.cos, math.sin
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One tunable parameter, MAVLink style (PARAM_VALUE carries it as a float)."""
+
+    name: str       # <= 16 characters, MAVLink param id style ("MC_XY_P")
+    default: float  # in `unit`
+    min: float      # in `unit`, inclusive
+    max: float      # in `unit`, inclusive
+    unit: str       # e.g. "rad/m", "deg", "m/s"
+    doc: str        # one line
+
+
+class Controller(Protocol):
+    dt: float  # s, control period
+
+    def param_table(self) -> list[ParamSpec]: ...
+
+    def get_param(self, name: str) -> float: ...
+
+    def set_param(self, name: str, value: float) -> None: ...
+
+    def reset(self) -> None: ...
+
+    def update(self, s: VehicleState, sp: Setpoint, out: list[float]) -> None: ...
+
+
+class Gains(NamedTuple):
+    """The hot path's gains and constants, absolute units (rebuilt by `set_param`; a
+    NamedTuple so `update` unpacks it as fast as a plain tuple)."""
+
+    pitch_kp: float      # N m/rad
+    pitch_ki: float      # N m/(rad s)
+    pitch_kd: float      # N m s/rad
+    roll_kp: float       # N m/rad
+    roll_ki: float       # N m/(rad s)
+    roll_kd: float       # N m s/rad
+    att_i_lim: float     # N m, roll/pitch integrator limit
+    att_kb: float        # 1, back-calculation gain per tick
+    k_psi: float         # 1/s, heading -> yaw rate
+    k_r: float           # N m s/rad, yaw rate -> torque
+    yawrate_max: float   # rad/s
+    k_z: float           # 1/s, altitude -> climb rate
+    k_vz: float          # N s/m, climb rate -> thrust
+    ki_z_pos: float      # N/(m s), altitude-error integral (position mode)
+    ki_z_vpos: float     # N/m, velocity-error integral (position mode)
+    ki_z_vel: float      # N/m, velocity-error integral (velocity mode)
+    z_i_lim: float       # N, altitude integrator limit
+    vz_max: float        # m/s, climb/descent rate limit
+    thrust_max_total: float  # N
+    k_xy: float          # 1/s, position -> horizontal velocity
+    k_vxy: float         # rad s/m, velocity error -> tilt
+    c_drag: float        # rad s/m, drag feed-forward tilt per m/s
+    xy_err_max: float    # m, per-axis position error saturation
+    vxy_max: float       # m/s, horizontal speed limit
+    tilt_max: float      # rad
+    weight: float        # N
+    m0t: float           # inverse mixer A^-1 entries: rotor 1 from thrust, pitch, roll (1/m)
+    m0m: float
+    m0l: float
+    m1t: float           # rotor 2
+    m1m: float
+    m1l: float
+    m2t: float           # rotor 3
+    m2m: float
+    m2l: float
+    m3t: float           # rotor 4
+    m3m: float
+    m3l: float
+    my: float            # rotor 1 from yaw torque, 1/m (rotors 1, 2: +; 3, 4: -)
+    t_max: float         # N, one rotor at omega_max
+    c_u: float           # 1/N, u^2 per newton: 1/(k_thrust omega_max^2)
+    arm_a: float         # m, rotor offset along x and y (pitch/roll torque per N)
+    dt: float            # s, control period
+    integ: bool          # a yaw-rate setpoint integrates a heading reference
+
+
+class QuadCascade:
+    """Shared cascade and mixer. Subclasses supply the parameter table and `_gains()`."""
+
+    PARAMS: tuple[ParamSpec, ...] = ()
+    PRESETS: dict[str, dict[str, float]] = {}
+    # True: a yaw-rate setpoint integrates a heading reference (no drift, PX4 style);
+    # False: yaw-rate setpoints close a pure rate loop (Parrot PCMD style).
+    YAW_RATE_INTEGRATES = True
+
+    def __init__(self, vehicle: Airframe, dt: float = 0.005, preset: str = "default"):
+        if not (dt > 0.0 and math.isfinite(dt)):
+            raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
+        self.vehicle = vehicle
+        self.dt = float(dt)
+        self._specs = {p.name: p for p in self.PARAMS}
+        self._p: dict[str, float] = {p.name: float(p.default) for p in self.PARAMS}
+        A = mixer_matrix(vehicle)
+        Ai = inverse4(A)
+        self._A = A
+        self._Ainv = Ai
+        # The yaw column of the inverse must be (+y, +y, -y, -y): the mixer's yaw headroom
+        # logic relies on it (true for any quad-X with the contract's motor order).
+        y = Ai[0][1]
+        if not (y > 0 and all(abs(Ai[i][1] - s * y) < 1e-9 * y
+                              for i, s in enumerate((1, 1, -1, -1)))):
+            raise ValueError("unexpected mixer structure (motor order must be PX4 quad-X)")
+        self._i_p = 0.0   # pitch integrator, N m
+        self._i_r = 0.0   # roll integrator, N m
+        self._i_z = 0.0   # altitude integrator, N of upward thrust
+        self._yaw_ref = 0.0  # rad, heading reference
+        self._n = 0       # armed ticks since arming (0: take the heading as reference)
+        self._g: Gains | None = None
+        if preset != "default":
+            self.apply_preset(preset)
+        self._refresh()
+
+    # ---------------------------------------------------------------- parameters
+    def param_table(self) -> list[ParamSpec]:
+        """Every parameter with its default, range, unit and meaning."""
+        return list(self.PARAMS)
+
+    def get_param(self, name: str) -> float:
+        try:
+            return self._p[name]
+        except KeyError:
+            raise ValueError(f"unknown parameter {name!r} for {type(self).__name__}") from None
+
+    def set_param(self, name: str, value: float) -> None:
+        """Set one parameter; it takes effect on the next update. ValueError if the name is
+        unknown or the value is non-finite or outside [min, max]."""
+        spec = self._specs.get(name)
+        if spec is None:
+            raise ValueError(f"unknown parameter {name!r} for {type(self).__name__}")
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be a number, got {value!r}") from None
+        if not math.isfinite(v):
+            raise ValueError(f"{name} must be finite, got {v!r}")
+        if not (spec.min <= v <= spec.max):
+            raise ValueError(
+                f"{name} = {v:g} {spec.unit} is outside [{spec.min:g}, {spec.max:g}]")
+        self._p[name] = v
+        self._refresh()
+
+    def apply_preset(self, name: str) -> None:
+        """Load a named gain set ('default' = the parameter defaults, or one of PRESETS)."""
+        if name == "default":
+            values = {p.name: p.default for p in self.PARAMS}
+        elif name in self.PRESETS:
+            values = self.PRESETS[name]
+        else:
+            choices = ", ".join(["default", *sorted(self.PRESETS)])
+            raise ValueError(f"unknown preset {name!r}; choose one of {choices}")
+        for k, v in values.items():
+            self.set_param(k, v)
+
+    def linear_gains(self) -> dict[str, float]:
+        """The effective gains the hot path uses, in absolute units (for mav.tune).
+
+        Keys: pitch/roll kp [N m/rad], ki [N m/(rad s)], kd [N m s/rad]; yaw k_psi [1/s],
+        k_r [N m s/rad]; k_z [1/s], k_vz [N s/m], ki_z_pos [N/(m s)] (position-mode
+        integrator on the altitude error), ki_z_vpos / ki_z_vel [N/m] (integrator gain on the
+        vertical velocity error in position / velocity mode); k_xy [1/s], k_vxy [rad s/m],
+        c_drag [rad s/m]; yaw_rate_integrates (1.0 or 0.0)."""
+        g = self._gains()
+        g["yaw_rate_integrates"] = 1.0 if self.YAW_RATE_INTEGRATES else 0.0
+        return g
+
+    def _gains(self) -> dict[str, float]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _refresh(self) -> None:
+        """Rebuild the hot path's gains from the parameters (called by set_param)."""
+        g = self._gains()
+        v = self.vehicle
+        t_max = v.thrust_max
+        Ai = self._Ainv
+        self._g = Gains(
+            g["pitch_kp"], g["pitch_ki"], g["pitch_kd"],
+            g["roll_kp"], g["roll_ki"], g["roll_kd"],
+            g["att_i_lim"], g["att_kb"],
+            g["k_psi"], g["k_r"], g["yawrate_max"],
+            g["k_z"], g["k_vz"], g["ki_z_pos"], g["ki_z_vpos"], g["ki_z_vel"], g["z_i_lim"],
+            g["vz_max"], g["thrust_max_total"],
+            g["k_xy"], g["k_vxy"], g["c_drag"], g["xy_err_max"], g["vxy_max"], g["tilt_max"],
+            v.weight,
+            Ai[0][0], Ai[0][2], Ai[0][3], Ai[1][0], Ai[1][2], Ai[1][3],
+            Ai[2][0], Ai[2][2], Ai[2][3], Ai[3][0], Ai[3][2], Ai[3][3],
+            Ai[0][1],
+            t_max, 1.0 / (v.k_thrust * v.omega_max * v.omega_max),
+            self._A[2][0], self.dt, self.YAW_RATE_INTEGRATES,
+        )
+
+    # ---------------------------------------------------------------- state
+    def reset(self) -> None:
+        """Clear the integrators and the heading reference."""
+        self._i_p = self._i_r = self._i_z = 0.0
+        self._yaw_ref = 0.0
+        self._n = 0
+
+    # ---------------------------------------------------------------- hot path
+    def update(self, s: VehicleState, sp: Setpoint, out: list[float]) -> None:
+        """One control tick: state estimate + setpoint -> motor commands u1..u4 in out[0:4].
+
+        The state must be finite (the estimator's job); a NaN still never reaches the motors
+        (the commands are clipped NaN-safe into [0, 1])."""
+        if not sp.armed:
+            out[0] = out[1] = out[2] = out[3] = 0.0
+            if self._n:
+                self.reset()
+            return
+        (kp_p, ki_p, kd_p, kp_r, ki_r, kd_r, i_lim, kb,
+         k_psi, k_r, r_max,
+         k_z, k_vz, ki_zp, ki_zvp, ki_zv, zi_lim, vz_max, t_tot_max,
+         k_xy, k_vxy, c_drag, e_max, v_max, tilt_max,
+         weight,
+         m0t, m0m, m0l, m1t, m1m, m1l, m2t, m2m, m2l, m3t, m3m, m3l, my,
+         t_max, c_u, arm_a, dt, integ) = self._g
+
+        # attitude (ZYX Euler) from the quaternion
+        qw, qx, qy, qz = s.qw, s.qx, s.qy, s.qz
+        r33 = 1.0 - 2.0 * (qx * qx + qy * qy)
+        roll = _atan2(2.0 * (qw * qx + qy * qz), r33)
+        sp_ = 2.0 * (qw * qy - qz * qx)
+        pitch = _asin(1.0 if sp_ > 1.0 else (-1.0 if sp_ < -1.0 else sp_))
+        yaw = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        cy = _cos(yaw)
+        sy = _sin(yaw)
+
+        n = self._n
+        if n == 0:
+            self._yaw_ref = yaw
+
+        # ---- horizontal: position -> velocity -> tilt, in the body-yaw frame (F, R)
+        vx, vy = s.vx, s.vy
+        vxb = cy * vx + sy * vy
+        vyb = cy * vy - sy * vx
+        fx, fy = sp.vx, sp.vy
+        if fx != fx:
+            fx = 0.0
+        if fy != fy:
+            fy = 0.0
+        fxb = cy * fx + sy * fy
+        fyb = cy * fy - sy * fx
+        v2 = fxb * fxb + fyb * fyb
+        if v2 > v_max * v_max:  # the feed-forward alone may not exceed the speed limit
+            f = v_max / _sqrt(v2)
+            fxb *= f
+            fyb *= f
+        px, py = sp.x, sp.y
+        if px == px and py == py:
+            ex = px - s.x
+            ey = py - s.y
+            exb = cy * ex + sy * ey
+            eyb = cy * ey - sy * ex
+            if exb > e_max:
+                exb = e_max
+            elif exb < -e_max:
+                exb = -e_max
+            if eyb > e_max:
+                eyb = e_max
+            elif eyb < -e_max:
+                eyb = -e_max
+            vcx = k_xy * exb + fxb
+            vcy = k_xy * eyb + fyb
+        else:
+            vcx = fxb
+            vcy = fyb
+        v2 = vcx * vcx + vcy * vcy
+        if v2 > v_max * v_max:
+            f = v_max / _sqrt(v2)
+            vcx *= f
+            vcy *= f
+        # forward acceleration needs nose down (negative pitch); rightward needs roll right
+        pitch_ref = -(k_vxy * (vcx - vxb) + c_drag * fxb)
+        roll_ref = k_vxy * (vcy - vyb) + c_drag * fyb
+        t2 = pitch_ref * pitch_ref + roll_ref * roll_ref
+        if t2 > tilt_max * tilt_max:
+            f = tilt_max / _sqrt(t2)
+            pitch_ref *= f
+            roll_ref *= f
+
+        # ---- vertical: altitude -> climb rate -> thrust (NED: up is -z)
+        vz = s.vz
+        fz = sp.vz
+        if fz != fz:
+            fz = 0.0
+        zr = sp.z
+        pos_mode = zr == zr
+        if pos_mode:
+            ez = zr - s.z
+            vzc = k_z * ez + fz
+        else:
+            ez = 0.0
+            vzc = fz
+        limited = False
+        if vzc > vz_max:
+            vzc = vz_max
+            limited = True
+        elif vzc < -vz_max:
+            vzc = -vz_max
+            limited = True
+        i_z = self._i_z
+        thrust = weight + k_vz * (vz - vzc) + i_z
+        if r33 > 0.5:  # tilt compensation (the template has none), capped at 60 deg
+            thrust /= r33
+        else:
+            thrust *= 2.0
+        t_sat = 0
+        if thrust > t_tot_max:
+            thrust = t_tot_max
+            t_sat = 1
+        elif thrust < 0.0:
+            thrust = 0.0
+            t_sat = -1
+
+        # ---- attitude PID (D on body rates) -> pitch / roll torques
+        e_p = pitch_ref - pitch
+        e_r = roll_ref - roll
+        i_p = self._i_p
+        i_r = self._i_r
+        tq_m = kp_p * e_p + i_p - kd_p * s.q
+        tq_l = kp_r * e_r + i_r - kd_r * s.p
+
+        # ---- heading
+        yr = sp.yaw
+        rr = sp.yaw_rate
+        if yr == yr:
+            yref = yr
+            r_ff = 0.0
+        elif rr == rr:
+            # limited first, so the integrated heading reference cannot run away
+            r_ff = r_max if rr > r_max else (-r_max if rr < -r_max else rr)
+            if integ:
+                yref = self._yaw_ref + r_ff * dt
+                if yref > _PI or yref < -_PI:
+                    yref = (yref + _PI) % _TWO_PI - _PI
+            else:
+                yref = yaw
+        else:
+            yref = self._yaw_ref
+            r_ff = 0.0
+        self._yaw_ref = yref
+        e_psi = yref - yaw
+        if e_psi > _PI or e_psi < -_PI:
+            e_psi = (e_psi + _PI) % _TWO_PI - _PI
+        rc = k_psi * e_psi + r_ff
+        if rc > r_max:
+            rc = r_max
+        elif rc < -r_max:
+            rc = -r_max
+        tq_n = k_r * (rc - s.r)
+
+        # ---- mixer: thrust, pitch, roll first; yaw gets the remaining headroom
+        b1 = m0t * thrust + m0m * tq_m + m0l * tq_l
+        b2 = m1t * thrust + m1m * tq_m + m1l * tq_l
+        b3 = m2t * thrust + m2m * tq_m + m2l * tq_l
+        b4 = m3t * thrust + m3m * tq_m + m3l * tq_l
+        b1 = t_max if b1 > t_max else (b1 if b1 > 0.0 else 0.0)  # NaN -> 0
+        b2 = t_max if b2 > t_max else (b2 if b2 > 0.0 else 0.0)  # NaN -> 0
+        b3 = t_max if b3 > t_max else (b3 if b3 > 0.0 else 0.0)  # NaN -> 0
+        b4 = t_max if b4 > t_max else (b4 if b4 > 0.0 else 0.0)  # NaN -> 0
+        d = my * tq_n  # rotors 1, 2 get +d, rotors 3, 4 get -d
+        if d > 0.0:
+            h = min(t_max - b1, t_max - b2, b3, b4)
+            if d > h:
+                d = h
+        elif d < 0.0:
+            h = min(b1, b2, t_max - b3, t_max - b4)
+            if -d > h:
+                d = -h
+        else:
+            d = 0.0  # also for NaN
+        b1 += d
+        b2 += d
+        b3 -= d
+        b4 -= d
+        out[0] = _sqrt(b1 * c_u)
+        out[1] = _sqrt(b2 * c_u)
+        out[2] = _sqrt(b3 * c_u)
+        out[3] = _sqrt(b4 * c_u)
+
+        # ---- integrators (forward Euler; back-calculation on the achieved torque)
+        i_p += dt * ki_p * e_p + kb * (arm_a * (b1 - b2 + b3 - b4) - tq_m)
+        i_r += dt * ki_r * e_r + kb * (arm_a * (b2 + b3 - b1 - b4) - tq_l)
+        self._i_p = i_lim if i_p > i_lim else (-i_lim if i_p < -i_lim else i_p)
+        self._i_r = i_lim if i_r > i_lim else (-i_lim if i_r < -i_lim else i_r)
+        # altitude: upward-thrust integrator (grows while the vehicle is below its reference
+        # or sinks faster than commanded). Anti-windup by conditional integration: the
+        # position term is frozen while the climb rate is limited, and the whole update is
+        # skipped while the thrust saturates in the direction it would push.
+        if pos_mode:
+            di = ki_zvp * (vz - vzc) if limited else ki_zvp * (vz - vzc) - ki_zp * ez
+        else:
+            di = ki_zv * (vz - vzc)
+        di *= dt
+        if not ((t_sat > 0 and di > 0.0) or (t_sat < 0 and di < 0.0)):
+            i_z += di
+            self._i_z = zi_lim if i_z > zi_lim else (-zi_lim if i_z < -zi_lim else i_z)
+        self._n = n + 1
