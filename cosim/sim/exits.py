@@ -8,7 +8,6 @@ landed), or None to go on. The time limit and failures of a part are decided by 
 from __future__ import annotations
 
 import enum
-import math
 
 from cosim.errors import ComponentError
 from cosim.plant.fmu import Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_Z
@@ -28,6 +27,7 @@ CEILING_M = 5.0            # m above the floor: higher is "left the arena"
 ARENA_MARGIN_M = 0.5       # m outside the arena bounds before LEFT_ARENA
 CRASH_VZ_MPS = 2.0         # m/s, touchdown faster than this is a crash
 CRASH_TILT_COS = 0.0       # cos(90 deg): flipped over
+FLIP_PRECHECK = 0.49        # qx^2 + qy^2 above which flipped() is asked (flipped: > 0.5)
 AIRBORNE_Z_M = -0.10       # m, higher than this counts as having flown
 REST_TIMEOUT_S = 3.0       # s on the ground, armed, after flying: LANDED anyway
 
@@ -63,6 +63,8 @@ class ExitMonitor:
 
     def __init__(self, arena, tick_s: float, app, *, sitl: bool = False) -> None:
         self.arena = arena
+        self.arena_box = (arena[0] - ARENA_MARGIN_M, arena[1] + ARENA_MARGIN_M,
+                          arena[2] - ARENA_MARGIN_M, arena[3] + ARENA_MARGIN_M)
         self.h = tick_s
         self.app = app
         self.sitl = sitl
@@ -72,35 +74,39 @@ class ExitMonitor:
         self.touchdown: tuple[float, float, float] | None = None  # the final one, at exit
         self.rest_ticks = int(round(REST_TIMEOUT_S / tick_s))
 
-    def check(self, t: float, y, vz_before: float, disarmed: bool) -> Exit | None:
-        """State `y` at t_k+1 = t + h; `vz_before` the vertical speed at t_k; `disarmed` all
-        four motor commands zero."""
-        n, e, d = y[Y_X], y[Y_Y], y[Y_Z]
-        if not math.isfinite(d):
+    def check(self, t: float, y, vz_before: float, u) -> Exit | None:
+        """State `y` at t_k+1 = t + h; `vz_before` the vertical speed at t_k; `u` the motor
+        commands held over the step. Runs every tick: the common case (flying, nothing to
+        report) is a few comparisons; the named conditions build the exit."""
+        d = y[Y_Z]
+        if d - d != 0.0:                       # NaN or inf
             raise ComponentError("plant", "non-finite state")
-        if d < AIRBORNE_Z_M:
-            self.airborne = True
-        if self.airborne:
+        airborne = self.airborne
+        if not airborne and d < AIRBORNE_Z_M:
+            self.airborne = airborne = True
+        if airborne:
             if y[Y_ON_GROUND] > 0.5:
                 if self.ground_ticks == 0:
-                    self.t_touch = (t + self.h, n, e)
+                    self.t_touch = (t + self.h, y[Y_X], y[Y_Y])
                     hard = hard_touchdown(vz_before)
                     if hard:
                         self.touchdown = self.t_touch
                         return hard
                 self.ground_ticks += 1
-            else:
+            elif self.ground_ticks:
                 self.ground_ticks = 0
-        out = flipped(y[Y_QX], y[Y_QY])
-        if out:
-            return out
+        qx, qy = y[Y_QX], y[Y_QY]
+        if qx * qx + qy * qy > FLIP_PRECHECK:    # tilted past ~81 deg: flipped() decides
+            out = flipped(qx, qy)
+            if out:
+                return out
         if self.sitl:
             return None
-        out = left_arena(self.arena, n, e, d)
-        if out:
-            return out
-        if self.airborne and self.ground_ticks > 0:
-            return self.landed(disarmed)
+        n, e, a = y[Y_X], y[Y_Y], self.arena_box
+        if n < a[0] or n > a[1] or e < a[2] or e > a[3] or d < -CEILING_M:
+            return left_arena(self.arena, n, e, d)
+        if airborne and self.ground_ticks > 0:
+            return self.landed(u[0] == 0.0 and u[1] == 0.0 and u[2] == 0.0 and u[3] == 0.0)
         return None
 
     def landed(self, disarmed: bool) -> Exit | None:

@@ -245,8 +245,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                 stage = "plant"
                 y = plant_step(u1, u2, u3, u4, wind_n, wind_e, wind_d)
                 # 7b. exit conditions on the state at t_k+1
-                ended = check_exit(t, y, vz,
-                                   u1 == 0.0 and u2 == 0.0 and u3 == 0.0 and u4 == 0.0)
+                ended = check_exit(t, y, vz, (u1, u2, u3, u4))
                 if ended is not None:
                     exit_reason, message = ended
                     break
