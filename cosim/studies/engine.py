@@ -5,8 +5,11 @@
 - `dask` (the default of `cosim montecarlo`): dask.distributed. With no address, a
   `LocalCluster` of one single-threaded worker process per core (or `workers`); with
   `--scheduler tcp://HOST:8786` or the environment variable COSIM_DASK_SCHEDULER, the
-  existing cluster behind that scheduler. A job whose worker dies is re-run elsewhere once
-  (`retries=1`); if it dies again it is a failed row.
+  existing cluster behind that scheduler. A job whose worker dies is re-run on another worker
+  by the scheduler (Dask's `distributed.scheduler.allowed-failures`: 1 on our local cluster,
+  the scheduler's own setting on a remote one); when it has killed more workers than that, it
+  is a failed row (KilledWorker). A task that raises outside `run_job` is retried once
+  (`retries=1`).
 
 Rows come back as runs finish (`as_completed`) and are appended to the table at once, so a
 study stopped anywhere (Ctrl-C, a lost worker, a reboot) resumes with the same command and
@@ -134,14 +137,16 @@ def _pool(jobs, fn, *, workers, **_) -> Iterator[dict[str, Any]]:
 
 
 def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
     addr = scheduler_address(scheduler)
     cluster = None
     if addr is None:
         n = workers or os.cpu_count() or 1
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+        with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
     else:
         try:
