@@ -8,6 +8,7 @@ import os
 import shlex
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -234,3 +235,57 @@ def test_a_job_whose_worker_dies_runs_again_or_is_a_failed_row(tmp_path):
     rows = table.finish()
     assert stats.ran == 3 and [r["status"] for r in rows] == ["ok", "ok", "failed"]
     assert "KilledWorker" in rows[2]["error"] and (tmp_path / "died-1").exists()
+
+
+def test_a_study_on_an_existing_cluster_via_scheduler(tmp_path):
+    """`dask scheduler` + `dask worker` (the README's two commands, port 0), then --scheduler."""
+    dask_cli = str(Path(sys.executable).parent / "dask")
+    sfile = tmp_path / "scheduler.json"
+    logs = open(tmp_path / "dask.log", "w")
+    procs = [subprocess.Popen([dask_cli, "scheduler", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(sfile)], stdout=logs, stderr=logs)]
+    try:
+        procs.append(subprocess.Popen([dask_cli, "worker", "--scheduler-file", str(sfile),
+                                       "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+                                      stdout=logs, stderr=logs))
+        for _ in range(1200):                  # the scheduler writes its address when up
+            if sfile.is_file() and sfile.stat().st_size:
+                break
+            assert procs[0].poll() is None, (tmp_path / "dask.log").read_text()
+            time.sleep(0.05)
+        addr = json.loads(sfile.read_text())["address"]
+        out = tmp_path / "mc"
+        r = _cli(*_mc_args(out, 3, "--scheduler", addr))
+        assert r.returncode == 0, r.stderr
+        assert f"on {addr}" in r.stderr
+        serial = tmp_path / "serial"
+        assert _cli(*_mc_args(serial, 3, "--executor", "serial")).returncode == 0
+        assert (out / "results.csv").read_bytes() == (serial / "results.csv").read_bytes()
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+            p.wait(timeout=30)
+        logs.close()
+
+
+def test_sweep_through_the_study_engine(tmp_path):
+    """`cosim sweep` with a study option: streamed table, one seed column, report, same bytes
+    from the local pool and serially."""
+    base = ["sweep", SEED_TRACK, "--set", "seed=0,1", "--set", "wind.n_mps=0,0.3",
+            "--set", "sensors.odometry_noise.pos_std_m=0.003", "--set", "timing.t_final_s=5"]
+    r = _cli(*base, "--executor", "local", "--workers", "2", "--resume",
+             "--out", str(tmp_path / "pool"))
+    assert r.returncode in (0, 1), r.stderr
+    assert _cli(*base, "--executor", "serial", "--resume",
+                "--out", str(tmp_path / "serial")).returncode in (0, 1)
+    table = (tmp_path / "pool" / "results.csv").read_text()
+    assert table == (tmp_path / "serial" / "results.csv").read_text()
+    header, *rows = table.splitlines()
+    assert header.startswith("run_id,wind.n_mps,seed,status,") and len(rows) == 4
+    assert [r.split(",")[1:3] for r in rows] == [["0", "0"], ["0.3", "0"], ["0", "1"],
+                                                 ["0.3", "1"]]
+    rep = json.loads((tmp_path / "pool" / "report.json").read_text())
+    assert rep["study"]["kind"] == "sweep" and rep["study"]["params"] == ["seed", "wind.n_mps"]
+    for w in rep["worst"]:            # the replay pins the fixed sets, the seed, the swept value
+        assert "--set timing.t_final_s=5 " in w["replay"] and f"--seed {w['seed']} " in w["replay"]
+        assert f"--set wind.n_mps={w['params']['wind.n_mps']} " in w["replay"]

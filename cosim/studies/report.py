@@ -146,7 +146,7 @@ def markdown(rep: dict[str, Any]) -> str:
                      f"{v['mean']:.4g} |")
     lines += ["", f"## worst runs (by {rep['main_metric'] or 'status'})", ""]
     for w in rep["worst"]:
-        ps = ", ".join(f"{k}={v}" for k, v in w["params"].items())
+        ps = ", ".join(f"{k}={v}" for k, v in w["params"].items() if k != "seed")
         what = w["error"] or f"{w['exit_reason']}, {'passed' if w['passed'] else 'not passed'}"
         lines += [f"- run {w['run_id']} (seed {w['seed']}; {ps}): {what}"
                   + (f"; {rep['main_metric']} = {w['main_metric']}" if w["main_metric"] else ""),

@@ -34,7 +34,8 @@ def fmt(v: Any) -> str:
 class ResultsTable:
     def __init__(self, path: Path, param_keys: list[str]) -> None:
         self.path = Path(path)
-        self.fixed = [*HEAD, *param_keys, *TAIL]
+        # a swept `seed` is the seed column
+        self.fixed = [*HEAD, *(k for k in param_keys if k not in (*HEAD, *TAIL)), *TAIL]
         self.columns = list(self.fixed)
         self.rows: list[dict[str, str]] = []
         if self.path.is_file():
