@@ -14,8 +14,8 @@
 Rows come back as runs finish (`as_completed`) and are appended to the table at once, so a
 study stopped anywhere (Ctrl-C, a lost worker, a reboot) resumes with the same command and
 skips the runs already in the table. Each finished run also gets a line in `runs.log` (JSON
-lines: run id, status, wall time, worker, UTC time): what changes from one execution to
-another stays out of the table.
+lines: run id, status, wall time, worker, its resident memory after the run, UTC time): what
+changes from one execution to another stays out of the table.
 """
 
 from __future__ import annotations
@@ -84,6 +84,7 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
                 f.write(json.dumps({"run_id": row["run_id"], "status": row["status"],
                                     "wall_s": extra.get("_wall_s"),
                                     "worker": extra.get("_worker"),
+                                    "rss_mb": extra.get("_rss_mb"),
                                     "utc": datetime.now(UTC).isoformat(timespec="seconds")})
                         + "\n")
         bar.update(1)

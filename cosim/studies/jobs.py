@@ -96,7 +96,17 @@ def run_job(job: Job) -> dict[str, Any]:
     # '_' keys go to the study's run log, not the table (they differ from one execution to another)
     row["_wall_s"] = time.perf_counter() - t0
     row["_worker"] = f"{socket.gethostname()}:{os.getpid()}"
+    row["_rss_mb"] = _rss_mb()
     return row
+
+
+def _rss_mb() -> float | None:
+    """Resident memory of this worker process after the run (MB), to see it stay flat."""
+    try:
+        import psutil  # a dependency of dask.distributed
+    except ImportError:
+        return None
+    return round(psutil.Process().memory_info().rss / 1e6, 1)
 
 
 def flat_metrics(metrics: dict[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -5,7 +5,8 @@
 The same small Monte Carlo (the seed mission cut to `--t-final` s, wind and odometry noise
 drawn) runs serially, on the local process pool and on a local Dask cluster with 1 and 2
 workers. Wall times include starting the pool or the cluster. Per-run overhead of an executor =
-(its wall time - the sum of the runs' own wall times / workers) / runs. Run it on a quiet
+(its wall time - the sum of the runs' own wall times / workers) / runs; Dask vs the pool =
+(Dask's wall time - the pool's) / runs, with the same number of workers. Run it on a quiet
 machine; it prints a Markdown table (and JSON with --json).
 """
 
@@ -60,6 +61,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {r['executor']} | {r['workers']} | {r['wall_s']:.2f} | "
               f"{r['missions_per_min']:.0f} | {r['missions_per_min'] / base:.2f}x | "
               f"{r['run_s_mean']:.3f} | {r['overhead_per_run_s']:.3f} |")
+    for w in (1, 2):
+        pool, dk = (next(r for r in res if r["executor"] == ex and r["workers"] == w)
+                    for ex in ("local", "dask"))
+        print(f"\nDask vs local pool, {w} worker(s): "
+              f"{(dk['wall_s'] - pool['wall_s']) / a.runs:+.3f} s per run "
+              f"(cluster start-up included)", end="")
+    print()
     if a.json:
         a.json.write_text(json.dumps(res, indent=2) + "\n")
     return 0
