@@ -152,9 +152,10 @@ def test_interrupted_study_resumes_without_redoing_runs(tmp_path):
     assert "wind.e_mps" in r.stderr and len((out / "results.csv").read_text().splitlines()) == 6
 
 
-def test_replay_command_flies_the_same_run(tmp_path):
+def test_replay_command_flies_the_same_run_kept_with_keep_runs(tmp_path):
     out = tmp_path / "mc"
-    assert _cli(*_mc_args(out, 3, "--executor", "serial")).returncode == 0
+    assert _cli(*_mc_args(out, 3, "--executor", "serial", "--keep-runs")).returncode == 0
+    assert sorted(p.name for p in (out / "runs").iterdir()) == ["000000", "000001", "000002"]
     rep = json.loads((out / "report.json").read_text())
     worst = rep["worst"][0]
     args = shlex.split(worst["replay"])
@@ -166,6 +167,8 @@ def test_replay_command_flies_the_same_run(tmp_path):
                if r.startswith(f"{worst['run_id']},"))
     assert repr(summary["metrics"]["path_error_rms_m"]) == worst["main_metric"]
     assert str(summary["seed"]) == worst["seed"] and worst["main_metric"] in row
+    kept = out / "runs" / f"{worst['run_id']:06d}" / "timeseries.csv"     # --keep-runs
+    assert kept.read_bytes() == (tmp_path / "replay" / "timeseries.csv").read_bytes()
 
 
 # ------------------------------------------------------------------ failed runs

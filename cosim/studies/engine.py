@@ -87,8 +87,8 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
                                     "rss_mb": extra.get("_rss_mb"),
                                     "utc": datetime.now(UTC).isoformat(timespec="seconds")})
                         + "\n")
-        bar.update(1)
         bar.set_postfix(done=stats.ran - stats.failed, failed=stats.failed, refresh=False)
+        bar.update(1)
 
     try:
         if todo:
