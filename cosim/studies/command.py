@@ -64,6 +64,9 @@ def _engine_kw(args) -> dict:
         raise ScenarioError("--limit", args.limit, "an integer >= 0")
     if args.scheduler is not None and args.executor != "dask":
         raise ScenarioError("--scheduler", args.scheduler, "only with --executor dask")
+    if args.scheduler is not None and args.workers is not None:
+        raise ScenarioError("--workers", args.workers, "only without --scheduler (an existing "
+                            "cluster has the workers it has)")
     return {"executor": args.executor, "scheduler": args.scheduler, "workers": args.workers,
             "limit": args.limit, "retry_failed": args.retry_failed,
             "progress": not args.quiet}
