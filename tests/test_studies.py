@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.scenario import load_scenario
+from cosim.studies.deps import load_scenario
 from cosim.studies.dists import parse_varies, parse_vary, run_draws
 from cosim.studies.engine import run_study
 from cosim.studies.jobs import Job, run_job, self_contained

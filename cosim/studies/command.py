@@ -73,10 +73,9 @@ def _engine_kw(args) -> dict:
 
 
 def montecarlo(args) -> int:
-    from cosim.scenario import load_scenario
+    from cosim.studies.deps import load_scenario, parse_sets
     from cosim.studies.dists import parse_varies
     from cosim.studies.study import montecarlo_jobs
-    from cosim.sweep import parse_sets
 
     sc = load_scenario(args.scenario)
     dists = parse_varies(args.vary)
@@ -88,9 +87,8 @@ def montecarlo(args) -> int:
 
 
 def sweep(args) -> int:
-    from cosim.scenario import load_scenario
+    from cosim.studies.deps import load_scenario, parse_sets
     from cosim.studies.study import sweep_jobs
-    from cosim.sweep import parse_sets
 
     sc = load_scenario(args.scenario)
     out = args.out or Path("runs") / f"sweep-{sc.name}"

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import ScenarioError
-from cosim.sweep import parse_value, split_values
+from cosim.studies.deps import parse_value, split_values
 
 SEED_MAX = 2**31 - 1          # scenario seeds stay short enough to type in a replay command
 _SPEC = re.compile(r"^\s*([a-z]+)\s*\((.*)\)\s*$", re.S)

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cosim.studies import deps
+
 # columns every row has, in this order; then the varied parameters, then the metrics
 HEAD = ("run_id",)
 TAIL = ("seed", "status", "exit_reason", "passed", "app_phase", "message", "error")
@@ -54,14 +56,12 @@ def start_sets(sc, keys: list[str]) -> dict[str, Any]:
 
 
 def scenario_of(job: Job):
-    from cosim.scenario import parse_scenario
-
     src = Path(job.source)
-    sc = parse_scenario(copy.deepcopy(job.raw), source=job.source, base_dir=src.parent)
+    sc = deps.parse_scenario(copy.deepcopy(job.raw), source=job.source, base_dir=src.parent)
     assign = {**dict(job.sets), **dict(job.params)}
     if job.seed is not None:
         assign["seed"] = job.seed
-    return sc.with_set(assign) if assign else sc
+    return deps.with_set(sc, assign) if assign else sc
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -72,15 +72,12 @@ def run_job(job: Job) -> dict[str, Any]:
     try:
         sc = scenario_of(job)
         row["seed"] = sc.seed
-        from cosim.master import ExitReason, RunOptions, run_scenario
-        from cosim.report import summarize, write_run
-
         if job.keep_dir is None:
             tmp = tempfile.mkdtemp(prefix="cosim-run-")
         out = Path(job.keep_dir or tmp)
-        res = run_scenario(sc, RunOptions(mode=job.mode, out_dir=out))
-        summary = write_run(res, out) if job.keep_dir else summarize(res)
-        failed = res.exit_reason is ExitReason.COMPONENT_ERROR
+        res = deps.run_mission(sc, mode=job.mode, out_dir=out)
+        summary = deps.write_run(res, out) if job.keep_dir else deps.summarize(res)
+        failed = deps.component_error(res)
         row.update(status="failed" if failed else "ok", exit_reason=res.exit_reason.value,
                    passed=bool(summary["passed"]), app_phase=_last_phase(res),
                    message=res.message, error=res.message if failed else "")
@@ -128,7 +125,5 @@ def flat_metrics(metrics: dict[str, Any], prefix: str = "") -> dict[str, Any]:
 def _last_phase(res) -> str:
     if res.scenario.app.name == "none" or not len(res.series):
         return ""
-    from cosim.metrics import COL
-
-    i = int(res.series[-1, COL["phase"]])
+    i = int(res.series[-1, deps.phase_column()])
     return res.phases[i] if 0 <= i < len(res.phases) else ""

@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from cosim.studies.deps import parse_value
 from cosim.studies.jobs import HEAD, TAIL
-from cosim.sweep import parse_value
 
 Z95 = 1.959963984540054          # standard normal quantile of 0.975
 # the first of these a study has is its main metric (ranks the worst runs)

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.errors import ScenarioError
+from cosim.studies.deps import with_set
 from cosim.studies.dists import Dist, run_draws
 from cosim.studies.engine import StudyStats, run_study
 from cosim.studies.jobs import Job, self_contained, start_sets
@@ -52,7 +53,7 @@ def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, An
         raise ScenarioError("--set", sorted(clash)[0], "a key that is not also varied")
     if "seed" in keys:
         raise ScenarioError("--vary seed", "seed", "another key: every run gets its own seed")
-    base = sc.with_set(sets) if sets else sc
+    base = with_set(sc, sets) if sets else sc
     draws = [run_draws(seed, i, dists) for i in range(n)]
     for d in dists:
         vals = [v[d.key] for _, v in draws]
@@ -60,7 +61,7 @@ def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, An
         for v in check:
             value = v if d.kind != "choice" else next(x for x in vals if repr(x) == v)
             try:
-                base.with_set({d.key: value})
+                with_set(base, {d.key: value})
             except ScenarioError as exc:
                 run = next(i for i, (_, dv) in enumerate(draws) if dv[d.key] == value)
                 raise ScenarioError(f"--vary {d.text}", value,
@@ -81,7 +82,7 @@ def sweep_jobs(sc, grid: dict[str, list[Any]], out: Path, *, mode: str = "mil",
     """The Cartesian product of the values; keys with one value are fixed --sets."""
     for key, values in grid.items():  # every value checked before any run starts
         for v in values:
-            sc.with_set({key: v})
+            with_set(sc, {key: v})
     params = [k for k, v in grid.items() if len(v) > 1]
     sets = {k: v[0] for k, v in grid.items() if len(v) == 1}
     sets = {**start_sets(sc, [*grid]), **sets}

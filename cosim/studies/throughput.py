@@ -18,7 +18,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from cosim.scenario import load_scenario
+from cosim.studies.deps import load_scenario
 from cosim.studies.dists import parse_varies
 from cosim.studies.engine import run_study
 from cosim.studies.study import montecarlo_jobs
