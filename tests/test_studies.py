@@ -292,3 +292,22 @@ def test_sweep_through_the_study_engine(tmp_path):
     for w in rep["worst"]:            # the replay pins the fixed sets, the seed, the swept value
         assert "--set timing.t_final_s=5 " in w["replay"] and f"--seed {w['seed']} " in w["replay"]
         assert f"--set wind.n_mps={w['params']['wind.n_mps']} " in w["replay"]
+
+
+@pytest.mark.slow
+def test_the_documented_200_run_monte_carlo_of_the_seed_mission(tmp_path):
+    """The README's command (cosim/studies/README.md) on a local Dask cluster, ~70-90 s on 2
+    cores: every run has a row, none raised, and the report holds the statistics."""
+    out = tmp_path / "mc-200"
+    args = ["montecarlo", SEED_TRACK, "-n", "200", "--seed", "1", "--out", str(out),
+            "--vary", "wind.n_mps=uniform(0,1.5)",
+            "--vary", "sensors.odometry_noise.pos_std_m=truncnormal(0,0.01,0,0.05)",
+            "--vary", "vehicle.start.yaw_deg=normal(0,15)"]
+    r = _cli(*args)
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["runs"] == 200 and rep["failed"] == 0
+    lo, hi = rep["success"]["wilson95"]
+    assert lo <= rep["success"]["rate"] <= hi
+    assert {"report_hist.png", "report_vs_params.png"} <= {p.name for p in out.iterdir()}
+    assert len(rep["worst"]) == 5 and all("--seed" in w["replay"] for w in rep["worst"])
