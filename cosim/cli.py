@@ -1,4 +1,4 @@
-"""`cosim`: run, validate, sweep, sitl, onboard, tune, bench."""
+"""`cosim`: run, validate, sweep, montecarlo, sitl, onboard, tune, bench."""
 
 from __future__ import annotations
 
@@ -20,7 +20,11 @@ EXAMPLES = {
     "sweep": """examples:
   cosim sweep scenarios/mambo_seed_track.toml --set app.alpha=0.002,0.0038,0.006,0.008,0.010
   cosim sweep scenarios/mambo_textured.toml --set seed=0,1,2,3 --set app.k_t=100,150
-  cosim sweep scenarios/scripted_square.toml --set seed=0,1 --executor serial""",
+  cosim sweep scenarios/scripted_square.toml --set seed=0,1 --executor serial
+  cosim sweep scenarios/mambo_turns.toml --set app.alpha=0.004,0.006,0.008 --executor dask
+study options (--executor dask, --scheduler, --resume, --keep-runs, --retry-failed, --limit):
+  the run goes through the study engine (cosim/studies): results.csv streamed and resumable
+  with the same command, report.md with statistics; see `cosim montecarlo --help`.""",
     "sitl": """examples:
   cosim sitl                                  then connect QGroundControl (UDP 14550)
   cosim sitl --vehicle bebop2 --world turns   MAVSDK / scripts on UDP 14540
@@ -37,6 +41,7 @@ EPILOG = """examples:
   cosim run scenarios/scripted_square.toml --set seed=3 --out runs/sq3
   cosim validate scenarios/*.toml
   cosim sweep scenarios/mambo_seed_track.toml --set app.alpha=0.002,0.003,0.0038,0.005,0.006
+  cosim montecarlo scenarios/mambo_seed_track.toml -n 200 --vary 'wind.n_mps=uniform(0,1.5)'
   cosim sitl --vehicle mambo                                 fly it from QGroundControl
   cosim onboard --vehicle mambo --hil-bind 127.0.0.1:4560   the flight stack alone
   cosim tune mambo                                           loop margins (python-control)
@@ -66,6 +71,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="save every Nth camera frame as PNG")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario field, e.g. app.alpha=0.005 or seed=3")
+    r.add_argument("--seed", type=int, default=None, help="the scenario seed (= --set seed=N)")
     r.add_argument("--no-plots", action="store_true")
     r.add_argument("--quiet", action="store_true", help="no progress display")
 
@@ -76,9 +82,14 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("scenario")
     s.add_argument("--set", action="append", required=True, metavar="KEY=V1,V2,...")
     s.add_argument("--mode", choices=("mil", "sil"), default="mil")
-    s.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
-    s.add_argument("--executor", choices=("local", "serial"), default="local")
     s.add_argument("--out", type=Path, help="sweep folder (default runs/sweep-<scenario>)")
+    # issue 15: studies at scale (cosim/studies); the plain form below is unchanged
+    from cosim.studies.command import add_montecarlo, add_study_options
+
+    add_study_options(s, default_executor="local")
+    s.add_argument("--resume", action="store_true",
+                   help="through the study engine: continue the study in --out")
+    add_montecarlo(add)
 
     t = add("sitl", help="a vehicle in a world, real time, for ground stations")
     t.add_argument("--vehicle", choices=("mambo", "bebop2"), default="mambo")
@@ -131,7 +142,13 @@ def _dispatch(args) -> int:
     if args.cmd == "run":
         return _run(args)
     if args.cmd == "sweep":
-        return _sweep(args)
+        from cosim.studies.command import sweep, uses_study_engine
+
+        return sweep(args) if uses_study_engine(args) else _sweep(args)
+    if args.cmd == "montecarlo":
+        from cosim.studies.command import montecarlo
+
+        return montecarlo(args)
     if args.cmd == "sitl":
         return _sitl(args)
     if args.cmd == "bench":
@@ -153,6 +170,8 @@ def _run(args) -> int:
     sc = load_scenario(args.scenario)
     if args.set:
         sc = with_set(sc, {k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
+    if args.seed is not None:
+        sc = with_set(sc, {"seed": args.seed})
     _check_speed(args.speed)
     if args.speed != 1.0 and not args.realtime:
         raise ScenarioError("--speed", args.speed, "only with --realtime")

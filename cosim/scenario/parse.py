@@ -158,7 +158,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     return Scenario(
         name=name, description=description, seed=seed, vehicle=vehicle, start=start,
         timing=timing, world=world, camera=camera, app=app, noise=noise,
-        wind_ned_mps=wind, criteria=criteria, source=source, raw=raw,
+        wind_ned_mps=wind, criteria=criteria, source=source, raw=raw, world_table=world_table,
     )
 
 

@@ -76,3 +76,4 @@ class Scenario:
     criteria: Criteria
     source: str = ""                          # path of the file, for the summary
     raw: dict[str, Any] = field(default_factory=dict, repr=False)  # the TOML, for re-parsing
+    world_table: dict[str, Any] = field(default_factory=dict, repr=False)  # [world], file merged

@@ -1,0 +1,84 @@
+"""The one module of cosim/studies that names the modules outside it (scenario, master,
+report, metrics, sweep), so a reorganisation of cosim/ changes the imports here only.
+
+Imports are inside the functions: parsing a `--vary` or reading a table loads no simulator.
+Besides these, the package reads fields of the records: Scenario .raw .world_table .start .seed
+.source .name .app.name; RunResult .scenario .exit_reason .message .series .phases.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+
+# ---------------------------------------------------------------- command-line values
+def parse_value(text: str) -> Any:
+    from cosim.studies.sweep import parse_value as f
+
+    return f(text)
+
+
+def split_values(text: str) -> list[str]:
+    from cosim.studies.sweep import split_values as f
+
+    return f(text)
+
+
+def parse_sets(sets: list[str], *, multi: bool) -> dict[str, list[Any]]:
+    from cosim.studies.sweep import parse_sets as f
+
+    return f(sets, multi=multi)
+
+
+# ---------------------------------------------------------------- scenarios
+def load_scenario(path: str | Path):
+    from cosim.scenario.parse import load_scenario as f
+
+    return f(path)
+
+
+def parse_scenario(raw: dict[str, Any], *, source: str, base_dir: Path):
+    from cosim.scenario.parse import parse_scenario as f
+
+    return f(raw, source=source, base_dir=base_dir)
+
+
+def with_set(sc, assignments: dict[str, Any]):
+    """A copy of the scenario with dotted-path overrides, re-validated."""
+    from cosim.scenario.parse import with_set as f
+
+    return f(sc, assignments)
+
+
+# ---------------------------------------------------------------- one run
+def run_mission(sc, *, mode: str, out_dir: Path):
+    from cosim.sim.master import RunOptions, run_scenario
+
+    return run_scenario(sc, RunOptions(mode=mode, out_dir=out_dir))
+
+
+def component_error(res) -> bool:
+    """The run ended because a part of the co-simulation failed."""
+    from cosim.sim.master import ExitReason
+
+    return res.exit_reason is ExitReason.COMPONENT_ERROR
+
+
+def summarize(res) -> dict[str, Any]:
+    from cosim.outputs.report import summarize as f
+
+    return f(res)
+
+
+def write_run(res, out: Path) -> dict[str, Any]:
+    from cosim.outputs.report import write_run as f
+
+    return f(res, out)
+
+
+def phase_column() -> int:
+    """Index of the app's phase in a run's recorded series."""
+    from cosim.sim.recorder import COL
+
+    return COL["phase"]

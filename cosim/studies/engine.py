@@ -1,0 +1,208 @@
+"""Run a study's jobs on one of three executors and stream the rows into the results table.
+
+- `serial`: in this process, one after the other (debugging, the reference for tests);
+- `local`: a process pool of this machine (`concurrent.futures`);
+- `dask` (the default of `cosim montecarlo`): dask.distributed. With no address, a
+  `LocalCluster` of one single-threaded worker process per core (or `workers`); with
+  `--scheduler tcp://HOST:8786` or the environment variable COSIM_DASK_SCHEDULER, the
+  existing cluster behind that scheduler. A job whose worker dies is re-run on another worker
+  by the scheduler (Dask's `distributed.scheduler.allowed-failures`: 1 on our local cluster,
+  the scheduler's own setting on a remote one); when it has killed more workers than that, it
+  is a failed row (KilledWorker). A task that raises outside `run_job` is retried once
+  (`retries=1`).
+
+Rows come back as runs finish (`as_completed`) and are appended to the table at once, so a
+study stopped anywhere (Ctrl-C, a lost worker, a reboot) resumes with the same command and
+skips the runs already in the table. Each finished run also gets a line in `runs.log` (JSON
+lines: run id, status, wall time, worker, its resident memory after the run, UTC time): what
+changes from one execution to another stays out of the table.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from cosim.errors import ScenarioError
+from cosim.studies.jobs import Job, run_job
+from cosim.studies.table import ResultsTable
+
+EXECUTORS = ("dask", "local", "serial")
+SCHEDULER_ENV = "COSIM_DASK_SCHEDULER"
+
+
+class StudyError(Exception):
+    """The study cannot go on (a broken pool); the rows so far are in the table."""
+
+
+class StudyInterrupted(Exception):
+    """Ctrl-C: the rows so far are in the table; the same command continues."""
+
+
+@dataclass
+class StudyStats:
+    total: int = 0          # jobs in the study
+    skipped: int = 0        # already in the table
+    ran: int = 0            # run now (ok + failed)
+    failed: int = 0         # of those, failed
+    wall_s: float = 0.0
+
+
+def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
+              scheduler: str | None = None, workers: int | None = None,
+              limit: int | None = None, retry_failed: bool = False, progress: bool = True,
+              log: Path | None = None, fn: Callable[[Job], dict[str, Any]] = run_job,
+              ) -> StudyStats:
+    """Run the jobs not yet in `table` (at most `limit` of them); rows appended as they finish."""
+    if executor not in EXECUTORS:
+        raise ScenarioError("--executor", executor, f"one of {', '.join(EXECUTORS)}")
+    if workers is not None and workers < 1:
+        raise ScenarioError("--workers", workers, "an integer >= 1")
+    done = table.finished(retry_failed=retry_failed)
+    todo = [j for j in jobs if j.run_id not in done]
+    stats = StudyStats(total=len(jobs), skipped=len(jobs) - len(todo))
+    if limit is not None:
+        todo = todo[:limit]
+    t0 = time.perf_counter()
+    bar = _bar(len(todo), stats.skipped, progress)
+
+    def record(row: dict[str, Any]) -> None:
+        extra = {k: row.pop(k) for k in list(row) if k.startswith("_")}
+        table.append(row)
+        stats.ran += 1
+        stats.failed += row["status"] == "failed"
+        if log is not None:
+            with open(log, "a") as f:
+                f.write(json.dumps({"run_id": row["run_id"], "status": row["status"],
+                                    "wall_s": extra.get("_wall_s"),
+                                    "worker": extra.get("_worker"),
+                                    "rss_mb": extra.get("_rss_mb"),
+                                    "utc": datetime.now(UTC).isoformat(timespec="seconds")})
+                        + "\n")
+        bar.set_postfix(done=stats.ran - stats.failed, failed=stats.failed, refresh=False)
+        bar.update(1)
+
+    try:
+        if todo:
+            runner = {"serial": _serial, "local": _pool, "dask": _dask}[executor]
+            for row in runner(todo, fn, workers=workers, scheduler=scheduler):
+                record(row)
+    except KeyboardInterrupt:
+        raise StudyInterrupted(f"interrupted after {stats.ran} of {len(todo)} runs") from None
+    finally:
+        bar.close()
+        stats.wall_s = time.perf_counter() - t0
+    return stats
+
+
+def scheduler_address(option: str | None) -> str | None:
+    """--scheduler, else $COSIM_DASK_SCHEDULER, else None (a local cluster)."""
+    addr = option or os.environ.get(SCHEDULER_ENV) or None
+    if addr is not None and "://" not in addr and ":" not in addr:
+        raise ScenarioError("--scheduler", addr, "a scheduler address like tcp://HOST:8786")
+    return addr
+
+
+# ---------------------------------------------------------------------- executors
+def _serial(jobs, fn, **_) -> Iterator[dict[str, Any]]:
+    for j in jobs:
+        yield fn(j)
+
+
+def _pool(jobs, fn, *, workers, **_) -> Iterator[dict[str, Any]]:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    n = min(workers or os.cpu_count() or 1, len(jobs))
+    # spawn: no fork of a parent that has threads (the progress bar's monitor)
+    with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn")) as ex:
+        futs = [ex.submit(fn, j) for j in jobs]
+        try:
+            for f in as_completed(futs):
+                yield f.result()
+        except BrokenProcessPool:
+            raise StudyError("a worker process of the local pool died; re-run the same "
+                             "command to continue (finished runs are kept)") from None
+        finally:
+            for f in futs:
+                f.cancel()
+
+
+def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
+    import dask
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    addr = scheduler_address(scheduler)
+    cluster = None
+    if addr is None:
+        n = workers or os.cpu_count() or 1
+        with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(addr, timeout="20s")
+        except OSError as exc:
+            raise ScenarioError("--scheduler", addr, f"a reachable Dask scheduler ({exc})"
+                                ) from None
+    try:
+        check_workers(client)
+        futs = client.map(fn, jobs, key=[f"cosim-run-{j.run_id}-{id(jobs)}" for j in jobs],
+                          retries=1, pure=False)
+        by_key = {f.key: j for f, j in zip(futs, jobs, strict=True)}
+        for f in as_completed(futs):
+            try:
+                yield f.result()
+            except Exception as exc:  # the worker died twice (KilledWorker) or the task broke
+                yield lost_row(by_key[f.key], exc)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def lost_row(job: Job, exc: BaseException) -> dict[str, Any]:
+    return {"run_id": job.run_id, **dict(job.params), "seed": job.seed, "status": "failed",
+            "exit_reason": "", "passed": False, "app_phase": "", "message": "",
+            "error": f"{type(exc).__name__}: {exc}"}
+
+
+def worker_info() -> dict[str, str]:
+    """What a worker has: its cosim install and FMU (built there if needed)."""
+    import cosim
+    from fmus.build import fmu_path, source_hash
+
+    return {"cosim": str(Path(cosim.__file__).parent), "fmu_source": source_hash(),
+            "fmu": str(fmu_path())}
+
+
+def check_workers(client) -> None:
+    """Every worker must run the same model: compare its FMU source hash with ours."""
+    from fmus.build import source_hash
+
+    client.wait_for_workers(1, timeout=120)
+    ours = source_hash()
+    for addr, info in client.run(worker_info).items():
+        if info["fmu_source"] != ours:
+            raise ScenarioError("--scheduler", addr,
+                                f"workers with the same cosim install (its FMU source "
+                                f"{info['fmu_source'][:12]} != ours {ours[:12]}, {info['cosim']})")
+
+
+def _bar(total: int, skipped: int, progress: bool):
+    from tqdm import tqdm
+
+    quiet = (not progress or not sys.stderr.isatty()
+             or os.environ.get("CI", "").lower() in ("1", "true", "yes"))
+    return tqdm(total=total, unit="run", disable=quiet, dynamic_ncols=True,
+                desc=f"runs ({skipped} already done)" if skipped else "runs")

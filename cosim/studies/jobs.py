@@ -1,0 +1,129 @@
+"""One run of a study: the job record a worker receives and the flat row it sends back.
+
+A job carries the scenario itself (the TOML table with its world file already merged in), not
+a path, so a worker on another machine needs no copy of the scenarios folder; it does need the
+same `cosim` install (the code, and the FMU that `fmus.build.fmu_path()` finds or builds next to
+it; see README.md of this package). `run_job` never raises for a failed run: a run that raises
+is a row with status 'failed' and the error text, and the study goes on.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import shutil
+import socket
+import tempfile
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cosim.studies import deps
+
+# columns every row has, in this order; then the varied parameters, then the metrics
+HEAD = ("run_id",)
+TAIL = ("seed", "status", "exit_reason", "passed", "app_phase", "message", "error")
+
+
+@dataclass(frozen=True)
+class Job:
+    run_id: int
+    raw: dict[str, Any]                         # the scenario table, world merged in
+    source: str                                 # the scenario file (name, messages)
+    sets: tuple[tuple[str, Any], ...]           # fixed --set assignments, every run
+    params: tuple[tuple[str, Any], ...]         # this run's varied parameters (table columns)
+    seed: int | None = None                     # scenario seed (None: the file's / a param's)
+    mode: str = "mil"
+    keep_dir: str | None = None                 # keep the run folder here (None: a temp dir)
+
+
+def self_contained(sc) -> dict[str, Any]:
+    """The scenario's raw table with the world file merged in (ships to remote workers)."""
+    raw = copy.deepcopy(sc.raw)
+    raw["world"] = copy.deepcopy(sc.world_table)
+    return raw
+
+
+def start_sets(sc, keys: list[str]) -> dict[str, Any]:
+    """Varying one field of vehicle.start in a scenario that takes the world's start pose would
+    drop the other two fields to 0: pin them to the pose the scenario resolves to."""
+    if not any(k.startswith("vehicle.start.") for k in keys) or "start" in sc.raw["vehicle"]:
+        return {}
+    return {f"vehicle.start.{f}": getattr(sc.start, f) for f in ("n", "e", "yaw_deg")
+            if f"vehicle.start.{f}" not in keys}
+
+
+def scenario_of(job: Job):
+    src = Path(job.source)
+    sc = deps.parse_scenario(copy.deepcopy(job.raw), source=job.source, base_dir=src.parent)
+    assign = {**dict(job.sets), **dict(job.params)}
+    if job.seed is not None:
+        assign["seed"] = job.seed
+    return deps.with_set(sc, assign) if assign else sc
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """Fly one mission; return its row. Never raises for a failed run."""
+    row: dict[str, Any] = {"run_id": job.run_id, **dict(job.params), "seed": job.seed}
+    t0 = time.perf_counter()
+    tmp = None
+    try:
+        sc = scenario_of(job)
+        row["seed"] = sc.seed
+        if job.keep_dir is None:
+            tmp = tempfile.mkdtemp(prefix="cosim-run-")
+        out = Path(job.keep_dir or tmp)
+        res = deps.run_mission(sc, mode=job.mode, out_dir=out)
+        summary = deps.write_run(res, out) if job.keep_dir else deps.summarize(res)
+        failed = deps.component_error(res)
+        row.update(status="failed" if failed else "ok", exit_reason=res.exit_reason.value,
+                   passed=bool(summary["passed"]), app_phase=_last_phase(res),
+                   message=res.message, error=res.message if failed else "")
+        row.update(flat_metrics(summary["metrics"]))
+    except Exception as exc:  # a crashed run is a row, the study goes on
+        tb = traceback.extract_tb(exc.__traceback__)
+        where = f" (at {Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
+        row.update(status="failed", exit_reason="", passed=False, app_phase="", message="",
+                   error=f"{type(exc).__name__}: {exc}{where}")
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    # '_' keys go to the study's run log, not the table (they differ from one execution to another)
+    row["_wall_s"] = time.perf_counter() - t0
+    row["_worker"] = f"{socket.gethostname()}:{os.getpid()}"
+    row["_rss_mb"] = _rss_mb()
+    return row
+
+
+def _rss_mb() -> float | None:
+    """Resident memory of this worker process after the run (MB), to see it stay flat."""
+    try:
+        import psutil  # a dependency of dask.distributed
+    except ImportError:
+        return None
+    return round(psutil.Process().memory_info().rss / 1e6, 1)
+
+
+def flat_metrics(metrics: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Scalar metrics as columns; nested tables as `name.key`; lists stay in the run folder."""
+    out: dict[str, Any] = {}
+    for k, v in metrics.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flat_metrics(v, name + "."))
+        elif isinstance(v, bool | str) or v is None:
+            out[name] = v
+        elif isinstance(v, int | float):
+            out[name] = v
+        elif hasattr(v, "item") and not hasattr(v, "__len__"):  # numpy scalar
+            out[name] = v.item()
+    return out
+
+
+def _last_phase(res) -> str:
+    if res.scenario.app.name == "none" or not len(res.series):
+        return ""
+    i = int(res.series[-1, deps.phase_column()])
+    return res.phases[i] if 0 <= i < len(res.phases) else ""

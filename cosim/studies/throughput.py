@@ -1,0 +1,77 @@
+"""Study throughput on this machine: missions per minute by executor and worker count.
+
+    python -m cosim.studies.throughput [--runs 40] [--t-final 10]
+
+The same small Monte Carlo (the seed mission cut to `--t-final` s, wind and odometry noise
+drawn) runs serially, on the local process pool and on a local Dask cluster with 1 and 2
+workers. Wall times include starting the pool or the cluster. Per-run overhead of an executor =
+(its wall time - the sum of the runs' own wall times / workers) / runs; Dask vs the pool =
+(Dask's wall time - the pool's) / runs, with the same number of workers. Run it on a quiet
+machine; it prints a Markdown table (and JSON with --json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from cosim.studies.deps import load_scenario
+from cosim.studies.dists import parse_varies
+from cosim.studies.engine import run_study
+from cosim.studies.study import montecarlo_jobs
+from cosim.studies.table import ResultsTable
+
+SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "mambo_seed_track.toml"
+VARY = ["wind.n_mps=uniform(0,0.3)", "sensors.odometry_noise.pos_std_m=uniform(0,0.005)"]
+
+
+def measure(executor: str, workers: int, runs: int, t_final: float) -> dict:
+    sc = load_scenario(SCENARIO)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        jobs, _ = montecarlo_jobs(sc, parse_varies(VARY), runs, 1,
+                                  {"timing.t_final_s": t_final}, out)
+        table = ResultsTable(out / "results.csv", [j for j, _ in jobs[0].params])
+        stats = run_study(jobs, table, executor=executor, workers=workers, progress=False,
+                          log=out / "runs.log")
+        run_s = sum(json.loads(line)["wall_s"] for line in open(out / "runs.log"))
+    ideal = run_s / workers
+    return {"executor": executor, "workers": workers, "runs": runs, "failed": stats.failed,
+            "wall_s": stats.wall_s, "missions_per_min": 60 * runs / stats.wall_s,
+            "run_s_mean": run_s / runs, "overhead_per_run_s": (stats.wall_s - ideal) / runs}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=40)
+    p.add_argument("--t-final", type=float, default=10.0, help="s of flight per mission")
+    p.add_argument("--json", type=Path)
+    a = p.parse_args(argv)
+    cases = [("serial", 1), ("local", 1), ("dask", 1), ("local", 2), ("dask", 2)]
+    res = [measure(ex, w, a.runs, a.t_final) for ex, w in cases]
+    base = res[0]["missions_per_min"]
+    print(f"{a.runs} runs of the seed mission cut to {a.t_final:g} s; {os.cpu_count()} cores\n")
+    print("| executor | workers | wall (s) | missions/min | vs serial | mean run (s) | "
+          "overhead/run (s) |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for r in res:
+        print(f"| {r['executor']} | {r['workers']} | {r['wall_s']:.2f} | "
+              f"{r['missions_per_min']:.0f} | {r['missions_per_min'] / base:.2f}x | "
+              f"{r['run_s_mean']:.3f} | {r['overhead_per_run_s']:.3f} |")
+    for w in (1, 2):
+        pool, dk = (next(r for r in res if r["executor"] == ex and r["workers"] == w)
+                    for ex in ("local", "dask"))
+        print(f"\nDask vs local pool, {w} worker(s): "
+              f"{(dk['wall_s'] - pool['wall_s']) / a.runs:+.3f} s per run "
+              f"(cluster start-up included)", end="")
+    print()
+    if a.json:
+        a.json.write_text(json.dumps(res, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
