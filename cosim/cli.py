@@ -13,7 +13,8 @@ EXAMPLES = {
   cosim run scenarios/mambo_seed_track.toml
   cosim run scenarios/mambo_seed_track.toml --mode sil --out runs/seed-sil
   cosim run scenarios/mambo_turns.toml --set app.alpha=0.008 --set seed=3
-  cosim run scenarios/mambo_seed_track.toml --realtime --speed 2 --video --png-every 5""",
+  cosim run scenarios/mambo_seed_track.toml --realtime --speed 2 --video --png-every 5
+  cosim run scenarios/mambo_seed_track.toml --mcap      run.mcap for Foxglove / PlotJuggler""",
     "validate": """examples:
   cosim validate scenarios/mambo_seed_track.toml
   cosim validate scenarios/*.toml""",
@@ -73,6 +74,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a scenario field, e.g. app.alpha=0.005 or seed=3")
     r.add_argument("--seed", type=int, default=None, help="the scenario seed (= --set seed=N)")
     r.add_argument("--no-plots", action="store_true")
+    r.add_argument("--mcap", action="store_true",
+                   help="also write run.mcap (Foxglove schemas; opens in Foxglove, PlotJuggler)")
     r.add_argument("--quiet", action="store_true", help="no progress display")
 
     v = add("validate", help="check scenario files")
@@ -96,6 +99,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--world", default="seed", help="a world file or built-in name (seed, ...)")
     t.add_argument("--speed", type=float, default=1.0)
     t.add_argument("--duration", type=float, default=86_400.0, help="s of simulated time")
+    t.add_argument("--mcap", action="store_true", help="also write run.mcap at the end")
     t.add_argument("--gcs-remote", default="127.0.0.1:14550")
     t.add_argument("--gcs-bind", default="127.0.0.1:18570")
     t.add_argument("--api-remote", default="127.0.0.1:14540")
@@ -183,7 +187,7 @@ def _run(args) -> int:
     out = args.out or Path("runs") / f"{sc.name}-{args.mode}"
     _check_out_dir(out, "--out")
     opts = RunOptions(mode=args.mode, realtime=args.realtime, speed=args.speed,
-                      video=args.video, png_every=args.png_every,
+                      video=args.video, png_every=args.png_every, mcap=args.mcap,
                       progress=not args.quiet and sys.stderr.isatty(), out_dir=out)
     res = run_scenario(sc, opts)
     summary = write_run(res, out, plots=not args.no_plots)
@@ -251,7 +255,7 @@ def _sitl(args) -> int:
     print(f"cosim sitl: {args.vehicle} in world {args.world}; GCS link -> {args.gcs_remote}, "
           f"API link -> {args.api_remote}; Ctrl-C to stop", file=sys.stderr, flush=True)
     res = run_scenario(sc, RunOptions(mode="mil", realtime=True, speed=args.speed, out_dir=out,
-                                      external_links=links, sitl=True))
+                                      external_links=links, sitl=True, mcap=args.mcap))
     summary = write_run(res, out, plots=False)
     print(one_screen(summary, out))
     if res.exit_reason is ExitReason.COMPONENT_ERROR:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 # files a run folder may hold; removed before a run writes there, so folders never mix runs
 OUTPUT_FILES = ("summary.json", "timeseries.csv", "frames.csv", "flight.tlog", "trajectory.png",
-                "timeseries.png", "camera.mp4", "camera.avi")
+                "timeseries.png", "camera.mp4", "camera.avi", "run.mcap")
 
 
 def clean_run_folder(out: Path) -> None:

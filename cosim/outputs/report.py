@@ -84,6 +84,8 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True) -> dict[str, Any
     if not same:
         if res.video is not None:
             shutil.copyfile(res.video, out / res.video.name)
+        if res.mcap is not None:
+            shutil.copyfile(res.mcap, out / res.mcap.name)
         if res.png_count:
             shutil.copytree(res.run_dir / "frames", out / "frames", dirs_exist_ok=True)
     return summary

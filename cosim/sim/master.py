@@ -66,6 +66,7 @@ class RunResult:
     onboard_stats: dict[str, Any] = field(default_factory=dict)
     loop_wall_s: float = 0.0                   # s wall clock of the tick loop alone (no setup)
     faults: list[tuple[float, str]] = field(default_factory=list)   # (t s, what) that fired
+    mcap: Path | None = None                   # run_dir / run.mcap when asked (RunOptions.mcap)
     _tmp: Any = field(default=None, repr=False)   # owns the temporary spool folder
 
     @property
@@ -164,6 +165,11 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     fps = 1.0 / (cam_every * h)
     video = VideoSink(run_dir / "camera.mp4", fps) if opts.video else None
     pngs = PngSink(run_dir / "frames") if opts.png_every else None
+    mcap = None
+    if opts.mcap:
+        from cosim.outputs.mcap import McapRun
+
+        mcap = McapRun(run_dir / "run.mcap")
 
     phases: list[str] = []
     phase_idx: dict[str, int] = {}
@@ -210,6 +216,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                             video.add(img)
                         if pngs is not None and (k // cam_every) % png_every == 0:
                             pngs.add(t, img)
+                        if mcap is not None:
+                            mcap.frame(t, img)
                         if hooks is not None:
                             img = hooks.on_frame(t_us, img)
                         stage = "app"
@@ -278,7 +286,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         tlog.close()
         recorded = spool.finish()
         video_path = video.close() if video is not None else None
-    return RunResult(
+    res = RunResult(
         scenario=sc, mode=opts.mode, exit_reason=exit_reason, message=message,
         ticks=recorded.ticks, t_end_s=recorded.ticks * h, wall_s=wall_end - wall0,
         recorded=recorded, phases=phases,
@@ -291,6 +299,9 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         faults=hooks.fired() if hooks is not None else [],
         _tmp=(tmp, spool_tmp),
     )
+    if mcap is not None:
+        res.mcap = mcap.finish(res)
+    return res
 
 
 def _app_metrics(app) -> dict[str, float]:

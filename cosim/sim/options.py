@@ -25,3 +25,4 @@ class RunOptions:
     external_links: dict[str, tuple[tuple[str, int], tuple[str, int]]] | None = None
     sitl: bool = False                # no mission or arena exits: only crash, time, Ctrl-C
     hooks: Hooks | None = None        # fault injection (cosim.sim.hooks); None: no faults
+    mcap: bool = False                # also write the run as run.mcap (Foxglove schemas)

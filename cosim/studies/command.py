@@ -33,6 +33,8 @@ def add_study_options(p: argparse.ArgumentParser, *, default_executor: str) -> N
                    help="local workers (default: all cores)")
     p.add_argument("--keep-runs", action="store_true",
                    help="keep each run's folder in OUT/runs/NNNNNN (off: table only)")
+    p.add_argument("--mcap", action="store_true",
+                   help="with --keep-runs: each kept run folder also gets run.mcap")
     p.add_argument("--retry-failed", action="store_true", help="re-run the failed rows")
     p.add_argument("--limit", type=int, default=None, metavar="K",
                    help="run at most K more runs, then stop (a study in chunks)")
@@ -82,7 +84,8 @@ def montecarlo(args) -> int:
     sets = {k: v[0] for k, v in parse_sets(args.set, multi=False).items()}
     out = args.out or Path("runs") / f"mc-{sc.name}"
     jobs, manifest = montecarlo_jobs(sc, dists, args.runs, args.seed, sets, out,
-                                     mode=args.mode, keep_runs=args.keep_runs)
+                                     mode=args.mode, keep_runs=args.keep_runs,
+                                     mcap=_mcap(args))
     return _go(jobs, manifest, out, args, f"montecarlo: {len(jobs)} runs of {sc.name}")
 
 
@@ -93,8 +96,16 @@ def sweep(args) -> int:
     sc = load_scenario(args.scenario)
     out = args.out or Path("runs") / f"sweep-{sc.name}"
     jobs, manifest = sweep_jobs(sc, parse_sets(args.set, multi=True), out, mode=args.mode,
-                                keep_runs=args.keep_runs)
+                                keep_runs=args.keep_runs, mcap=_mcap(args))
     return _go(jobs, manifest, out, args, f"sweep: {len(jobs)} runs of {sc.name}")
+
+
+def _mcap(args) -> bool:
+    if args.mcap and not args.keep_runs:
+        from cosim.errors import ScenarioError
+
+        raise ScenarioError("--mcap", True, "together with --keep-runs (an MCAP per kept run)")
+    return bool(args.mcap)
 
 
 def _go(jobs, manifest, out: Path, args, title: str) -> int:

@@ -52,10 +52,10 @@ def with_set(sc, assignments: dict[str, Any]):
 
 
 # ---------------------------------------------------------------- one run
-def run_mission(sc, *, mode: str, out_dir: Path):
+def run_mission(sc, *, mode: str, out_dir: Path, mcap: bool = False):
     from cosim.sim.master import RunOptions, run_scenario
 
-    return run_scenario(sc, RunOptions(mode=mode, out_dir=out_dir))
+    return run_scenario(sc, RunOptions(mode=mode, out_dir=out_dir, mcap=mcap))
 
 
 def component_error(res) -> bool:

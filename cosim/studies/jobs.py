@@ -37,6 +37,7 @@ class Job:
     seed: int | None = None                     # scenario seed (None: the file's / a param's)
     mode: str = "mil"
     keep_dir: str | None = None                 # keep the run folder here (None: a temp dir)
+    mcap: bool = False                          # the kept run folder also gets run.mcap
 
 
 def self_contained(sc) -> dict[str, Any]:
@@ -75,7 +76,8 @@ def run_job(job: Job) -> dict[str, Any]:
         if job.keep_dir is None:
             tmp = tempfile.mkdtemp(prefix="cosim-run-")
         out = Path(job.keep_dir or tmp)
-        res = deps.run_mission(sc, mode=job.mode, out_dir=out)
+        res = deps.run_mission(sc, mode=job.mode, out_dir=out,
+                               mcap=job.mcap and job.keep_dir is not None)
         summary = deps.write_run(res, out) if job.keep_dir else deps.summarize(res)
         failed = deps.component_error(res)
         row.update(status="failed" if failed else "ok", exit_reason=res.exit_reason.value,

@@ -39,7 +39,7 @@ def _keep(out: Path, keep: bool, i: int) -> str | None:
 
 
 def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, Any], out: Path,
-                    *, mode: str = "mil", keep_runs: bool = False
+                    *, mode: str = "mil", keep_runs: bool = False, mcap: bool = False
                     ) -> tuple[list[Job], dict[str, Any]]:
     """The jobs of an n-run study, every draw checked against its field's range first."""
     if n < 1:
@@ -70,7 +70,7 @@ def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, An
                                     "bounds") from None
     raw = self_contained(sc)
     jobs = [Job(i, raw, sc.source, tuple(sets.items()), tuple(v.items()), seed=s, mode=mode,
-                keep_dir=_keep(out, keep_runs, i)) for i, (s, v) in enumerate(draws)]
+                keep_dir=_keep(out, keep_runs, i), mcap=mcap) for i, (s, v) in enumerate(draws)]
     manifest = {"kind": "montecarlo", "scenario": sc.source, "scenario_sha256": scenario_hash(raw),
                 "seed": seed, "n": n, "vary": [d.text for d in dists], "sets": sets,
                 "params": keys, "mode": mode}
@@ -78,7 +78,7 @@ def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, An
 
 
 def sweep_jobs(sc, grid: dict[str, list[Any]], out: Path, *, mode: str = "mil",
-               keep_runs: bool = False) -> tuple[list[Job], dict[str, Any]]:
+               keep_runs: bool = False, mcap: bool = False) -> tuple[list[Job], dict[str, Any]]:
     """The Cartesian product of the values; keys with one value are fixed --sets."""
     for key, values in grid.items():  # every value checked before any run starts
         for v in values:
@@ -89,7 +89,8 @@ def sweep_jobs(sc, grid: dict[str, list[Any]], out: Path, *, mode: str = "mil",
     raw = self_contained(sc)
     combos = itertools.product(*(grid[k] for k in params))
     jobs = [Job(i, raw, sc.source, tuple(sets.items()), tuple(zip(params, c, strict=True)),
-                mode=mode, keep_dir=_keep(out, keep_runs, i)) for i, c in enumerate(combos)]
+                mode=mode, keep_dir=_keep(out, keep_runs, i), mcap=mcap)
+            for i, c in enumerate(combos)]
     manifest = {"kind": "sweep", "scenario": sc.source, "scenario_sha256": scenario_hash(raw),
                 "grid": {k: grid[k] for k in params}, "sets": sets, "params": params,
                 "mode": mode}
