@@ -1,18 +1,57 @@
 """The offboard apps a scenario can name: built-in names, or a user's `package.module:Class`.
 
-`make_app(spec)` builds one (apps check their parameters in their constructor and raise
-ValueError naming `app.params.NAME`); `check_app(spec)` does that at load time and turns the
-failure into a ScenarioError naming the field.
+A scenario that names a plugin app runs that plugin's code: its module is imported when the
+scenario is loaded, and the class is constructed when the scenario runs. What is checked
+before anything of the plugin is called (`plugin_class`): the name is `module:Class` with
+identifiers only, the module is not part of Python's standard library (no app lives there,
+and importing some of its modules has side effects), and the attribute is a class with the
+app contract's methods (`on_start`, `on_frame`, `on_tick`). A callable that is not such a
+class (`subprocess:Popen`, `os:system`) is refused with a ScenarioError naming `app.name`,
+never called.
+
+`make_app(spec)` builds the app (apps check their parameters in their constructor and raise
+ValueError naming `app.params.NAME`). `check_app(spec)` runs at load time: a built-in app is
+built once (our code) so a bad parameter fails early; a plugin is only checked as above, not
+constructed.
 """
 
 from __future__ import annotations
 
 import importlib
+import inspect
+import sys
 
 from cosim.errors import ComponentError, ScenarioError
 from cosim.scenario.records import AppSpec
 
 BUILTIN_APPS = ("line_follower", "scripted", "none")
+CONTRACT_METHODS = ("on_start", "on_frame", "on_tick")
+
+
+def plugin_class(name: str) -> type:
+    """The class a `package.module:Class` name designates, checked against the app contract
+    before anything of it is called. ScenarioError (field `app.name`) when it is not one."""
+    mod, sep, cls_name = name.partition(":")
+    if (not sep or not cls_name.isidentifier()
+            or not all(part.isidentifier() for part in mod.split("."))):
+        raise ScenarioError("app.name", name, "one of " + ", ".join(BUILTIN_APPS)
+                            + " or 'package.module:Class' (identifiers only)")
+    if mod.split(".")[0] in sys.stdlib_module_names:
+        raise ScenarioError("app.name", name, "an app class in your own package (standard "
+                            "library modules are not apps and are not imported)")
+    try:
+        module = importlib.import_module(mod)
+    except Exception as exc:
+        raise ScenarioError("app.name", name, f"an importable module ({type(exc).__name__}: "
+                            f"{exc})") from None
+    obj = inspect.getattr_static(module, cls_name, None)
+    missing = [m for m in CONTRACT_METHODS
+               if not callable(inspect.getattr_static(obj, m, None))] if inspect.isclass(obj) \
+        else list(CONTRACT_METHODS)
+    if not inspect.isclass(obj) or missing:
+        raise ScenarioError("app.name", name, "a class with the app contract of "
+                            "cosim/apps/base.py (missing: " + ", ".join(missing) + ")")
+    return obj
 
 
 def make_app(spec: AppSpec):
@@ -28,17 +67,21 @@ def make_app(spec: AppSpec):
         from cosim.apps.line_follower import LineFollowerApp
 
         return LineFollowerApp(spec.params)
-    mod, _, cls = name.partition(":")
     try:
-        return getattr(importlib.import_module(mod), cls)(spec.params)
-    except (ImportError, AttributeError) as exc:
-        raise ComponentError("app", f"cannot load {name!r}: {exc}") from exc
+        cls = plugin_class(name)
+    except ScenarioError as exc:
+        raise ComponentError("app", str(exc)) from None
+    return cls(spec.params)
 
 
-def check_app(spec: AppSpec):
-    """Build the app once, so a bad name or parameter fails at load time (ScenarioError)."""
+def check_app(spec: AppSpec) -> None:
+    """At load time: a built-in app is built once, so a bad parameter fails here; a plugin is
+    checked against the contract without being constructed. Errors are ScenarioErrors."""
+    if spec.name not in BUILTIN_APPS:
+        plugin_class(spec.name)
+        return
     try:
-        return make_app(spec)
+        make_app(spec)
     except ValueError as exc:
         msg = str(exc)
         head, _, rest = msg.partition(":")
@@ -50,8 +93,6 @@ def check_app(spec: AppSpec):
         for lead in ("expected ", "allowed: "):
             rest = rest.removeprefix(lead)
         raise ScenarioError(head, _param_value(spec, head), rest) from None
-    except Exception as exc:  # ComponentError for an unloadable user app
-        raise ScenarioError("app.name", spec.name, f"an importable app ({exc})") from None
 
 
 def _param_value(spec: AppSpec, path: str) -> object:
