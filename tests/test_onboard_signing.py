@@ -87,3 +87,24 @@ def test_signed_client_flies_the_signed_vehicle():
     rig.run_until(lambda r: c.ack(22) is not None, 0.5)
     assert c.ack(400) == c.ack(22) == M.MAV_RESULT_ACCEPTED and rig.ob.mode_name == "AUTO.TAKEOFF"
     assert c.stats["rejected_unsigned"] == 0 and not math.isnan(c.position[0])
+
+
+def test_a_packet_captured_on_one_link_is_a_replay_on_the_other():
+    """Issue 14 item 4: a signed PARAM_SET captured on the GCS link was accepted again on the
+    API link (each link kept its own replay table)."""
+    rig = Rig(signing_key=KEY, app_key=KEY, gcs_key=KEY)
+    rig.tick()
+    data = rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"MPC_LAND_SPEED", 0.25,
+                                                       M.MAV_PARAM_TYPE_REAL32))
+    rig.tick()
+    assert rig.ob.params.get("MPC_LAND_SPEED") == 0.25
+    st = rig.ob.stats
+    rejected = st["badsig_rejected"]
+    rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"MPC_LAND_SPEED", 0.5,
+                                                M.MAV_PARAM_TYPE_REAL32))
+    rig.tick()
+    assert rig.ob.params.get("MPC_LAND_SPEED") == 0.5
+    rig.send_raw("api", data)                        # the captured 0.25, on the other link
+    rig.tick()
+    assert rig.ob.params.get("MPC_LAND_SPEED") == 0.5
+    assert st["badsig_rejected"] == rejected + 1

@@ -79,10 +79,15 @@ class Onboard:
         self._hil_mav = M.MAVLink(None, cfg.sysid, cfg.compid)
         chans: list[Chan] = []
         self.outbox = out = Outbox(vs, chans, cfg.signing_epoch_unix_s)
+        # replay protection is per (link id, system, component) stream of the signing key
+        # (MAVLink signing spec), across all links of the vehicle: one table for both, so a
+        # packet captured on one link is old news on the other
+        seen: dict[tuple[int, int, int], int] = {}
         for i, (name, link) in enumerate((("api", api), ("gcs", gcs))):
             ch = Chan(name, link, M.MAVLink(None, cfg.sysid, cfg.compid), self.stats)
             if cfg.signing_key is not None:
                 sg = ch.mav.signing
+                sg.stream_timestamps = seen
                 sg.secret_key = bytes(cfg.signing_key)
                 sg.sign_outgoing = True
                 sg.allow_unsigned_callback = None
