@@ -100,6 +100,9 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--speed", type=float, default=1.0)
     t.add_argument("--duration", type=float, default=86_400.0, help="s of simulated time")
     t.add_argument("--mcap", action="store_true", help="also write run.mcap at the end")
+    t.add_argument("--signing-key", type=Path, metavar="FILE",
+                   help="MAVLink 2 signing key file (32 bytes, or 64 hex digits): the vehicle "
+                        "signs what it sends and rejects unsigned messages on both links")
     t.add_argument("--gcs-remote", default="127.0.0.1:14550")
     t.add_argument("--gcs-bind", default="127.0.0.1:18570")
     t.add_argument("--api-remote", default="127.0.0.1:14540")
@@ -241,6 +244,7 @@ def _sitl(args) -> int:
         return host, int(port)
 
     _check_speed(args.speed)
+    key = read_signing_key(args.signing_key, "--signing-key") if args.signing_key else None
     world = _world_table(args.world)
     sc = parse_scenario({
         "name": f"sitl-{args.vehicle}",
@@ -255,13 +259,31 @@ def _sitl(args) -> int:
     print(f"cosim sitl: {args.vehicle} in world {args.world}; GCS link -> {args.gcs_remote}, "
           f"API link -> {args.api_remote}; Ctrl-C to stop", file=sys.stderr, flush=True)
     res = run_scenario(sc, RunOptions(mode="mil", realtime=True, speed=args.speed, out_dir=out,
-                                      external_links=links, sitl=True, mcap=args.mcap))
+                                      external_links=links, sitl=True, mcap=args.mcap,
+                                      signing_key=key))
     summary = write_run(res, out, plots=False)
     print(one_screen(summary, out))
     if res.exit_reason is ExitReason.COMPONENT_ERROR:
         print(f"cosim: sitl failed: {res.message}", file=sys.stderr)
         return 1
     return 0
+
+
+def read_signing_key(path: Path, flag: str) -> bytes:
+    """A MAVLink 2 signing key from a file: 32 raw bytes, or 64 hex digits (whitespace ok)."""
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as exc:
+        raise ScenarioError(flag, str(path), f"a readable key file ({exc.strerror})") from None
+    if len(raw) == 32:
+        return raw
+    try:
+        key = bytes.fromhex(raw.decode("ascii").strip())
+    except (UnicodeDecodeError, ValueError):
+        key = b""
+    if len(key) != 32:
+        raise ScenarioError(flag, str(path), "a file of 32 bytes or 64 hex digits")
+    return key
 
 
 def _check_speed(speed: float) -> None:

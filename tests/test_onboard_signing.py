@@ -108,3 +108,57 @@ def test_a_packet_captured_on_one_link_is_a_replay_on_the_other():
     rig.tick()
     assert rig.ob.params.get("MPC_LAND_SPEED") == 0.5
     assert st["badsig_rejected"] == rejected + 1
+
+
+def test_sitl_signing_key_file_reaches_the_vehicle(tmp_path):
+    """Issue 14 item 5: `cosim sitl --signing-key FILE`; the key file is 32 bytes or 64 hex
+    digits, a bad one is exit 2 naming the flag, and the vehicle built with it rejects unsigned
+    input and accepts signed input."""
+    import subprocess
+    import sys
+
+    from cosim.cli import read_signing_key
+    from cosim.errors import ScenarioError
+    from cosim.outputs.tlog import Tlog
+    from cosim.scenario.parse import load_scenario
+    from cosim.sim.onboard import OnboardHandle
+    from cosim.sim.options import RunOptions
+    from mav.hil import HilSimulatorCodec
+
+    raw, hexf, bad = tmp_path / "k.bin", tmp_path / "k.hex", tmp_path / "bad"
+    raw.write_bytes(KEY)
+    hexf.write_text(KEY.hex() + "\n")
+    bad.write_text("not a key")
+    assert read_signing_key(raw, "--signing-key") == read_signing_key(hexf, "--k") == KEY
+    for f in (bad, tmp_path / "missing"):
+        try:
+            read_signing_key(f, "--signing-key")
+            raise AssertionError("accepted a bad key file")
+        except ScenarioError as exc:
+            assert exc.field == "--signing-key"
+    r = subprocess.run([sys.executable, "-m", "cosim.cli", "sitl", "--signing-key", str(bad),
+                        "--gcs-bind", "127.0.0.1:0", "--api-bind", "127.0.0.1:0"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "--signing-key" in r.stderr
+
+    sc = load_scenario(__import__("pathlib").Path(__file__).resolve().parents[1]
+                       / "scenarios" / "scripted_square.toml")
+    h = OnboardHandle(sc, RunOptions(signing_key=KEY), Tlog(tmp_path / "t.tlog"), tmp_path)
+    codec = HilSimulatorCodec()
+    meas = (sc.start.n, sc.start.e, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    try:
+        plain = M.MAVLink(None, 255, 190)
+        h.api.send(wire.send_msg(plain, M.MAVLink_command_long_message(
+            1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)))
+        for k in range(3):
+            h.exchange(codec.encode_odometry(k * 5000, meas))
+        assert not h.onboard.armed and h.onboard.stats["unsigned_rejected"] == 1
+        signed = M.MAVLink(None, 255, 190)
+        sg = signed.signing
+        sg.secret_key, sg.sign_outgoing, sg.timestamp = KEY, True, EPOCH_2024 + 10
+        h.api.send(wire.send_msg(signed, M.MAVLink_command_long_message(
+            1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)))
+        h.exchange(codec.encode_odometry(15000, meas))
+        assert h.onboard.armed
+    finally:
+        h.close()

@@ -39,7 +39,8 @@ class OnboardHandle:
             else:
                 api_app, api_v = MemoryLink.pair()
                 gcs_m, gcs_v = MemoryLink.pair()
-            self.onboard = Onboard(OnboardConfig(vehicle=vname), hil_v, api_v, gcs_v)
+            self.onboard = Onboard(OnboardConfig(vehicle=vname, signing_key=opts.signing_key),
+                                   hil_v, api_v, gcs_v)
             self._own = (api_v, gcs_v) if opts.external_links else ()
             if sc.vehicle != get_vehicle(vname):   # the flight stack flies the changed plant
                 self.onboard.set_airframe(Airframe(name=vname, **sc.vehicle.fmu_parameters()))
@@ -76,6 +77,8 @@ class OnboardHandle:
             f"--vehicle-param={k}={v!r}" for k, v in sc.vehicle.fmu_parameters().items()
             if getattr(preset, k) != v
         )
+        if opts.signing_key is not None:
+            overrides += (f"--signing-key={opts.signing_key.hex()}",)
         self.proc = OnboardProcess(
             vname, api.local_address, gcs.local_address, log_dir / "onboard.log",
             hil_timeout_s=max(10.0, 5 * opts.hil_timeout_s), extra_args=overrides,
