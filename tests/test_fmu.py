@@ -301,7 +301,13 @@ def test_fmu_state_serialisation_round_trip(make):
         ("Izz", 0.0, "fmi2SetReal: parameter 'Izz' must be > 0, got 0"),
         ("motor_tau", 0.0, "fmi2SetReal: parameter 'motor_tau' must be > 0, got 0"),
         ("drag_xy", -0.1, "fmi2SetReal: parameter 'drag_xy' must be >= 0, got -0.1"),
-        ("substep", 0.002, "parameter 'substep' must be in (0, 0.001] s, got 0.002"),
+        ("substep", 0.002, "parameter 'substep' must be in [1e-06, 0.001] s, got 0.002"),
+        # issue 14 item 8: a tiny substep (a hang per doStep), wind of 1e300 (positions of
+        # 4e297), start positions beyond the planet
+        ("substep", 1e-9, "parameter 'substep' must be in [1e-06, 0.001] s, got 1e-09"),
+        ("wind_n", 1e300, "input 'wind_n' must be within +-100 m/s, got 1e+300"),
+        ("wind_d", -101.0, "input 'wind_d' must be within +-100 m/s, got -101"),
+        ("x0", 1e9, "parameter 'x0' must be within +-1e+06 m, got 1e+09"),
         ("mass", math.inf, "parameter 'mass' must be finite, got inf"),
     ],
 )
@@ -310,6 +316,15 @@ def test_bad_parameter_values_are_refused_with_a_message(make, name, value, mess
     with pytest.raises(FMICallException):
         inst.set(**{name: value})
     assert any(message in m for m in inst.messages), inst.messages
+
+
+def test_a_huge_step_is_an_error_not_a_hang(make):
+    """Issue 14 item 8: doStep(h=1e6) ran 1e9 substeps; now the work per step is bounded."""
+    inst = make("cs")
+    inst.init()
+    with pytest.raises(FMICallException):
+        inst.fmu.doStep(0.0, 1e6)
+    assert any("needs more than 10000 substeps" in m for m in inst.messages), inst.messages
 
 
 def test_nan_input_is_an_error(make):

@@ -455,6 +455,10 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
     return fail(inst, "fmi2GetRealOutputDerivatives: not provided (maxOutputDerivativeOrder=0)");
 }
 
+/* Work bound of one doStep: at most this many RK4 substeps (10 s of 1 ms substeps), so a huge
+ * communicationStepSize is an error, never a hang. */
+#define MAX_SUBSTEPS 10000L
+
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
                       fmi2Real communicationStepSize, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     ModelData *m;
@@ -476,6 +480,10 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     hsub = m->r[vr_substep];
     /* n substeps of hsub; the last one ends exactly at t0 + h (shorter if h/hsub is not
      * an integer). Substep boundaries are t0 + i*hsub, never accumulated. */
+    if (h / hsub > (double)MAX_SUBSTEPS)
+        return fail(inst, "fmi2DoStep: communicationStepSize %g s needs more than %ld substeps "
+                          "of %g s (at most %g s per step)", h, (long)MAX_SUBSTEPS, hsub,
+                    (double)MAX_SUBSTEPS * hsub);
     n = (long)ceil(h / hsub * (1.0 - 1e-12));
     if (n < 1) n = 1;
     {

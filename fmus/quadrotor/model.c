@@ -254,7 +254,12 @@ void model_rk4_step(ModelData *m, double dt) {
     m->outputsValid = 0;
 }
 
-/* Range checks for parameters and inputs. */
+/* Range checks for parameters and inputs. The bounds keep every value where the physics and
+ * doStep's work stay meaningful: the smallest substep bounds the work per step (with
+ * fmi2DoStep's MAX_SUBSTEPS), wind and start positions stay physical. */
+#define SUBSTEP_MIN 1e-6  /* s */
+#define WIND_MAX 100.0    /* m/s, any wind component */
+#define POS0_MAX 1e6      /* m, any start coordinate */
 const char *model_check_value(unsigned int vr, double v, char *why, size_t n) {
     const char *name = model_variable_name(vr);
     if (vr >= vr_u1 && vr <= vr_u4) {
@@ -287,8 +292,21 @@ const char *model_check_value(unsigned int vr, double v, char *why, size_t n) {
         }
         break;
     case vr_substep:
-        if (!(v > 0.0 && v <= 0.001)) {
-            snprintf(why, n, "parameter 'substep' must be in (0, 0.001] s, got %g", v);
+        if (!(v >= SUBSTEP_MIN && v <= 0.001)) {
+            snprintf(why, n, "parameter 'substep' must be in [%g, 0.001] s, got %g", SUBSTEP_MIN,
+                     v);
+            return why;
+        }
+        break;
+    case vr_wind_n: case vr_wind_e: case vr_wind_d:
+        if (!(fabs(v) <= WIND_MAX)) {
+            snprintf(why, n, "input '%s' must be within +-%g m/s, got %g", name, WIND_MAX, v);
+            return why;
+        }
+        break;
+    case vr_x0: case vr_y0: case vr_z0:
+        if (!(fabs(v) <= POS0_MAX)) {
+            snprintf(why, n, "parameter '%s' must be within +-%g m, got %g", name, POS0_MAX, v);
             return why;
         }
         break;
