@@ -8,6 +8,7 @@ The schema is documented in scenarios/README.md.
 from __future__ import annotations
 
 import copy
+import re
 import tomllib
 from dataclasses import replace
 from pathlib import Path
@@ -22,6 +23,7 @@ from cosim.sensors.camera import parse_camera
 from cosim.world.floor import World
 
 # --------------------------------------------------------------------------- parsing
+NAME_OK = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,79}")
 TOP_KEYS = {"name", "description", "seed", "vehicle", "timing", "world", "camera", "app",
             "sensors", "wind", "faults", "criteria"}
 
@@ -35,6 +37,8 @@ def load_scenario(path: str | Path) -> Scenario:
         raw = tomllib.loads(p.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ScenarioError("scenario", str(p), f"valid UTF-8 TOML ({exc})") from None
+    except RecursionError:   # thousands of nested tables or arrays
+        raise ScenarioError("scenario", str(p), "TOML nested less deeply") from None
     return parse_scenario(raw, source=str(p), base_dir=p.parent)
 
 
@@ -61,7 +65,11 @@ def _load_world(raw: dict, base_dir: Path) -> dict:
 def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None) -> Scenario:
     base_dir = base_dir or Path(".")
     no_unknown(raw, TOP_KEYS, "")
-    name = string(raw, "name", "", Path(source).stem or "scenario")
+    stem = re.sub(r"[^A-Za-z0-9._-]", "_", Path(source).stem).lstrip("._-")[:80]
+    name = string(raw, "name", "", stem or "scenario")
+    if not NAME_OK.fullmatch(name):   # it names run folders: no path, no control characters
+        raise ScenarioError("name", name, "1-80 characters of letters, digits, '.', '_', '-', "
+                            "starting with a letter or digit")
     description = string(raw, "description", "", "")
     seed = integer(raw, "seed", "", 0, lo=0, hi=2**63 - 1)
 

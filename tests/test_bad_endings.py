@@ -1,0 +1,49 @@
+"""Hostile or unlucky input around a run's outputs (issue 14 item 7): a scenario name that
+would write outside the output root, a NUL in it, TOML nested 5000 deep: each a clear error
+(exit 2 naming the field), never a traceback or a file outside the run folder."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cosim.errors import ScenarioError
+from cosim.scenario.parse import load_scenario, parse_scenario
+
+BASE = {"vehicle": {"preset": "mambo"},
+        "world": {"arena": {"n_min": 0, "n_max": 4, "e_min": 0, "e_max": 4}}}
+
+
+@pytest.mark.parametrize("name", ["../../escape", "a/b", "x\x00y", "", ".hidden", "a" * 81,
+                                  "tab\there"])
+def test_a_name_that_is_not_a_folder_name_is_refused(name):
+    with pytest.raises(ScenarioError, match="^name:"):
+        parse_scenario({**BASE, "name": name})
+
+
+def test_a_name_from_the_file_name_is_made_safe(tmp_path):
+    f = tmp_path / "my scenario (v2).toml"
+    f.write_text('[vehicle]\npreset = "mambo"\n[world]\n'
+                 'arena = { n_min = 0, n_max = 4, e_min = 0, e_max = 4 }\n')
+    assert load_scenario(f).name == "my_scenario__v2_"
+
+
+def test_deep_nesting_is_a_clear_error(tmp_path):
+    f = tmp_path / "deep.toml"
+    f.write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+    r = subprocess.run([sys.executable, "-m", "cosim.cli", "validate", str(f)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "scenario" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_run_with_an_escaping_name_writes_nothing_outside(tmp_path):
+    f = tmp_path / "evil.toml"
+    f.write_text('name = "../../escaped"\n[vehicle]\npreset = "mambo"\n[world]\n'
+                 'arena = { n_min = 0, n_max = 4, e_min = 0, e_max = 4 }\n')
+    r = subprocess.run([sys.executable, "-m", "cosim.cli", "run", str(f)], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "name" in r.stderr
+    assert not (tmp_path.parent / "escaped-mil").exists() and not Path("escaped-mil").exists()
