@@ -169,6 +169,7 @@ def _dispatch(args) -> int:
 
 
 def _run(args) -> int:
+    from cosim.outputs.folder import claim_run_folder
     from cosim.outputs.report import one_screen, write_run
     from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import ExitReason, RunOptions, run_scenario
@@ -192,8 +193,9 @@ def _run(args) -> int:
     opts = RunOptions(mode=args.mode, realtime=args.realtime, speed=args.speed,
                       video=args.video, png_every=args.png_every, mcap=args.mcap,
                       progress=not args.quiet and sys.stderr.isatty(), out_dir=out)
-    res = run_scenario(sc, opts)
-    summary = write_run(res, out, plots=not args.no_plots)
+    with claim_run_folder(out):
+        res = run_scenario(sc, opts)
+        summary = write_run(res, out, plots=not args.no_plots)
     print(one_screen(summary, out))
     if res.exit_reason is ExitReason.COMPONENT_ERROR:
         print(f"cosim: run failed: {res.message}", file=sys.stderr)
@@ -233,6 +235,7 @@ def _sweep(args) -> int:
 
 
 def _sitl(args) -> int:
+    from cosim.outputs.folder import claim_run_folder
     from cosim.outputs.report import one_screen, write_run
     from cosim.scenario.parse import parse_scenario
     from cosim.sim.master import ExitReason, RunOptions, run_scenario
@@ -258,10 +261,11 @@ def _sitl(args) -> int:
     out = Path("runs") / sc.name
     print(f"cosim sitl: {args.vehicle} in world {args.world}; GCS link -> {args.gcs_remote}, "
           f"API link -> {args.api_remote}; Ctrl-C to stop", file=sys.stderr, flush=True)
-    res = run_scenario(sc, RunOptions(mode="mil", realtime=True, speed=args.speed, out_dir=out,
-                                      external_links=links, sitl=True, mcap=args.mcap,
-                                      signing_key=key))
-    summary = write_run(res, out, plots=False)
+    with claim_run_folder(out):
+        res = run_scenario(sc, RunOptions(mode="mil", realtime=True, speed=args.speed,
+                                          out_dir=out, external_links=links, sitl=True,
+                                          mcap=args.mcap, signing_key=key))
+        summary = write_run(res, out, plots=False)
     print(one_screen(summary, out))
     if res.exit_reason is ExitReason.COMPONENT_ERROR:
         print(f"cosim: sitl failed: {res.message}", file=sys.stderr)

@@ -47,3 +47,31 @@ def test_run_with_an_escaping_name_writes_nothing_outside(tmp_path):
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "name" in r.stderr
     assert not (tmp_path.parent / "escaped-mil").exists() and not Path("escaped-mil").exists()
+
+
+ROOT = Path(__file__).resolve().parents[1]
+SQUARE = str(ROOT / "scenarios" / "scripted_square.toml")
+
+
+def _cosim(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "cosim.cli", *args], capture_output=True,
+                          text=True, timeout=120, cwd=cwd)
+
+
+def test_an_unwritable_out_is_a_clear_error():
+    r = _cosim("run", SQUARE, "--out", "/proc/cosim-cannot-write-here", "--quiet")
+    assert r.returncode == 2 and "--out" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_second_run_into_a_busy_folder_fails_at_once(tmp_path):
+    from cosim.outputs.folder import claim_run_folder
+
+    out = tmp_path / "busy"
+    with claim_run_folder(out):                   # a run is writing there now
+        r = _cosim("run", SQUARE, "--out", str(out), "--quiet",
+                   "--set", "timing.t_final_s=1.0")
+        assert r.returncode == 2 and "no other run" in r.stderr
+        assert not (out / "summary.json").exists()
+    r = _cosim("run", SQUARE, "--out", str(out), "--quiet", "--no-plots",
+               "--set", "timing.t_final_s=1.0")
+    assert (out / "summary.json").exists(), r.stderr   # free again once the first is done

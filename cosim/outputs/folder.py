@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import os
+from collections.abc import Iterator
 from pathlib import Path
+
+from cosim.errors import ScenarioError
 
 # files a run folder may hold; removed before a run writes there, so folders never mix runs
 OUTPUT_FILES = ("summary.json", "timeseries.csv", "frames.csv", "flight.tlog", "trajectory.png",
@@ -17,3 +23,24 @@ def clean_run_folder(out: Path) -> None:
     if frames.is_dir():
         for f in frames.glob("frame_*.png"):
             f.unlink()
+
+
+@contextlib.contextmanager
+def claim_run_folder(out: Path, flag: str = "--out") -> Iterator[Path]:
+    """Hold `out` for one run: create it, check it is writable, and lock it so a second run
+    into the same folder at the same time fails at once (ScenarioError naming `flag`) instead
+    of both overwriting each other. The lock goes with the process (flock)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd = os.open(out / ".run.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise ScenarioError(flag, str(out), f"a writable folder ({exc.strerror})") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise ScenarioError(flag, str(out), "a folder no other run is writing to (one is "
+                                "running there now)") from None
+        yield out
+    finally:
+        os.close(fd)
