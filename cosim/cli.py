@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from cosim.errors import ScenarioError
@@ -130,11 +133,40 @@ def main(argv: list[str] | None = None) -> int:
 
         return tune_main(argv[1:])
     args = _parser().parse_args(argv)
+    with _sigterm_interrupts() as got:
+        try:
+            rc = _dispatch(args)
+        except ScenarioError as exc:
+            print(f"cosim: bad input: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:   # outside a run's loop (a run itself ends 'interrupted')
+            print("cosim: interrupted", file=sys.stderr)
+            rc = 130
+    if got:
+        print(f"cosim: stopped by signal {got[0]}; what was recorded is written",
+              file=sys.stderr)
+        return 128 + got[0]
+    return rc
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts():
+    """SIGTERM ends a run the way Ctrl-C does: the loop stops, the onboard process is closed,
+    everything recorded is written; the exit status is then 128 + 15."""
+    got: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield got
+        return
+
+    def _term(signum, _frame) -> None:
+        got.append(signum)
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, _term)
     try:
-        return _dispatch(args)
-    except ScenarioError as exc:
-        print(f"cosim: bad input: {exc}", file=sys.stderr)
-        return 2
+        yield got
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def _dispatch(args) -> int:

@@ -75,3 +75,50 @@ def test_a_second_run_into_a_busy_folder_fails_at_once(tmp_path):
     r = _cosim("run", SQUARE, "--out", str(out), "--quiet", "--no-plots",
                "--set", "timing.t_final_s=1.0")
     assert (out / "summary.json").exists(), r.stderr   # free again once the first is done
+
+
+def _children(pid: int) -> set[int]:
+    out = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        f = task / "children"
+        if f.exists():
+            out |= {int(x) for x in f.read_text().split()}
+    return out
+
+
+def test_sigterm_writes_what_was_recorded_and_leaves_no_onboard_process(tmp_path):
+    """Issue 14 item 7: SIGTERM to `cosim run` exited with no message and no outputs and left
+    the onboard child running. Now: exit 143, summary and time series written (exit reason
+    'interrupted'), the SIL onboard process gone."""
+    import json
+    import os
+    import signal
+    import time
+
+    out = tmp_path / "r"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", str(ROOT / "scenarios" / "mambo_hover.toml"),
+         "--mode", "sil", "--set", "timing.t_final_s=3600", "--out", str(out), "--quiet",
+         "--no-plots"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120          # bounded wait for the run to be under way
+        while time.monotonic() < deadline and not (
+                (out / "flight.tlog").exists() and (out / "flight.tlog").stat().st_size > 0):
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.1)
+        kids = _children(proc.pid)
+        assert kids, "the SIL onboard process should be running"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "Traceback" not in err and "signal 15" in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["exit_reason"] == "interrupted" and summary["ticks"] > 0
+    rows = (out / "timeseries.csv").read_text().count("\n") - 1
+    assert rows == summary["ticks"]
+    for pid in kids:                                  # no orphan onboard process
+        assert not os.path.exists(f"/proc/{pid}") or \
+            Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
