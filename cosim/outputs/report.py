@@ -45,6 +45,8 @@ def summarize(res: RunResult) -> dict[str, Any]:
         "sim_time_s": res.t_end_s,
         "wall_time_s": res.wall_s,
         "real_time_factor": res.real_time_factor,
+        "realtime_stalls": res.realtime_stalls,        # real time: host stalls skipped
+        "realtime_lost_s": res.realtime_lost_s,        # s of wall time they lost
         "ticks": res.ticks,
         "metrics": metrics,
         "criteria": crit,

@@ -42,6 +42,9 @@ from mav.hil import HilSimulatorCodec
 __all__ = ["ExitReason", "RunOptions", "RunResult", "SERIES_COLUMNS", "run_scenario"]
 
 FLUSH_MASK = 4095            # the recorder writes a block every 4096 ticks (k & mask == mask)
+STALL_S = 0.2                # s, real-time mode: further behind the wall clock than this is a
+                             # host stall; the pacing skips it instead of running the missed
+                             # ticks back to back (a client could not have seen them)
 
 
 @dataclass
@@ -67,6 +70,8 @@ class RunResult:
     loop_wall_s: float = 0.0                   # s wall clock of the tick loop alone (no setup)
     faults: list[tuple[float, str]] = field(default_factory=list)   # (t s, what) that fired
     mcap: Path | None = None                   # run_dir / run.mcap when asked (RunOptions.mcap)
+    realtime_stalls: int = 0                   # real time: host stalls skipped (> STALL_S late)
+    realtime_lost_s: float = 0.0               # s of wall time they lost (not replayed)
     _tmp: Any = field(default=None, repr=False)   # owns the temporary spool folder
 
     @property
@@ -175,6 +180,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     phase_idx: dict[str, int] = {}
     exit_reason, message = ExitReason.TIME_LIMIT, "time limit reached"
     plant = vehicle = app = monitor = None
+    lost_s, stalls = 0.0, 0      # real-time mode: wall time lost to host stalls, not replayed
     wall0 = time.perf_counter()
     loop0 = None
     try:
@@ -195,7 +201,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         check_exit = monitor.check
         on_tick = app.on_tick if app is not None else None
         realtime, progress, png_every = opts.realtime, opts.progress, opts.png_every
-        loop0 = time.perf_counter()
+        speed = opts.speed
+        loop0 = pace0 = time.perf_counter()
         stage = "sensor"   # the part running now: a failure is reported as this part's
         try:
             for k in range(n_ticks):
@@ -258,9 +265,13 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                     exit_reason, message = ended
                     break
                 if realtime:
-                    ahead = (t + h) / opts.speed - (time.perf_counter() - wall0)
-                    if ahead > 0:
-                        time.sleep(ahead)
+                    late = (time.perf_counter() - pace0) - (t + h) / speed
+                    if late < 0.0:
+                        time.sleep(-late)
+                    elif late > STALL_S:   # the host stalled: not replayed as fast ticks
+                        pace0 += late
+                        lost_s += late
+                        stalls += 1
                 if progress and k % 2000 == 0:
                     el = time.perf_counter() - wall0
                     print(f"\r  t = {t:7.1f} s  phase = {phases[pi]:<12s} "
@@ -297,6 +308,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         png_count=pngs.count if pngs is not None else 0, onboard_stats=stats,
         loop_wall_s=wall_end - loop0 if loop0 is not None else 0.0,
         faults=hooks.fired() if hooks is not None else [],
+        realtime_stalls=stalls, realtime_lost_s=lost_s,
         _tmp=(tmp, spool_tmp),
     )
     if mcap is not None:
