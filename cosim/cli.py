@@ -1,4 +1,4 @@
-"""`cosim`: run, validate, sweep, montecarlo, sitl, onboard, tune, bench."""
+"""`cosim`: run, validate, sweep, montecarlo, sitl, render, onboard, tune, bench."""
 
 from __future__ import annotations
 
@@ -33,6 +33,13 @@ study options (--executor dask, --scheduler, --resume, --keep-runs, --retry-fail
   cosim sitl                                  then connect QGroundControl (UDP 14550)
   cosim sitl --vehicle bebop2 --world turns   MAVSDK / scripts on UDP 14540
   cosim sitl --gcs-remote 127.0.0.1:14551 --gcs-bind 127.0.0.1:18571""",
+    "render": """examples:
+  cosim render scenarios/bebop2_room_e1.toml --at 0,0,-1,0 --out view.png
+  cosim render scenarios/bebop2_room_e2.toml --at 1,0.3,-1.2,20 --depth depth.png
+  cosim render scenarios/bebop2_room_oval.toml --at 0,0,-1,90 --attitude 10,-5 --exact
+  cosim render scenarios/mambo_seed_track.toml --at 57,95,-1.1,0 --camera down
+--at is the body (CoG) pose: north, east, down (m, world NED) and heading (deg); the depth
+image is a 16-bit PNG of millimetres along the optical axis (0 = nothing seen).""",
     "bench": """examples:
   cosim bench                   full measurement (a few minutes), figures + runs/bench.json
   cosim bench --quick           a short smoke run""",
@@ -116,6 +123,20 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("tune", help="controller loop margins and step responses (see --help)",
                    add_help=False)
 
+    g = add("render", help="the camera image (and depth) from a pose, without flying")
+    g.add_argument("scenario")
+    g.add_argument("--at", required=True, metavar="N,E,D,YAW_DEG",
+                   help="body pose: north, east, down (m) and heading (deg)")
+    g.add_argument("--attitude", default="0,0", metavar="ROLL_DEG,PITCH_DEG")
+    g.add_argument("--out", type=Path, default=Path("view.png"))
+    g.add_argument("--depth", type=Path, default=None, metavar="PNG",
+                   help="also write the depth image (16-bit PNG, mm; front camera)")
+    g.add_argument("--camera", choices=("front", "down"), default=None,
+                   help="this camera kind with its defaults instead of the scenario's")
+    g.add_argument("--exact", action="store_true",
+                   help="the reference ray caster instead of the fast renderer (front)")
+    g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+
     b = add("bench", help="measure the speed of every part")
     b.add_argument("--quick", action="store_true", help="fewer repeats (a smoke test)")
     b.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
@@ -190,6 +211,10 @@ def _dispatch(args) -> int:
         return montecarlo(args)
     if args.cmd == "sitl":
         return _sitl(args)
+    if args.cmd == "render":
+        from cosim.sensors.view import render_command
+
+        return render_command(args)
     if args.cmd == "bench":
         from cosim.studies.bench import main as bench_main
 

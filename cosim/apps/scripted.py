@@ -3,7 +3,8 @@
 Parameters (scenario `[app.params]`):
 - `takeoff_alt_m` (m): AUTO.TAKEOFF altitude above the floor.
 - `waypoints`: list of [n, e, d, hold_s] position setpoints, world NED (m) and the time (s) to
-  stay within `tolerance_m` before going to the next.
+  stay within `tolerance_m` before going to the next; an optional fifth number is the heading
+  (yaw_deg, from North towards East) to hold there (else the heading is not commanded).
 - `velocity_legs`: list of [vn, ve, vd, duration_s] velocity setpoints flown after the
   waypoints, each for its duration.
 - `tolerance_m` (m), `setpoint_every` (ticks between setpoints; 1 = 200 Hz).
@@ -29,22 +30,25 @@ DEFAULTS: dict[str, Any] = {
 }
 
 
-def _rows(value: Any, name: str, width: int) -> list[tuple[float, ...]]:
+def _rows(value: Any, name: str, width: int, optional: int = 0) -> list[tuple[float, ...]]:
+    """Rows of `width` numbers (or up to `optional` more; missing ones are NaN)."""
+    n = f"{width}" if not optional else f"{width} to {width + optional}"
     if not isinstance(value, list):
-        raise ValueError(f"app.params.{name}: expected a list of [{width} numbers] rows")
+        raise ValueError(f"app.params.{name}: expected a list of [{n} numbers] rows")
     rows = []
     for i, r in enumerate(value):
-        if (not isinstance(r, list) or len(r) != width
-                or not all(isinstance(x, int | float) and math.isfinite(x) for x in r)):
-            raise ValueError(f"app.params.{name}[{i}]: got {r!r}; expected {width} finite numbers")
-        rows.append(tuple(float(x) for x in r))
+        if (not isinstance(r, list) or not width <= len(r) <= width + optional
+                or not all(isinstance(x, int | float) and not isinstance(x, bool)
+                           and math.isfinite(x) for x in r)):
+            raise ValueError(f"app.params.{name}[{i}]: got {r!r}; expected {n} finite numbers")
+        rows.append(tuple(float(x) for x in r) + (NAN,) * (width + optional - len(r)))
     return rows
 
 
 class ScriptedApp:
     def __init__(self, params: dict[str, Any]) -> None:
         p = check_params(params, DEFAULTS, "scripted")
-        self.waypoints = _rows(p["waypoints"], "waypoints", 4)
+        self.waypoints = _rows(p["waypoints"], "waypoints", 4, optional=1)
         self.legs = _rows(p["velocity_legs"], "velocity_legs", 4)
         if not self.waypoints and not self.legs:
             raise ValueError("app.params: scripted needs `waypoints` or `velocity_legs`")
@@ -82,10 +86,10 @@ class ScriptedApp:
                 self._t_leg = t
             return
         if self.phase == "waypoints":
-            n, e, d, hold = self.waypoints[self._i]
+            n, e, d, hold, yaw_deg = self.waypoints[self._i]
             self.setpoint[0], self.setpoint[1], self.setpoint[2] = n, e, d
             if self._k % self.every == 0:
-                c.set_position_target(n, e, d)
+                c.set_position_target(n, e, d, yaw=math.radians(yaw_deg))
             px, py, pz = c.position
             err = math.sqrt((px - n) ** 2 + (py - e) ** 2 + (pz - d) ** 2)
             if math.isnan(self._t_in):

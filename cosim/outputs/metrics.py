@@ -7,6 +7,10 @@ Definitions (also in the README):
 - landing_error_m: horizontal distance from the touchdown point to the end-marker centre.
 - line_in_view_s: camera frames in which the app saw the line, times the frame period.
 - speed_mean_mps / speed_max_mps: horizontal speed while following.
+- min_clearance_m (3D worlds): the smallest distance between the vehicle's body sphere
+  (``body_radius`` of the airframe) and a wall, the ceiling, a box or a column over the run,
+  with its time (min_clearance_t_s) and what it was (min_clearance_to); negative ends the run
+  as ``collision``.
 """
 
 from __future__ import annotations
@@ -54,6 +58,11 @@ def compute_metrics(res: RunResult, world) -> dict[str, Any]:
     if res.frame_log:
         period = res.scenario.timing.camera_every * res.scenario.timing.tick_s
         m["line_in_view_s"] = sum(1 for r in res.frame_log if r[1]) * period
+    if res.min_clearance is not None:     # 3D worlds: body sphere to walls, boxes, columns
+        gap, t, what = res.min_clearance
+        m["min_clearance_m"] = gap
+        m["min_clearance_t_s"] = t
+        m["min_clearance_to"] = what
     for k, v in res.app_metrics.items():
         m.setdefault(k, v)
     return m

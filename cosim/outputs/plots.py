@@ -27,7 +27,12 @@ def plot_run(res, world, out: Path) -> list[Path]:
         c = plt.Circle((marker.center[1], marker.center[0]), marker.radius, color="tab:red",
                        alpha=0.3, label="end marker")
         ax.add_patch(c)
+    _draw_scene(ax, world.scene)
     ax.plot(s[:, COL["y"]], s[:, COL["x"]], "-", color="tab:blue", lw=1.2, label="vehicle")
+    if res.min_clearance is not None:
+        k = int(np.argmin(np.abs(t - res.min_clearance[1])))
+        ax.plot(s[k, COL["y"]], s[k, COL["x"]], "o", mfc="none", color="tab:orange", ms=10,
+                label=f"min clearance {res.min_clearance[0]:.2f} m")
     if res.touchdown is not None:
         ax.plot(res.touchdown[2], res.touchdown[1], "kx", ms=9, label="touchdown")
     ax.set_xlabel("East (m)")
@@ -60,6 +65,24 @@ def plot_run(res, world, out: Path) -> list[Path]:
         a.grid(True, alpha=0.3)
     paths.append(_save(fig, out / "timeseries.png"))
     return paths
+
+
+def _draw_scene(ax, scene) -> None:
+    """Top view of a 3D world: the room's walls, boxes (grey), columns (their colour)."""
+    from cosim.world.surfaces import footprint
+
+    if scene.room is not None:
+        n0, n1, e0, e1 = scene.arena
+        ax.plot([e0, e1, e1, e0, e0], [n0, n0, n1, n1, n0], "-", color="0.2", lw=2.5,
+                label="walls")
+    for i, b in enumerate(scene.boxes):
+        foot = np.array(footprint(b.center, b.size[:2], b.heading, "bar", 4))
+        ax.fill(foot[:, 1], foot[:, 0], color="0.6", alpha=0.7,
+                label="boxes" if i == 0 else None)
+    for i, c in enumerate(scene.columns):
+        foot = np.array(footprint(c.center, c.size, c.heading, c.shape, c.sides))
+        ax.fill(foot[:, 1], foot[:, 0], color=np.array(c.rgb) / 255.0,
+                label="columns" if i == 0 else None)
 
 
 def _save(fig, path: Path) -> Path:

@@ -17,7 +17,7 @@ from cosim.outputs.metrics import COL, compute_metrics, evaluate
 from cosim.sim.master import RunResult
 from cosim.sim.recorder import SERIES_COLUMNS
 
-FAILED_EXITS = {"component_error", "crashed", "left_arena", "interrupted"}
+FAILED_EXITS = {"component_error", "crashed", "left_arena", "collision", "interrupted"}
 def versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
     for pkg in ("cosim", "fmpy", "pymavlink", "numpy", "opencv-python-headless", "control"):
@@ -122,10 +122,13 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
         "speed_mean_mps": ("speed mean", "{:.2f} m/s"),
         "speed_max_mps": ("speed max", "{:.2f} m/s"),
         "position_error_max_m": ("waypoint error max", "{:.3f} m"),
+        "min_clearance_m": ("min clearance", "{:.3f} m"),
     }
     for key, (label, f) in fmt.items():
         if key in m and m[key] is not None:
-            lines.append(f"  {label:<20s}{f.format(m[key])}")
+            lines.append(f"  {label:<20s}{f.format(m[key])}"
+                         + (f"  to the {m['min_clearance_to']} at t = "
+                            f"{m['min_clearance_t_s']:.2f} s" if key == "min_clearance_m" else ""))
     for name, c in summary["criteria"].items():
         v = c["value"]
         vs = f"{v:.3f}" if isinstance(v, float) else str(v)

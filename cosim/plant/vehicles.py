@@ -30,6 +30,7 @@ class VehicleParams:
     drag_z: float          # N/(m/s), linear drag along body z
     drag_rot: float        # N m/(rad/s), rotational damping about each body axis
     g: float = 9.81        # m/s^2
+    body_radius: float = 0.1   # m, sphere around the CoG used for collisions (not an FMU input)
 
     # ---- derived quantities (never stored, always computed) ----
     @property
@@ -56,6 +57,7 @@ class VehicleParams:
         """Start values for the Quadrotor FMU's parameters of the same names."""
         d = asdict(self)
         d.pop("name")
+        d.pop("body_radius")
         return d
 
     def with_overrides(self, **kw: float) -> VehicleParams:
@@ -95,6 +97,7 @@ MAMBO = VehicleParams(
     drag_xy=0.013,         # N/(m/s), 0.206 * 0.063 (Förster 2015, mass-scaled)
     drag_z=0.0146,         # N/(m/s), 0.232 * 0.063 (Förster 2015, mass-scaled)
     drag_rot=1.0e-6,       # N m/(rad/s), Ixx/drag_rot = 58 s (derived, see above)
+    body_radius=0.1,       # m, arm 0.0624 + propeller radius 0.033, rounded up
 )
 
 # Parrot Bebop 2. Mass, arm, rotor limits and lag: BebopS (Silano, Oppido, Iannelli 2019,
@@ -124,6 +127,8 @@ BEBOP2 = VehicleParams(
     drag_xy=0.103,         # N/(m/s), 0.206 * 0.5 (Förster 2015, mass-scaled)
     drag_z=0.116,          # N/(m/s), 0.232 * 0.5 (Förster 2015, mass-scaled)
     drag_rot=3.3e-5,       # N m/(rad/s), Ixx/drag_rot = 58 s (derived, see above)
+    body_radius=0.25,      # m, arm 0.129 + 6" propeller radius 0.076 + margin: the body
+                           #   sphere of reference/paper2-visual-servoing.md E1 ([ours])
 )
 
 PRESETS: dict[str, VehicleParams] = {v.name: v for v in (MAMBO, BEBOP2)}

@@ -8,6 +8,7 @@ The schema is documented in scenarios/README.md.
 from __future__ import annotations
 
 import copy
+import math
 import re
 import tomllib
 from dataclasses import replace
@@ -79,11 +80,12 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     preset = string(v, "preset", "vehicle", choices=tuple(sorted(PRESETS)))
     vehicle = get_vehicle(preset)
     ov = table(v, "overrides", "vehicle")
-    fields = set(vehicle.fmu_parameters())
+    fields = set(vehicle.fmu_parameters()) | {"body_radius"}
     no_unknown(ov, fields, "vehicle.overrides")
     if ov:
         vehicle = vehicle.with_overrides(
-            **{k: number(ov, k, "vehicle.overrides", lo=0.0, lo_open=k != "drag_rot")
+            **{k: number(ov, k, "vehicle.overrides", lo=0.0, lo_open=k != "drag_rot",
+                         hi=2.0 if k == "body_radius" else math.inf)
                for k in ov}
         )
     world_table = _load_world(raw, base_dir)

@@ -23,12 +23,14 @@ import numpy as np
 
 from cosim.errors import ScenarioError
 from cosim.sensors.down import CameraConfig, DownwardCamera
+from cosim.sensors.front import FrontCamera, FrontCameraConfig
 
 # kind -> (config record, renderer class); the renderer takes (world, config, seed=...)
 KINDS: dict[str, tuple[type, type]] = {
     "down": (CameraConfig, DownwardCamera),
+    "front": (FrontCameraConfig, FrontCamera),
 }
-CameraConfigAny = CameraConfig   # the union of the config records in KINDS
+CameraConfigAny = CameraConfig | FrontCameraConfig   # the config records in KINDS
 
 
 @runtime_checkable

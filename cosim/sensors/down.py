@@ -27,12 +27,7 @@ Downward camera model (reference/minidrone.md §3):
   above the horizon, |tilt| > ~55 deg) are black (0, 0, 0); with the camera at or below the
   floor (e.g. on the ground, camera 0.1 m below the CoG) the whole frame is black. Beyond the
   rasterised texture (arena + margin) the floor continues in ``world.floor_rgb``.
-- Noise, all from ``numpy.random.default_rng(seed)`` (deterministic per seed and call
-  sequence): per-frame gain ``1 + lighting_noise * N(0, 1)`` on all channels, then per-pixel
-  Gaussian noise of ``noise_std`` (0-255 units), rounded and clipped to uint8. For speed the
-  pixel noise of a frame is a window, at a random offset, of a seeded bank of 2**21 Gaussian
-  samples drawn once (drawing 57 600 normals per frame costs ~0.9 ms); windows of two frames
-  may overlap (then their noise is the same sequence shifted by a random number of samples).
+- Noise: ``cosim.sensors.noise.FrameNoise`` (exposure gain and pixel noise, seeded).
 """
 
 from __future__ import annotations
@@ -48,6 +43,7 @@ import numpy as np
 from cosim.errors import ScenarioError
 from cosim.frames import R_from_quat
 from cosim.scenario.validate import integer, no_unknown, number, string
+from cosim.sensors.noise import FrameNoise
 from cosim.world.floor import World
 
 # Camera axes in body FRD: columns are x_C (image right), y_C (image down), z_C (optical axis).
@@ -56,7 +52,6 @@ R_BC_DOWN = np.array([[0.0, -1.0, 0.0],
                       [0.0, 0.0, 1.0]])
 
 NO_FLOOR_RGB = (0, 0, 0)
-NOISE_BANK = 1 << 21      # samples in the per-camera Gaussian noise bank (8 MiB float32)
 
 
 @dataclass(frozen=True)
@@ -179,14 +174,8 @@ class DownwardCamera:
         self._G = np.zeros((3, 3))
         self._G[2, 2] = 1.0
         self._grid_hi: tuple[np.ndarray, np.ndarray] | None = None
-        self._noise_bank: np.ndarray | None = None
-        if cfg.noise_std > 0.0:
-            # noise_std * N(0, 1) + 0.5 (the 0.5 makes the uint8 conversion round half up)
-            bank = self.rng.standard_normal(NOISE_BANK + cfg.height * cfg.width * 3,
-                                            dtype=np.float32)
-            bank *= cfg.noise_std
-            bank += 0.5
-            self._noise_bank = bank
+        self._noise = FrameNoise(self.rng, cfg.noise_std, cfg.lighting_noise,
+                                 cfg.height * cfg.width * 3)
 
     def project(self, p_floor_W: Sequence[float], p_W: Sequence[float],
                 q_WB: Sequence[float]) -> tuple[float, float]:
@@ -235,15 +224,4 @@ class DownwardCamera:
         return self._texture4[:, :, :3]
 
     def _add_noise(self, img: np.ndarray) -> np.ndarray:
-        cfg = self.config
-        if cfg.noise_std <= 0.0 and cfg.lighting_noise <= 0.0:
-            return img
-        gain = 1.0 + cfg.lighting_noise * self.rng.standard_normal() if cfg.lighting_noise else 1.0
-        if self._noise_bank is not None:
-            n = img.size
-            k = int(self.rng.integers(0, NOISE_BANK))
-            noise = self._noise_bank[k:k + n].reshape(img.shape)
-            buf = cv2.scaleAdd(img.astype(np.float32), max(gain, 0.0), noise)
-            np.clip(buf, 0.0, 255.0, out=buf)
-            return buf.astype(np.uint8)
-        return cv2.convertScaleAbs(img, alpha=max(gain, 0.0))
+        return self._noise.apply(img)

@@ -18,6 +18,7 @@ class ExitReason(enum.Enum):
     LANDED = "landed"                       # down and disarmed, but the app did not finish
     CRASHED = "crashed"                     # hard touchdown or flipped
     LEFT_ARENA = "left_arena"               # outside the world's arena or above the ceiling
+    COLLISION = "collision"                 # the body sphere touched a wall, box or column
     TIME_LIMIT = "time_limit"               # timing.t_final_s reached
     COMPONENT_ERROR = "component_error"     # a part failed (plant, onboard, app, camera)
     INTERRUPTED = "interrupted"             # Ctrl-C
@@ -61,7 +62,8 @@ class ExitMonitor:
     that has no app) completes the mission.
     """
 
-    def __init__(self, arena, tick_s: float, app, *, sitl: bool = False) -> None:
+    def __init__(self, arena, tick_s: float, app, *, sitl: bool = False, scene=None,
+                 body_radius: float = 0.0) -> None:
         self.arena = arena
         self.arena_box = (arena[0] - ARENA_MARGIN_M, arena[1] + ARENA_MARGIN_M,
                           arena[2] - ARENA_MARGIN_M, arena[3] + ARENA_MARGIN_M)
@@ -73,6 +75,10 @@ class ExitMonitor:
         self.t_touch: tuple[float, float, float] | None = None   # (t, n, e) of the touchdown
         self.touchdown: tuple[float, float, float] | None = None  # the final one, at exit
         self.rest_ticks = int(round(REST_TIMEOUT_S / tick_s))
+        # 3D worlds: clearance of the body sphere to walls, ceiling, boxes, columns
+        self.scene = scene if scene is not None and not scene.empty else None
+        self.body_radius = body_radius
+        self.min_clearance: tuple[float, float, str] | None = None   # (m, t s, what)
 
     def check(self, t: float, y, vz_before: float, u) -> Exit | None:
         """State `y` at t_k+1 = t + h; `vz_before` the vertical speed at t_k; `u` the motor
@@ -100,6 +106,10 @@ class ExitMonitor:
             out = flipped(qx, qy)
             if out:
                 return out
+        if self.scene is not None:
+            hit = self.clearance(t + self.h, y[Y_X], y[Y_Y], d)
+            if hit:
+                return hit
         if self.sitl:
             return None
         n, e, a = y[Y_X], y[Y_Y], self.arena_box
@@ -107,6 +117,17 @@ class ExitMonitor:
             return left_arena(self.arena, n, e, d)
         if airborne and self.ground_ticks > 0:
             return self.landed(u[0] == 0.0 and u[1] == 0.0 and u[2] == 0.0 and u[3] == 0.0)
+        return None
+
+    def clearance(self, t: float, n: float, e: float, d: float) -> Exit | None:
+        """Track the smallest clearance; a negative one is a collision with the named thing."""
+        gap, what = self.scene.clearance(n, e, d, self.body_radius)
+        mc = self.min_clearance
+        if mc is None or gap < mc[0]:
+            self.min_clearance = (gap, t, what)
+        if gap < 0.0:
+            return ExitReason.COLLISION, (f"collision with the {what} at t = {t:.3f} s "
+                                          f"(N {n:.2f} E {e:.2f} D {d:.2f} m)")
         return None
 
     def landed(self, disarmed: bool) -> Exit | None:

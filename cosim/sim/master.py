@@ -72,6 +72,7 @@ class RunResult:
     mcap: Path | None = None                   # run_dir / run.mcap when asked (RunOptions.mcap)
     realtime_stalls: int = 0                   # real time: host stalls skipped (> STALL_S late)
     realtime_lost_s: float = 0.0               # s of wall time they lost (not replayed)
+    min_clearance: tuple[float, float, str] | None = None   # 3D worlds: (m, t s, to what)
     _tmp: Any = field(default=None, repr=False)   # owns the temporary spool folder
 
     @property
@@ -190,7 +191,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         app = build_app(sc, opts)
         if app is not None:
             start_app(app, sc, vehicle, camera)
-        monitor = ExitMonitor(sc.world.arena, h, app, sitl=opts.sitl)
+        monitor = ExitMonitor(sc.world.arena, h, app, sitl=opts.sitl, scene=sc.world.scene,
+                              body_radius=sc.vehicle.body_radius)
         codec = HilSimulatorCodec()
         nan3 = (math.nan, math.nan, math.nan)
         y = plant.y
@@ -309,6 +311,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         loop_wall_s=wall_end - loop0 if loop0 is not None else 0.0,
         faults=hooks.fired() if hooks is not None else [],
         realtime_stalls=stalls, realtime_lost_s=lost_s,
+        min_clearance=monitor.min_clearance if monitor else None,
         _tmp=(tmp, spool_tmp),
     )
     if mcap is not None:

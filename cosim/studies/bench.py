@@ -183,6 +183,38 @@ def bench_render_ips(n: int, repeats: int) -> dict[str, Any]:
     }
 
 
+def bench_front(n: int, repeats: int) -> dict[str, Any]:
+    """The front camera in paper 2's E2 room, along a moving path (issue 10 targets: 8 ms at
+    856 x 480, 2.5 ms at 428 x 240, one core)."""
+    import math
+
+    from cosim.scenario.parse import load_scenario
+    from cosim.sensors.front import FrontCamera, FrontCameraConfig
+    from cosim.sensors.view import quat_from_euler
+
+    sc = load_scenario(ROOT / "scenarios" / "bebop2_room_e2.toml")
+    poses = [((4.0 * i / n, 0.3 * math.sin(0.1 * i), -1.0 - 0.2 * math.sin(0.05 * i)),
+              quat_from_euler(0.03 * math.sin(0.2 * i), -0.02,
+                              math.radians(25 * math.sin(0.03 * i))))
+             for i in range(n)]
+    out = {}
+    for w, h, target in ((856, 480, 8000.0), (428, 240, 2500.0)):
+        cam = FrontCamera(sc.world, FrontCameraConfig.from_dict({"width": w, "height": h}))
+        it = iter(())
+
+        def frame(cam=cam) -> None:
+            nonlocal it
+            try:
+                p, q = next(it)
+            except StopIteration:
+                it = iter(poses)
+                p, q = next(it)
+            cam.render(p, q)
+
+        out[f"front_{w}x{h}"] = _stat(_per_call_us(frame, n, repeats), "us/frame", target)
+    return out
+
+
 def bench_mission(mode: str, repeats: int) -> dict[str, Any]:
     from cosim.scenario.parse import load_scenario
     from cosim.sim.master import RunOptions, run_scenario
@@ -336,6 +368,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["codec"] = bench_codec(n, r)
     res["udp_hil_roundtrip"] = bench_udp_roundtrip(n // 4, r)
     res.update(bench_render_ips(max(200, n // 20), r))
+    res["front"] = bench_front(50 if quick else 200, r)
     mr = 1 if quick else 3
     res["mission_mil"] = bench_mission("mil", mr)
     res["mission_sil"] = bench_mission("sil", mr)
@@ -364,7 +397,9 @@ def format_report(res: dict[str, Any]) -> str:
         if isinstance(v, dict):
             row(k.replace("_", " "), v)
     row("UDP HIL round trip (SIL)", res["udp_hil_roundtrip"])
-    row("render 160x120 frame", res["render"])
+    row("render 160x120 frame (down)", res["render"])
+    for k, v in res["front"].items():
+        row(f"render {k.split('_')[1]} frame (front)", v)
     row("image processing per frame", res["ips"])
     row("seed mission MIL (tick loop)", res["mission_mil"])
     row("seed mission MIL (end to end)", res["mission_mil"]["end_to_end"])

@@ -62,6 +62,7 @@ import numpy as np
 
 from cosim.errors import ScenarioError
 from cosim.scenario.validate import no_unknown, number
+from cosim.world.room import Scene, parse_scene
 from cosim.world.track import (
     COMPETITION_FLOOR_RGB,
     COMPETITION_TILE_RGB,
@@ -105,6 +106,7 @@ class World:
     tile_rgb: RGB = COMPETITION_TILE_RGB  # competition tiles
     name: str = ""
     start: tuple[float, float, float] | None = None  # (n m, e m, yaw rad), informational
+    scene: Scene = field(default_factory=Scene)  # room, boxes, columns, posters (3D worlds)
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False,
                          hash=False)
 
@@ -119,7 +121,8 @@ class World:
         if not isinstance(d, Mapping):
             raise ScenarioError(where, d, "a table")
         no_unknown(d, {"name", "floor_texture", "floor_rgb", "tile_rgb", "arena", "start",
-                        "track", "marker", "distractor"}, where)
+                        "track", "marker", "distractor", "room", "box", "column", "poster"},
+                   where)
         name = d.get("name", "")
         if not isinstance(name, str):
             raise ScenarioError(f"{where}.name", name, "a string")
@@ -186,9 +189,10 @@ class World:
                                 "an array of tables ([[world.distractor]])")
         distractors = tuple(_distractor(x, f"{where}.distractor[{i}]", arena)
                             for i, x in enumerate(raw_dis))
+        scene = parse_scene(d, tuple(arena), where)
         return cls(arena=arena, track=track, marker=marker, distractors=distractors,
                    floor_rgb=floor_rgb, floor_texture=texture, tile_rgb=tile_rgb, name=name,
-                   start=start)
+                   start=start, scene=scene)
 
     @classmethod
     def from_toml(cls, path: str | Path) -> World:
