@@ -22,9 +22,10 @@ Renderers (``cosim/world/surfaces.py`` gives the scene as textured convex planar
   (``cv2.pyrDown``) and each tile (at most ``tile_m`` on a side) samples, bilinearly, the
   level whose texel best matches its projected pixel size (texels per pixel from the areas of
   the clipped polygon in the texture and on the image).
-- ``ReferenceRenderer`` (``exact = true``, and the tests' oracle): ray casting per pixel
-  (``supersample`` x ``supersample`` rays, box-filtered), the nearest hit over every surface
-  (an exact z-buffer), bilinear samples of the full-resolution textures. Slow (seconds).
+- ``ReferenceRenderer`` (``raycast.py``; ``exact = true``, and the tests' oracle): ray
+  casting per pixel (``supersample`` x ``supersample`` rays, box-filtered), the nearest hit
+  over every surface (an exact z-buffer), bilinear samples of the full-resolution textures.
+  Slow (seconds).
 
 ``depth = true`` makes the camera keep ``last_depth``: the z (m along the optical axis) of each
 pixel's surface, inf where nothing is hit (the fast renderer writes 1/z, affine on each plane,
@@ -35,149 +36,31 @@ nothing (no room, above the horizon) are ``background_rgb``.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
 
-from cosim.errors import ScenarioError
-from cosim.frames import R_from_quat
-from cosim.scenario.validate import boolean, integer, no_unknown, number
 from cosim.sensors.noise import FrameNoise
-from cosim.world.surfaces import Surface, scene_surfaces, solid_centres
+from cosim.sensors.pinhole import (
+    R_BC_FRONT,
+    FrontCameraConfig,
+    _View,
+    camera_pose,
+    project,
+    rpy_matrix,
+    world_surfaces,
+    yaw_of,
+)
+from cosim.sensors.raycast import ReferenceRenderer
+from cosim.world.surfaces import Surface, solid_centres
 
-# Camera axes in the rig frame (= body FRD for a zero mount rotation): columns are x_C (image
-# right) = rig y, y_C (image down) = rig z, z_C (optical axis) = rig x.
-R_BC_FRONT = np.array([[0.0, 0.0, 1.0],
-                       [1.0, 0.0, 0.0],
-                       [0.0, 1.0, 0.0]])
+__all__ = ["R_BC_FRONT", "FrontCamera", "FrontCameraConfig", "ReferenceRenderer", "camera_pose",
+           "project", "rpy_matrix", "world_surfaces", "yaw_of"]
+
 APRON = 2          # texels of neighbouring texture around each tile's slice
 PAD = 1            # replicated texels around each pyramid level (coverage reaches the edge)
 MIN_LEVEL_PX = 4   # smallest pyramid level side
-
-
-def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """ZYX (yaw, pitch, roll) rotation, rig -> body (rad)."""
-    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch),
-                              math.cos(yaw), math.sin(yaw))
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
-
-
-def yaw_of(q_WB: Sequence[float]) -> float:
-    w, x, y, z = (float(c) for c in q_WB)
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-@dataclass(frozen=True)
-class FrontCameraConfig:
-    """Front camera parameters (TOML ``[camera]`` with ``kind = "front"``, same keys)."""
-
-    width: int = 856
-    height: int = 480
-    fx: float = 537.3
-    fy: float = 527.0
-    cx: float = 428.0
-    cy: float = 240.0
-    mount_B: tuple[float, float, float] = (0.09, 0.0, 0.0)
-    mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    stabilized: bool = True
-    near_m: float = 0.05
-    tile_m: float = 2.0
-    noise_std: float = 0.0
-    lighting_noise: float = 0.0
-    background_rgb: tuple[int, int, int] = (0, 0, 0)
-    exact: bool = False           # render with the reference ray caster (slow)
-    supersample: int = 2          # reference renderer: rays per pixel side
-    depth: bool = False           # keep the depth image of each frame (last_depth)
-    kind: str = "front"
-
-    def K(self) -> np.ndarray:
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any], where: str = "camera") -> FrontCameraConfig:
-        if not isinstance(d, Mapping):
-            raise ScenarioError(where, d, "a table")
-        no_unknown(d, {"width", "height", "fx", "fy", "cx", "cy", "hfov_deg", "mount_B",
-                       "mount_rpy_deg", "stabilized", "near_m", "tile_m", "noise_std",
-                       "lighting_noise", "background_rgb", "exact", "supersample", "depth"},
-                   where)
-        kw: dict[str, Any] = {}
-        w = kw["width"] = integer(d, "width", where, cls.width, lo=16, hi=4096)
-        h = kw["height"] = integer(d, "height", where, cls.height, lo=16, hi=4096)
-        if "hfov_deg" in d:
-            for k in ("fx", "fy"):
-                if k in d:
-                    raise ScenarioError(f"{where}.{k}", d[k], "either hfov_deg or fx/fy")
-            hfov = number(d, "hfov_deg", where, lo=1.0, hi=170.0)
-            kw["fx"] = kw["fy"] = 0.5 * w / math.tan(math.radians(0.5 * hfov))
-        else:
-            scale = w / cls.width     # defaults follow the resolution (428 x 240: half)
-            kw["fx"] = number(d, "fx", where, cls.fx * scale, lo=1.0, hi=1e5, lo_open=False)
-            kw["fy"] = number(d, "fy", where, cls.fy * h / cls.height, lo=1.0, hi=1e5)
-        kw["cx"] = number(d, "cx", where, 0.5 * w, lo=-0.5, hi=w - 0.5)
-        kw["cy"] = number(d, "cy", where, 0.5 * h, lo=-0.5, hi=h - 0.5)
-        for key, lim, what in (("mount_B", 1.0, "[x, y, z] body FRD offset in metres"),
-                               ("mount_rpy_deg", 90.0, "[roll, pitch, yaw] in degrees")):
-            if key in d:
-                v = d[key]
-                if (not isinstance(v, list) or len(v) != 3
-                        or any(isinstance(c, bool) or not isinstance(c, (int, float))
-                               or not math.isfinite(c) or abs(c) > lim for c in v)):
-                    raise ScenarioError(f"{where}.{key}", v, f"{what}, each |.| <= {lim:g}")
-                kw[key] = (float(v[0]), float(v[1]), float(v[2]))
-        kw["stabilized"] = boolean(d, "stabilized", where, True)
-        kw["exact"] = boolean(d, "exact", where, False)
-        kw["depth"] = boolean(d, "depth", where, False)
-        kw["near_m"] = number(d, "near_m", where, 0.05, lo=0.001, hi=1.0)
-        kw["tile_m"] = number(d, "tile_m", where, 2.0, lo=0.1, hi=100.0)
-        kw["noise_std"] = number(d, "noise_std", where, 0.0, lo=0.0, hi=100.0)
-        kw["lighting_noise"] = number(d, "lighting_noise", where, 0.0, lo=0.0, hi=0.5)
-        kw["supersample"] = integer(d, "supersample", where, 2, lo=1, hi=8)
-        if "background_rgb" in d:
-            v = d["background_rgb"]
-            if (not isinstance(v, list) or len(v) != 3
-                    or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c <= 255
-                           for c in v)):
-                raise ScenarioError(f"{where}.background_rgb", v, "[r, g, b] integers 0-255")
-            kw["background_rgb"] = (int(v[0]), int(v[1]), int(v[2]))
-        return cls(**kw)
-
-
-# ====================================================================== shared geometry
-class _View:
-    """Camera pose for one frame: R_CW (world -> camera), centre c (world NED)."""
-
-    def __init__(self, cfg: FrontCameraConfig, R_BC: np.ndarray, p_W, q_WB) -> None:
-        R_WB = R_from_quat(q_WB)
-        self.c = np.asarray(p_W, dtype=float).reshape(3) + R_WB @ np.asarray(cfg.mount_B)
-        if cfg.stabilized:
-            yaw = yaw_of(q_WB)
-            cy, sy = math.cos(yaw), math.sin(yaw)
-            R_WBs = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-            R_WC = R_WBs @ R_BC
-        else:
-            R_WC = R_WB @ R_BC
-        self.R_CW = R_WC.T
-
-
-def camera_pose(cfg: FrontCameraConfig, p_W, q_WB) -> tuple[np.ndarray, np.ndarray]:
-    """(R_WC, c_W) of the front camera for a body pose."""
-    v = _View(cfg, rpy_matrix(*np.radians(cfg.mount_rpy_deg)) @ R_BC_FRONT, p_W, q_WB)
-    return v.R_CW.T, v.c
-
-
-def project(cfg: FrontCameraConfig, X_W, p_W, q_WB) -> tuple[float, float]:
-    """(col, row) pixel of a world point, (nan, nan) behind the camera."""
-    R_WC, c = camera_pose(cfg, p_W, q_WB)
-    x, y, z = R_WC.T @ (np.asarray(X_W, float) - c)
-    if z <= 1e-9:
-        return math.nan, math.nan
-    return cfg.cx + cfg.fx * x / z, cfg.cy + cfg.fy * y / z
 
 
 def _clip(poly: list[tuple[float, float, float]], planes) -> list:
@@ -461,106 +344,3 @@ def _tiles(s: Surface, pyr: list[np.ndarray], tile_m: float) -> list[_Tile]:
     return out
 
 
-def world_surfaces(world) -> list[Surface]:
-    """The world's surfaces (cached on the world: built once per world object)."""
-    cache = world._cache
-    if "surfaces" not in cache:
-        floor = None
-        if world.scene.room is None:
-            floor = world.floor_image(200.0)
-        cache["surfaces"] = scene_surfaces(world.scene, floor)
-    return cache["surfaces"]
-
-
-# ====================================================================== reference
-class ReferenceRenderer:
-    """Exact visibility by ray casting (the oracle; see the module docstring)."""
-
-    def __init__(self, world, config: FrontCameraConfig | None = None,
-                 surfaces: list[Surface] | None = None) -> None:
-        self.config = cfg = config or FrontCameraConfig()
-        self.surfaces = surfaces if surfaces is not None else world_surfaces(world)
-        self.R_BC = rpy_matrix(*np.radians(cfg.mount_rpy_deg)) @ R_BC_FRONT
-
-    def render(self, p_W, q_WB) -> np.ndarray:
-        return self.render_with_depth(p_W, q_WB)[0]
-
-    def render_with_depth(self, p_W, q_WB) -> tuple[np.ndarray, np.ndarray]:
-        """(RGB uint8 image, depth float32 m along the optical axis, inf where nothing)."""
-        cfg = self.config
-        k = cfg.supersample
-        W, H = cfg.width * k, cfg.height * k
-        view = _View(cfg, self.R_BC, p_W, q_WB)
-        # sub-pixel ray directions (camera frame, z = 1)
-        u = (np.arange(W, dtype=np.float64) + 0.5) / k - 0.5
-        v = (np.arange(H, dtype=np.float64) + 0.5) / k - 0.5
-        rx = ((u - cfg.cx) / cfg.fx)[None, :].repeat(H, 0)
-        ry = ((v - cfg.cy) / cfg.fy)[:, None].repeat(W, 1)
-        R_WC = view.R_CW.T
-        d = np.stack([rx, ry, np.ones_like(rx)], -1) @ R_WC.T      # world rays, (H, W, 3)
-        zbuf = np.full((H, W), np.inf)
-        rgb = np.empty((H, W, 3), np.float32)
-        rgb[:] = cfg.background_rgb
-        c = view.c
-        for s in self.surfaces:
-            nrm = s.normal
-            if float(nrm @ (c - s.O)) <= 1e-9:
-                continue
-            denom = d @ nrm                                          # (H, W)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                lam = (nrm @ (s.O - c)) / denom                     # = z (rays have z_C = 1)
-            hit = (lam >= cfg.near_m) & (lam < zbuf)
-            if not hit.any():
-                continue
-            X = c + d[hit] * lam[hit][:, None] - s.O
-            st = np.stack([X @ s.U, X @ s.V], -1)
-            inside = _inside(st, s.outline())
-            if not inside.any():
-                continue
-            idx = np.flatnonzero(hit)[inside]
-            st = st[inside]
-            zbuf.flat[idx] = lam.flat[idx]
-            rgb.reshape(-1, 3)[idx] = _bilinear(s.image, st[:, 0] * s.ppm - 0.5,
-                                                st[:, 1] * s.ppm - 0.5)
-        img = np.clip(rgb + 0.5, 0, 255).astype(np.uint8)
-        depth = zbuf.astype(np.float32)
-        if k > 1:
-            img = cv2.resize(np.clip(rgb, 0, 255), (cfg.width, cfg.height),
-                             interpolation=cv2.INTER_AREA)
-            img = np.clip(img + 0.5, 0, 255).astype(np.uint8)
-            depth = depth[k // 2::k, k // 2::k] if k % 2 else _min_pool(depth, k)
-        return img, depth
-
-
-def _min_pool(a: np.ndarray, k: int) -> np.ndarray:
-    h, w = a.shape[0] // k, a.shape[1] // k
-    return a[:h * k, :w * k].reshape(h, k, w, k).min(axis=(1, 3))
-
-
-def _inside(st: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Points (n, 2) inside the convex polygon poly (k, 2) (either winding)."""
-    ok_pos = np.ones(len(st), bool)
-    ok_neg = np.ones(len(st), bool)
-    for i in range(len(poly)):
-        a, b = poly[i], poly[(i + 1) % len(poly)]
-        cr = (b[0] - a[0]) * (st[:, 1] - a[1]) - (b[1] - a[1]) * (st[:, 0] - a[0])
-        ok_pos &= cr >= -1e-12
-        ok_neg &= cr <= 1e-12
-    return ok_pos | ok_neg
-
-
-def _bilinear(img: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """Bilinear samples (n, 3) float of an RGB image at (col, row), edges clamped."""
-    rows, cols = img.shape[:2]
-    col = np.clip(col, 0, cols - 1)
-    row = np.clip(row, 0, rows - 1)
-    c0 = np.floor(col).astype(np.int64)
-    r0 = np.floor(row).astype(np.int64)
-    c1 = np.minimum(c0 + 1, cols - 1)
-    r1 = np.minimum(r0 + 1, rows - 1)
-    fc = (col - c0)[:, None]
-    fr = (row - r0)[:, None]
-    f = img.astype(np.float32)
-    top = f[r0, c0] * (1 - fc) + f[r0, c1] * fc
-    bot = f[r1, c0] * (1 - fc) + f[r1, c1] * fc
-    return top * (1 - fr) + bot * fr
