@@ -199,18 +199,6 @@ class FrontCamera:
                 self.last_depth = np.where(inv_z > 0, 1.0 / inv_z, np.inf).astype(np.float32)
         return self._noise.apply(cv2.cvtColor(frame, cv2.COLOR_RGBA2RGB))
 
-    def render_depth(self, p_W, q_WB) -> np.ndarray:
-        """The depth image (float32 m along the optical axis, inf for nothing) of a pose."""
-        if self._ref is not None:
-            return self._ref.render_with_depth(p_W, q_WB)[1]
-        keep = self.config
-        try:
-            object.__setattr__(self, "config", _with_depth(keep))
-            self.render(p_W, q_WB)
-        finally:
-            object.__setattr__(self, "config", keep)
-        return self.last_depth
-
     def _visible(self, view: _View):
         """(tile index, plane distances (k, 5), camera-frame corners (k, 3), pixel -> (s, t)
         map (3, 3)) of the tiles facing the camera and not wholly outside the view, in the
@@ -305,11 +293,6 @@ class FrontCamera:
             vv = np.arange(y0, y1, dtype=np.float32)[:, None]
             iz = (a * uu + b * vv + k0).astype(np.float32)
             cv2.copyTo(iz, mask, inv_z[y0:y1, x0:x1])
-
-
-def _with_depth(cfg: FrontCameraConfig) -> FrontCameraConfig:
-    from dataclasses import replace
-    return replace(cfg, depth=True)
 
 
 def _painter_order(grp: np.ndarray, dist: np.ndarray) -> np.ndarray:
