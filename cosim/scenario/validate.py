@@ -80,6 +80,21 @@ def string(d: Mapping, key: str, where: str, default: Any = REQUIRED,
     return v
 
 
+def rgb(d: Mapping, key: str, where: str, default: Any = REQUIRED) -> tuple[int, int, int]:
+    """A colour: [r, g, b] with integers 0-255."""
+    f = field(where, key)
+    if key not in d:
+        if default is REQUIRED:
+            raise ScenarioError(f, None, "[r, g, b] with integers 0-255 (required)")
+        return default
+    v = d[key]
+    if (not isinstance(v, list) or len(v) != 3
+            or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c <= 255
+                   for c in v)):
+        raise ScenarioError(f, v, "[r, g, b] with integers 0-255")
+    return (int(v[0]), int(v[1]), int(v[2]))
+
+
 def boolean(d: Mapping, key: str, where: str, default: bool) -> bool:
     v = d.get(key, default)
     if not isinstance(v, bool):

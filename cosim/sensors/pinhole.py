@@ -13,7 +13,7 @@ import numpy as np
 
 from cosim.errors import ScenarioError
 from cosim.frames import R_from_quat
-from cosim.scenario.validate import boolean, integer, no_unknown, number
+from cosim.scenario.validate import boolean, integer, no_unknown, number, rgb
 from cosim.world.surfaces import Surface, scene_surfaces
 
 # Camera axes in the rig frame (= body FRD for a zero mount rotation): columns are x_C (image
@@ -102,13 +102,7 @@ class FrontCameraConfig:
         kw["noise_std"] = number(d, "noise_std", where, 0.0, lo=0.0, hi=100.0)
         kw["lighting_noise"] = number(d, "lighting_noise", where, 0.0, lo=0.0, hi=0.5)
         kw["supersample"] = integer(d, "supersample", where, 2, lo=1, hi=8)
-        if "background_rgb" in d:
-            v = d["background_rgb"]
-            if (not isinstance(v, list) or len(v) != 3
-                    or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c <= 255
-                           for c in v)):
-                raise ScenarioError(f"{where}.background_rgb", v, "[r, g, b] integers 0-255")
-            kw["background_rgb"] = (int(v[0]), int(v[1]), int(v[2]))
+        kw["background_rgb"] = rgb(d, "background_rgb", where, cls.background_rgb)
         return cls(**kw)
 
 

@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import ScenarioError
-from cosim.scenario.validate import no_unknown, number
+from cosim.scenario.validate import no_unknown, number, rgb
 from cosim.world.room import Scene, parse_scene
 from cosim.world.track import (
     COMPETITION_FLOOR_RGB,
@@ -130,8 +130,8 @@ class World:
         if texture not in ("plain", "competition"):
             raise ScenarioError(f"{where}.floor_texture", texture, "'plain' or 'competition'")
         floor_default = PLAIN_FLOOR_RGB if texture == "plain" else COMPETITION_FLOOR_RGB
-        floor_rgb = _rgb(d, "floor_rgb", where, floor_default)
-        tile_rgb = _rgb(d, "tile_rgb", where, COMPETITION_TILE_RGB)
+        floor_rgb = rgb(d, "floor_rgb", where, floor_default)
+        tile_rgb = rgb(d, "tile_rgb", where, COMPETITION_TILE_RGB)
         if "tile_rgb" in d and texture != "competition":
             raise ScenarioError(f"{where}.tile_rgb", d["tile_rgb"],
                                 "only with floor_texture = 'competition'")
@@ -181,7 +181,7 @@ class World:
             no_unknown(m, {"center", "radius", "rgb"}, wm)
             marker = Marker(center=_point(m, "center", wm, arena),
                             radius=number(m, "radius", wm, lo=0.005, hi=2.0),
-                            rgb=_rgb(m, "rgb", wm, RED))
+                            rgb=rgb(m, "rgb", wm, RED))
 
         raw_dis = d.get("distractor", [])
         if not isinstance(raw_dis, list):
@@ -280,17 +280,6 @@ class World:
 
 
 # ====================================================================== validation helpers
-def _rgb(d: Mapping, key: str, where: str, default: RGB) -> RGB:
-    if key not in d:
-        return default
-    v = d[key]
-    if (not isinstance(v, list) or len(v) != 3
-            or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c <= 255
-                   for c in v)):
-        raise ScenarioError(f"{where}.{key}", v, "[r, g, b] with integers 0-255")
-    return (int(v[0]), int(v[1]), int(v[2]))
-
-
 def _pair(v: Any, f: str) -> NE:
     if (not isinstance(v, list) or len(v) != 2
             or any(isinstance(c, bool) or not isinstance(c, (int, float))
@@ -313,7 +302,7 @@ def _track_part(p: Any, where: str, arena: Arena) -> TrackPart:
     if not isinstance(p, Mapping):
         raise ScenarioError(where, p, "a table (rectangle or polyline part)")
     width = number(p, "width", where, lo=0.005, hi=2.0)
-    rgb = _rgb(p, "rgb", where, RED)
+    colour = rgb(p, "rgb", where, RED)
     if "points" in p:
         no_unknown(p, {"points", "width", "rgb"}, where)
         raw = p["points"]
@@ -328,7 +317,7 @@ def _track_part(p: Any, where: str, arena: Arena) -> TrackPart:
             if i and math.dist(q, pts[i - 1]) < 1e-3:
                 raise ScenarioError(f"{f}[{i}]", list(q),
                                     "a point at least 1 mm from the previous one")
-        return PolylinePart(points=pts, width=width, rgb=rgb)
+        return PolylinePart(points=pts, width=width, rgb=colour)
     no_unknown(p, {"center", "length", "width", "heading_deg", "rgb"}, where)
     if "center" not in p:
         raise ScenarioError(where, dict(p), "a rectangle (center, length, width, heading_deg) "
@@ -337,7 +326,7 @@ def _track_part(p: Any, where: str, arena: Arena) -> TrackPart:
                     length=number(p, "length", where, lo=0.0, hi=200.0, lo_open=True),
                     width=width,
                     heading=math.radians(number(p, "heading_deg", where, lo=-360.0, hi=360.0)),
-                    rgb=rgb)
+                    rgb=colour)
     for q in part.axis_ends():
         if not arena.contains(*q):
             raise ScenarioError(f"{where}.length", part.length,
@@ -358,7 +347,7 @@ def _distractor(x: Any, where: str, arena: Arena) -> Distractor:
         raise ScenarioError(f"{where}.rgb", None, "[r, g, b] with integers 0-255 (required)")
     return Distractor(shape=shape, center=_point(x, "center", where, arena),
                       size=number(x, "size", where, lo=0.0, hi=10.0, lo_open=True),
-                      rgb=_rgb(x, "rgb", where, (0, 0, 0)),
+                      rgb=rgb(x, "rgb", where, (0, 0, 0)),
                       heading=math.radians(number(x, "heading_deg", where, 0.0,
                                                 lo=-360.0, hi=360.0)))
 

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cosim.errors import ScenarioError
-from cosim.scenario.validate import integer, no_unknown, number, string
+from cosim.scenario.validate import integer, no_unknown, number, rgb, string
 from cosim.world.textures import TextureSpec, palette_ok
 
 GREEN = (0, 170, 0)
@@ -173,14 +173,6 @@ class Scene:
 
 
 # ====================================================================== parsing
-def _rgb(v: Any, f: str) -> tuple[int, int, int]:
-    if (not isinstance(v, list) or len(v) != 3
-            or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c <= 255
-                   for c in v)):
-        raise ScenarioError(f, v, "[r, g, b] with integers 0-255")
-    return (int(v[0]), int(v[1]), int(v[2]))
-
-
 def _floats(v: Any, f: str, n: int, what: str, lo: float, hi: float) -> tuple[float, ...]:
     if (not isinstance(v, list) or len(v) != n
             or any(isinstance(c, bool) or not isinstance(c, (int, float))
@@ -293,7 +285,7 @@ def parse_scene(d: Mapping[str, Any], arena, where: str = "world") -> Scene:
         columns.append(Column(nm, shape, (c[0], c[1]), size,
                               math.radians(number(cd, "heading_deg", w, 0.0, lo=-360.0,
                                                   hi=360.0)),
-                              h, _rgb(cd["rgb"], f"{w}.rgb") if "rgb" in cd else GREEN,
+                              h, rgb(cd, "rgb", w, GREEN),
                               integer(cd, "sides", w, 16, lo=6, hi=64)))
 
     posters = []
@@ -320,7 +312,6 @@ def parse_scene(d: Mapping[str, Any], arena, where: str = "world") -> Scene:
         posters.append(Poster(nm, wall, at, z, size,
                               _texture(p, "texture", w, TextureSpec("posters", 2000 + i),
                                        wall=True),
-                              _rgb(p["frame_rgb"], f"{w}.frame_rgb") if "frame_rgb" in p
-                              else (40, 30, 20), fm))
+                              rgb(p, "frame_rgb", w, (40, 30, 20)), fm))
     return Scene(room=room, boxes=tuple(boxes), columns=tuple(columns),
                  posters=tuple(posters), arena=arena)

@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from cosim.errors import ScenarioError
-from cosim.scenario.validate import integer, no_unknown, number, string
+from cosim.scenario.validate import integer, no_unknown, number, rgb, string
 
 KINDS = ("posters", "noise", "plain", "checker", "bricks")
 EXCLUDED_HUES_DEG = (70.0, 170.0)   # green to cyan-green: reserved for obstacles
@@ -61,17 +61,10 @@ class TextureSpec:
         no_unknown(v, {"kind", "seed", "rgb", "cell_m", "contrast"}, where)
         kind = string(v, "kind", where, "posters", choices=KINDS)
         seed = integer(v, "seed", where, default_seed, lo=0, hi=2**31 - 1)
-        rgb = cls.rgb
-        if "rgb" in v:
-            c = v["rgb"]
-            if (not isinstance(c, list) or len(c) != 3
-                    or any(isinstance(x, bool) or not isinstance(x, int) or not 0 <= x <= 255
-                           for x in c)):
-                raise ScenarioError(f"{where}.rgb", c, "[r, g, b] with integers 0-255")
-            rgb = (int(c[0]), int(c[1]), int(c[2]))
+        colour = rgb(v, "rgb", where, cls.rgb)
         cell = number(v, "cell_m", where, 0.25, lo=0.01, hi=5.0)
         contrast = number(v, "contrast", where, 1.0, lo=0.0, hi=1.0)
-        return cls(kind=kind, seed=seed, rgb=rgb, cell_m=cell, contrast=contrast)
+        return cls(kind=kind, seed=seed, rgb=colour, cell_m=cell, contrast=contrast)
 
 
 def palette_ok(rgb) -> bool:
