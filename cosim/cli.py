@@ -1,4 +1,4 @@
-"""`cosim`: run, validate, sweep, montecarlo, sitl, render, onboard, tune, bench."""
+"""`cosim`: run, validate, sweep, montecarlo, sitl, render, teach, onboard, tune, bench."""
 
 from __future__ import annotations
 
@@ -40,6 +40,12 @@ study options (--executor dask, --scheduler, --resume, --keep-runs, --retry-fail
   cosim render scenarios/mambo_seed_track.toml --at 57,95,-1.1,0 --camera down
 --at is the body (CoG) pose: north, east, down (m, world NED) and heading (deg); the depth
 image is a 16-bit PNG of millimetres along the optical axis (0 = nothing seen).""",
+    "teach": """examples:
+  cosim teach scenarios/bebop2_vs_e2.toml --out runs/vp-e2          render the key images
+  cosim teach scenarios/bebop2_vs_e1.toml --fly --via 1:0.8,0.45,-1 --out runs/vp-e1f
+      fly (round the bar) and take each key image in hover
+  cosim run scenarios/bebop2_vs_e1.toml --set app.params.visual_path=$PWD/runs/vp-e1f
+Without a visual_path, `cosim run` teaches by rendering into the run folder first.""",
     "bench": """examples:
   cosim bench                   full measurement (a few minutes), figures + runs/bench.json
   cosim bench --quick           a short smoke run""",
@@ -56,6 +62,7 @@ EPILOG = """examples:
   cosim sitl --vehicle mambo                                 fly it from QGroundControl
   cosim onboard --vehicle mambo --hil-bind 127.0.0.1:4560   the flight stack alone
   cosim tune mambo                                           loop margins (python-control)
+  cosim teach scenarios/bebop2_vs_e2.toml --fly              key images for a visual path
   cosim bench --quick                                        speed of every part
 exit status: 0 pass, 1 a pass criterion failed or the run ended in error, 2 bad input."""
 
@@ -137,6 +144,17 @@ def _parser() -> argparse.ArgumentParser:
                    help="the reference ray caster instead of the fast renderer (front)")
     g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
 
+    te = add("teach", help="teach a visual path (key images) for a visual_servo scenario")
+    te.add_argument("scenario")
+    te.add_argument("--out", type=Path, default=None,
+                    help="the visual path folder (default runs/visual-paths/<scenario>)")
+    te.add_argument("--fly", action="store_true",
+                    help="fly the key poses and take each image in hover (else render)")
+    te.add_argument("--hover-s", type=float, default=2.0, help="s of hover at each key pose")
+    te.add_argument("--via", action="append", default=[], metavar="K:N,E,D",
+                    help="--fly: pass through N,E,D (m) before key K, e.g. round an obstacle")
+    te.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+
     b = add("bench", help="measure the speed of every part")
     b.add_argument("--quick", action="store_true", help="fewer repeats (a smoke test)")
     b.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
@@ -215,6 +233,10 @@ def _dispatch(args) -> int:
         from cosim.sensors.view import render_command
 
         return render_command(args)
+    if args.cmd == "teach":
+        from cosim.apps.vs.teach import teach_command
+
+        return teach_command(args)
     if args.cmd == "bench":
         from cosim.studies.bench import main as bench_main
 

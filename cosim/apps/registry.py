@@ -24,7 +24,7 @@ import sys
 from cosim.errors import ComponentError, ScenarioError
 from cosim.scenario.records import AppSpec
 
-BUILTIN_APPS = ("line_follower", "scripted", "none")
+BUILTIN_APPS = ("line_follower", "scripted", "visual_servo", "none")
 CONTRACT_METHODS = ("on_start", "on_frame", "on_tick")
 
 
@@ -67,6 +67,10 @@ def make_app(spec: AppSpec):
         from cosim.apps.line_follower import LineFollowerApp
 
         return LineFollowerApp(spec.params)
+    if name == "visual_servo":
+        from cosim.apps.visual_servo import VisualServoApp
+
+        return VisualServoApp(spec.params)
     try:
         cls = plugin_class(name)
     except ScenarioError as exc:

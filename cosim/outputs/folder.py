@@ -12,7 +12,7 @@ from cosim.errors import ScenarioError
 
 # files a run folder may hold; removed before a run writes there, so folders never mix runs
 OUTPUT_FILES = ("summary.json", "timeseries.csv", "frames.csv", "flight.tlog", "trajectory.png",
-                "timeseries.png", "camera.mp4", "camera.avi", "run.mcap")
+                "timeseries.png", "visual_servo.png", "camera.mp4", "camera.avi", "run.mcap")
 
 
 def clean_run_folder(out: Path) -> None:
@@ -23,6 +23,11 @@ def clean_run_folder(out: Path) -> None:
     if frames.is_dir():
         for f in frames.glob("frame_*.png"):
             f.unlink()
+    taught = out / "visual_path"       # a visual path the run taught itself (visual_servo)
+    if (taught / "path.json").is_file():
+        for f in [*taught.glob("[0-9][0-9][0-9].png"), taught / "path.json",
+                  taught / "features.npz"]:
+            f.unlink(missing_ok=True)
 
 
 @contextlib.contextmanager

@@ -106,10 +106,11 @@ class McapRun:
                     {f"u{i}": row[c[f"u{i}"]] for i in range(1, 5)}, log_time=t_ns)
                 json_ch["/app/phase"].log({"phase": phases[int(row[c["phase"]])],
                                            "index": int(row[c["phase"]])}, log_time=t_ns)
+        fields = (res.frame_columns or ("t",) + _VISION_FIELDS)[1:]
         for r in res.frame_log:
             t_ns = int(round(float(r[0]) * 1e9))
             json_ch["/app/vision"].log({k: _num(float(v)) for k, v in
-                                        zip(_VISION_FIELDS, r[1:], strict=False)}, log_time=t_ns)
+                                        zip(fields, r[1:], strict=False)}, log_time=t_ns)
         self._mavlink(json_ch["/mavlink"], res.tlog.path)
         self._writer.close()
         return self.path

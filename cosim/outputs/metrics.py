@@ -55,7 +55,7 @@ def compute_metrics(res: RunResult, world) -> dict[str, Any]:
     if res.touchdown is not None and marker is not None:
         cn, ce = marker.center
         m["landing_error_m"] = math.hypot(res.touchdown[1] - cn, res.touchdown[2] - ce)
-    if res.frame_log:
+    if res.frame_log and res.frame_columns is None:    # the line follower's frame records
         period = res.scenario.timing.camera_every * res.scenario.timing.tick_s
         m["line_in_view_s"] = sum(1 for r in res.frame_log if r[1]) * period
     if res.min_clearance is not None:     # 3D worlds: body sphere to walls, boxes, columns
@@ -63,6 +63,10 @@ def compute_metrics(res: RunResult, world) -> dict[str, Any]:
         m["min_clearance_m"] = gap
         m["min_clearance_t_s"] = t
         m["min_clearance_to"] = what
+    if res.reference_poses:               # an app taught a path (teach-and-repeat)
+        from cosim.outputs.taught import taught_metrics
+
+        m.update(taught_metrics(res, res.app_metrics))
     for k, v in res.app_metrics.items():
         m.setdefault(k, v)
     return m
@@ -73,9 +77,14 @@ def evaluate(criteria: Criteria, metrics: dict[str, Any], exit_reason: ExitReaso
     """Each criterion: {'value', 'limit', 'passed'}; a metric that is missing fails."""
     out: dict[str, dict[str, Any]] = {}
     if criteria.must_complete:
+        outcome = metrics.get("outcome")
         out["must_complete"] = {
-            "value": exit_reason.value, "limit": ExitReason.MISSION_COMPLETE.value,
-            "passed": exit_reason is ExitReason.MISSION_COMPLETE,
+            "value": exit_reason.value + (f" (app: {outcome})" if outcome is not None
+                                          and metrics.get("goal_reached") is False else ""),
+            "limit": ExitReason.MISSION_COMPLETE.value,
+            # an app that says whether it reached its goal must have reached it
+            "passed": exit_reason is ExitReason.MISSION_COMPLETE
+            and metrics.get("goal_reached", True) is True,
         }
     limits = {
         "landing_error_max_m": "landing_error_m",
@@ -83,6 +92,8 @@ def evaluate(criteria: Criteria, metrics: dict[str, Any], exit_reason: ExitReaso
         "path_max_m": "path_error_max_m",
         "mission_time_max_s": "mission_time_s",
         "position_error_max_m": "position_error_max_m",
+        "final_pose_error_max_m": "final_pose_error_m",
+        "final_yaw_error_max_deg": "final_yaw_error_deg",
     }
     for crit, metric in limits.items():
         limit = getattr(criteria, crit)
@@ -91,4 +102,9 @@ def evaluate(criteria: Criteria, metrics: dict[str, Any], exit_reason: ExitReaso
         v = metrics.get(metric)
         out[crit] = {"value": v, "limit": limit,
                      "passed": v is not None and math.isfinite(v) and v <= limit}
+    if criteria.min_clearance_min_m is not None:     # a floor, not a ceiling
+        v = metrics.get("min_clearance_m")
+        out["min_clearance_min_m"] = {
+            "value": v, "limit": criteria.min_clearance_min_m,
+            "passed": v is not None and math.isfinite(v) and v >= criteria.min_clearance_min_m}
     return out

@@ -1,4 +1,5 @@
-"""Run plots (PNG): top view over the track, altitude, velocities, path error."""
+"""Run plots (PNG): top view over the track, altitude, velocities, path error; for a
+teach-and-repeat run also the taught poses and visual_servo.png (plots_vs.py)."""
 
 from __future__ import annotations
 
@@ -28,6 +29,10 @@ def plot_run(res, world, out: Path) -> list[Path]:
                        alpha=0.3, label="end marker")
         ax.add_patch(c)
     _draw_scene(ax, world.scene)
+    if res.reference_poses:
+        from cosim.outputs.plots_vs import draw_taught
+
+        draw_taught(ax, res.reference_poses)
     ax.plot(s[:, COL["y"]], s[:, COL["x"]], "-", color="tab:blue", lw=1.2, label="vehicle")
     if res.min_clearance is not None:
         k = int(np.argmin(np.abs(t - res.min_clearance[1])))
@@ -40,7 +45,9 @@ def plot_run(res, world, out: Path) -> list[Path]:
     ax.set_aspect("equal")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    ax.set_title(f"{res.scenario.name}: {res.exit_reason.value}")
+    outcome = res.app_metrics.get("outcome")
+    ax.set_title(f"{res.scenario.name}: {res.exit_reason.value}"
+                 + (f"\napp: {outcome}" if isinstance(outcome, str) else ""), fontsize=10)
     paths.append(_save(fig, out / "trajectory.png"))
 
     has_track = bool(world.centreline())
@@ -64,6 +71,12 @@ def plot_run(res, world, out: Path) -> list[Path]:
     for a in axs:
         a.grid(True, alpha=0.3)
     paths.append(_save(fig, out / "timeseries.png"))
+    if res.reference_poses:
+        from cosim.outputs.plots_vs import plot_visual_servo
+
+        p = plot_visual_servo(res, out, _save)
+        if p is not None:
+            paths.append(p)
     return paths
 
 

@@ -60,6 +60,9 @@ def summarize(res: RunResult) -> dict[str, Any]:
     }
 
 
+LINE_FRAME_COLUMNS = ("t", "flag_track", "flag_marker", "e_x_px", "e_y_px")
+
+
 def write_run(res: RunResult, out: Path, *, plots: bool = True) -> dict[str, Any]:
     """Write everything the run recorded into `out`; returns the summary dict.
 
@@ -75,7 +78,7 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True) -> dict[str, Any
     write_series(res, out / "timeseries.csv")
     if res.frame_log:
         with open(out / "frames.csv", "w") as f:
-            f.write("t,flag_track,flag_marker,e_x_px,e_y_px\n")
+            f.write(",".join(res.frame_columns or LINE_FRAME_COLUMNS) + "\n")
             for r in res.frame_log:
                 f.write(",".join(repr(float(v)) for v in r) + "\n")
     res.tlog.write(out / "flight.tlog")

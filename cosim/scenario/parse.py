@@ -146,7 +146,8 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     # criteria
     c = table(raw, "criteria", "")
     known = {"must_complete", "landing_error_max_m", "path_rms_max_m", "path_max_m",
-             "mission_time_max_s", "position_error_max_m"}
+             "mission_time_max_s", "position_error_max_m", "final_pose_error_max_m",
+             "final_yaw_error_max_deg", "min_clearance_min_m"}
     no_unknown(c, known, "criteria")
 
     def opt(key: str) -> float | None:
@@ -159,6 +160,9 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         path_max_m=opt("path_max_m"),
         mission_time_max_s=opt("mission_time_max_s"),
         position_error_max_m=opt("position_error_max_m"),
+        final_pose_error_max_m=opt("final_pose_error_max_m"),
+        final_yaw_error_max_deg=opt("final_yaw_error_max_deg"),
+        min_clearance_min_m=opt("min_clearance_min_m"),
     )
 
     # the parts owned by other modules, parsed here once into their records

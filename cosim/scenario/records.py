@@ -52,6 +52,9 @@ class Criteria:
     path_max_m: float | None = None
     mission_time_max_s: float | None = None
     position_error_max_m: float | None = None  # scripted apps: max distance to reached waypoints
+    final_pose_error_max_m: float | None = None   # taught paths: at the last key (m)
+    final_yaw_error_max_deg: float | None = None  # taught paths: at the last key (deg)
+    min_clearance_min_m: float | None = None      # 3D worlds: the body sphere's least gap
 
 
 @dataclass(frozen=True)

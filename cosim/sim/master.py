@@ -73,6 +73,8 @@ class RunResult:
     realtime_stalls: int = 0                   # real time: host stalls skipped (> STALL_S late)
     realtime_lost_s: float = 0.0               # s of wall time they lost (not replayed)
     min_clearance: tuple[float, float, str] | None = None   # 3D worlds: (m, t s, to what)
+    frame_columns: tuple[str, ...] | None = None   # the app's names for frame_log fields
+    reference_poses: list[tuple[float, ...]] | None = None   # the app's taught path (n,e,d,yaw)
     _tmp: Any = field(default=None, repr=False)   # owns the temporary spool folder
 
     @property
@@ -126,7 +128,7 @@ def build_app(sc: Scenario, opts: RunOptions):
         return opts.app_override if opts.app_override is not None else make_app(sc.app)
 
 
-def start_app(app, sc: Scenario, vehicle: OnboardHandle, camera) -> None:
+def start_app(app, sc: Scenario, vehicle: OnboardHandle, camera, run_dir: Path) -> None:
     from cosim.apps.base import AppContext
     from mav.client import OffboardClient
 
@@ -136,6 +138,8 @@ def start_app(app, sc: Scenario, vehicle: OnboardHandle, camera) -> None:
                      rng=np.random.default_rng([sc.seed, 1]),
                      home_ned=(sc.start.n, sc.start.e, 0.0))
     with part("app"):
+        if hasattr(app, "prepare"):   # an app that needs the scenario before it flies
+            app.prepare(sc, run_dir)
         app.on_start(ctx)
 
 
@@ -190,7 +194,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         vehicle = OnboardHandle(sc, opts, tlog, run_dir)
         app = build_app(sc, opts)
         if app is not None:
-            start_app(app, sc, vehicle, camera)
+            start_app(app, sc, vehicle, camera, run_dir)
         monitor = ExitMonitor(sc.world.arena, h, app, sitl=opts.sitl, scene=sc.world.scene,
                               body_radius=sc.vehicle.body_radius)
         codec = HilSimulatorCodec()
@@ -312,6 +316,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         faults=hooks.fired() if hooks is not None else [],
         realtime_stalls=stalls, realtime_lost_s=lost_s,
         min_clearance=monitor.min_clearance if monitor else None,
+        frame_columns=getattr(app, "frame_columns", None),
+        reference_poses=list(getattr(app, "reference_poses", None) or []) or None,
         _tmp=(tmp, spool_tmp),
     )
     if mcap is not None:

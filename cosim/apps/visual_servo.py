@@ -1,0 +1,395 @@
+"""Paper 2 (Toro-Arcila, Becerra, Arechavaleta): teach-and-repeat hierarchical visual
+servoing on the Bebop 2, as a MAVLink offboard app.
+
+Teach: a visual path (`cosim/apps/vs/visual_path.py`), taught by rendering the listed key
+poses (`keys`) into the run folder, or read from a folder (`visual_path`, e.g. taught by
+`cosim teach --fly`). Repeat, per vision cycle (one camera frame, or every `vision_every`-th):
+at a target change, match the frame with key k (SIFT / Shi-Tomasi / ORB, ratio test, seeded
+RANSAC) and sort the points; otherwise track them with pyramidal LK. Then the homography of a
+virtual plane (fallback: dominant plane), the visual error of Eq. 2, the adaptive gain of
+Eq. 4, the law of Eq. 3, the camera-to-body transform of Eqs. 5-6, feed-forward (Eqs. 31-32,
+with the "error rising over the last five cycles" switch), the hierarchy avoidance >
+visibility > servoing (Eqs. 13-20) and the target-change smoothing (Eqs. 28-30). Switch on
+eps < T_eps (Eq. 7); at the last key, hold `hold_final_s` and land.
+
+The vehicle is reached only through MAVLink: arm, AUTO.TAKEOFF to `takeoff_alt_m`, OFFBOARD,
+SET_POSITION_TARGET_LOCAL_NED velocity setpoints in MAV_FRAME_BODY_NED with yaw rate at the
+vision rate, AUTO.LAND. Lost features or a failed homography: zero velocity (hover) and
+re-match every cycle; after `lost_timeout_s` (or `target_timeout_s` on one key) the app lands
+and reports `outcome` = "aborted: <why>" (never "goal_reached").
+Parameters: cosim/apps/vs/presets.py.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cosim.apps.base import NAN, AppContext, FlightSequencer, check_params
+from cosim.apps.vs import geometry as G
+from cosim.apps.vs import visual_path as VP
+from cosim.apps.vs.features import (
+    Detector,
+    Tracker,
+    gray_of,
+    homography,
+    match,
+    robust_inliers,
+    sort_points,
+)
+from cosim.apps.vs.presets import DEFAULTS, resolve
+from cosim.apps.vs.tasks import (
+    avoidance_task,
+    corridor_task,
+    find_obstacle,
+    lateral_hold,
+    outside_rectangle,
+    visibility_task,
+)
+
+FRAME_COLUMNS = ("t", "target", "eps_px", "n_points", "homography", "e_vx", "e_vy", "e_vz",
+                 "e_wx", "e_wy", "e_wz", "lambda", "h_a", "h_m", "h_t", "vx", "vy", "vz",
+                 "wz", "ff_vx", "ff_vy", "ff_vz", "ff_wz", "obstacle_px")
+H_CODE = {"failed": -1.0, "dominant_plane": 0.0, "virtual_plane": 1.0}
+
+
+def _intervals(log: list[tuple[float, float]]) -> list[list[float]]:
+    """[[t_on, t_off], ...] where the value was > 0 (t_off NaN if still on at the end)."""
+    out: list[list[float]] = []
+    on = False
+    for t, h in log:
+        if h > 0.0 and not on:
+            out.append([t, NAN])
+            on = True
+        elif h <= 0.0 and on:
+            out[-1][1] = t
+            on = False
+    return out
+
+
+class VisualServoApp:
+    frame_columns = FRAME_COLUMNS
+
+    def __init__(self, params: dict[str, Any]) -> None:
+        p = resolve(check_params(params, DEFAULTS, "visual_servo"))
+        self.p = p
+        keys = p["keys"]
+        if not isinstance(keys, list) or not all(
+                isinstance(r, list) and len(r) == 4 and all(
+                    isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                    for v in r) for r in keys):
+            raise ValueError("app.params.keys: expected a list of [n, e, d, yaw_deg] rows")
+        if not keys and not p["visual_path"]:
+            raise ValueError("app.params.keys: give the poses to teach at, or visual_path")
+        self.teach_poses = [tuple(float(v) for v in r) for r in keys]
+        self.seq = FlightSequencer(takeoff_alt_m=float(p["takeoff_alt_m"]))
+        self.events = self.seq.events
+        self.phase = "prelude"
+        self.done = False
+        self.setpoint = [NAN, NAN, NAN]
+        self.frame_log: list[tuple[float, ...]] = []
+        self.outcome = "not_started"
+        self.path: VP.VisualPath | None = None
+        self.reference_poses: list[tuple[float, float, float, float]] = []
+        self._cmd = np.zeros(4)
+        self._ff = np.zeros(4)
+        self._new_cmd = False
+        self._t_sent = -1e9
+        self._frame_i = 0
+        self.k = 0
+        self._t_target = NAN
+        self._lost_since = NAN
+        self._t_goal = NAN
+        self._eps_hist: list[float] = []
+        self._switches: list[tuple[float, int, str]] = []
+        self._rematches = 0
+        self._ha_log: list[tuple[float, float]] = []
+        self._hm_log: list[tuple[float, float]] = []
+        self._dnu_max = 0.0
+        self._last_J_a = None
+        self._t_pass = NAN
+        self._Z_last = 0.0
+
+    # ---------------------------------------------------------------- set-up
+    def prepare(self, scenario, run_dir: Path) -> None:
+        """Before the flight: teach (render) the keys into the run folder, or read the
+        visual path the scenario names (relative to the scenario file)."""
+        p = self.p
+        if p["visual_path"]:
+            folder = Path(p["visual_path"])
+            if not folder.is_absolute() and scenario.source is not None:
+                folder = Path(scenario.source).parent / folder
+        else:
+            folder = VP.teach_by_render(scenario, self.teach_poses, run_dir / "visual_path",
+                                        p["detector"], p["n_features"])
+        self.path = VP.load(folder)
+        self.reference_poses = self.path.poses
+
+    def on_start(self, ctx: AppContext) -> None:
+        if self.path is None:
+            raise RuntimeError("visual_servo: prepare() was not called (no visual path)")
+        p, vp = self.p, self.path
+        self.client = ctx.client
+        self.seed = int(ctx.rng.integers(0, 2**31 - 1))
+        n, e, _ = ctx.home_ned
+        self._hold = (n, e, -float(p["takeoff_alt_m"]))
+        self.K = vp.K
+        self.W, self.H = vp.size
+        self.det = Detector(vp.detector, vp.n_features)
+        self.tracker = Tracker()
+        self.body_from_cam = G.body_from_camera_matrix(vp.mount_B)
+        self.cam_from_body = G.camera_from_body_matrix(vp.mount_B)
+        self.h_a = G.Ramp(p["ramp_s"])
+        self.h_m = G.Ramp(p["ramp_s"])
+        self.h_t = G.Ramp(p["smoothing_s"], 1.0)
+        s = p["sigma"]
+        self.sigmas = s if isinstance(s, list) else [s]
+        self.nu_p = self._feedforward() if p["feedforward"] else []
+
+    def _feedforward(self) -> list[np.ndarray]:
+        """Eqs. 31-32: gamma S eTc nu_c(I*_k, I*_k+1) from consecutive key images."""
+        out = []
+        keys = self.path.keys
+        for a, b in zip(keys[:-1], keys[1:], strict=False):
+            tgt, cur = match(self.det, b.pts, b.desc, a.pts, a.desc, self.seed)
+            nu = np.zeros(4)
+            if len(tgt) >= self.p["min_tracked"]:
+                tgt, cur = sort_points(tgt, cur)
+                r = homography(cur, tgt, self.K, self.p["homography"], self.seed)
+                if r.H is not None:
+                    nu = self.p["gamma"] * (self.body_from_cam @ self._law(G.homography_error(
+                        r.H))[0])
+            out.append(nu)
+        return out
+
+    def _law(self, e: np.ndarray) -> tuple[np.ndarray, float]:
+        p = self.p
+        lam = G.adaptive_gain(float(np.linalg.norm(e)), p["l0"], p["linf"], p["l0_slope"])
+        return G.control_law(e, lam, p["vy_extra"], p["w_ratio"]), lam
+
+    # ---------------------------------------------------------------- per frame
+    def on_frame(self, t: float, image: np.ndarray) -> None:
+        if self.seq.state != "flying" or self.phase not in ("matching", "servo", "final"):
+            return
+        self._frame_i += 1
+        if self._frame_i % self.p["vision_every"]:
+            return
+        gray = gray_of(image)
+        if self.phase == "final":
+            self._command(t, np.zeros(4))
+            if t - self._t_goal >= self.p["hold_final_s"]:
+                self._finish(t, "goal_reached")
+            return
+        if self.phase == "matching":
+            self._match(t, gray)
+        if self.phase == "servo":
+            self._servo(t, image, gray)
+        self._prev = gray
+
+    def _match(self, t: float, gray: np.ndarray) -> None:
+        key = self.path.keys[self.k]
+        pts, desc = self.det.detect(gray)
+        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + self.k)
+        if len(tgt) >= self.p["min_matches"]:
+            self.tgt, self.cur = sort_points(tgt, cur)
+            self.phase = "servo"
+            self._lost_since = NAN
+            self._eps_hist = []
+            return
+        self._rematches += 1
+        self._hover(t, "few matches")
+
+    def _hover(self, t: float, why: str) -> None:
+        """Zero velocity; give up after lost_timeout_s without a usable view."""
+        self._command(t, np.zeros(4))
+        if math.isnan(self._lost_since):
+            self._lost_since = t
+        elif t - self._lost_since >= self.p["lost_timeout_s"]:
+            self._finish(t, f"aborted: {why} at key {self.k + 1} for "
+                            f"{self.p['lost_timeout_s']:g} s")
+
+    def _servo(self, t: float, image: np.ndarray, gray: np.ndarray) -> None:
+        p = self.p
+        if self._eps_hist:       # not the frame the points were matched on: track them
+            new, keep = self.tracker.track(self._prev, gray, self.cur)
+            head_lost = not keep[:3].all()
+            self.cur, self.tgt = new[keep], self.tgt[keep]
+            # points that drifted off their match (LK on a repeated texture, an occlusion):
+            # outliers of the epipolar geometry between current and target go
+            inl = robust_inliers(self.cur, self.tgt, self.seed + len(self.cur),
+                                 p["outlier_px"])
+            if inl.sum() >= p["min_tracked"] and not inl.all():
+                head_lost = head_lost or not inl[:3].all()
+                self.cur, self.tgt = self.cur[inl], self.tgt[inl]
+            if head_lost:        # a point of the virtual plane is gone: sort again
+                self.tgt, self.cur = sort_points(self.tgt, self.cur)
+        if len(self.cur) < p["min_tracked"]:
+            self.phase = "matching"
+            self._hover(t, "features lost")
+            return
+        eps = float(np.mean(np.linalg.norm(self.cur - self.tgt, axis=1)))
+        r = homography(self.cur, self.tgt, self.K, p["homography"], self.seed + len(self.cur))
+        if r.H is None:
+            self.phase = "matching"
+            self._hover(t, "homography failed")
+            return
+        self._lost_since = NAN
+        e = G.homography_error(r.H)
+        nu_c, lam = self._law(e)
+        nu_v = self.body_from_cam @ nu_c
+        ff = np.zeros(4)
+        if self.nu_p and self.k >= 1:
+            ff = self.nu_p[self.k - 1]
+            nu_v = p["p"] * nu_v + (1.0 - p["p"]) * ff
+        J_a, edot_a, ob_px = self._avoidance(t, image) if p["avoidance"] else (None, 0.0, 0.0)
+        h_a = self.h_a.value(t)
+        # visibility (Sec. 3.2)
+        J_m = edot_m = None
+        if p["visibility"]:
+            out = outside_rectangle(self.cur, self.tgt, self.W, self.H, p["margin"])
+            self.h_m.set(t, 1.0 if out else 0.0)
+            e_m, J_m = visibility_task(self.cur, self.K, p["visibility_depth_m"],
+                                       self.cam_from_body)
+            edot_m = -p["lambda_m"] * e_m
+        h_m = self.h_m.value(t)
+        nu, _, _ = G.hierarchy(nu_v, J_a, edot_a, h_a, J_m, edot_m, h_m)
+        h_t = self.h_t.value(t) if p["smoothing"] else 1.0
+        self._command(t, h_t * nu)
+        self._ha_log.append((t, h_a))
+        self._hm_log.append((t, h_m))
+        self.frame_log.append((t, float(self.k), eps, float(len(self.cur)), H_CODE[r.method],
+                               *map(float, e), lam, h_a, h_m, h_t, *map(float, self._cmd),
+                               *map(float, ff), ob_px))
+        self._switch(t, eps)
+
+    def _avoidance(self, t: float, image: np.ndarray) -> tuple[Any, Any, float]:
+        """Sec. 3.1: (J_a, desired rate, apparent width px) and the activation's target.
+
+        Corridor task: once the column has gone out of view beside the vehicle, the task
+        stays on as a sideways hold (`lateral_hold`) for the time the vehicle needs to pass
+        it at the commanded forward speed (its last depth plus the clearance, at most 5 s),
+        then ramps down (ours: the paper ramps down as soon as the column leaves the view,
+        which lets the servo pull the vehicle back into the column's side)."""
+        p = self.p
+        ob = find_obstacle(image)
+        if ob is None:
+            J_a = self._last_J_a
+            if J_a is None:
+                self.h_a.set(t, 0.0)
+                return None, 0.0, 0.0
+            if p["avoidance_task"] == "corridor":
+                J_a = lateral_hold(J_a)
+                if math.isnan(self._t_pass):
+                    v = max(float(self._cmd[0]), 0.05)
+                    self._t_pass = t + min((self._Z_last + p["clearance_m"]) / v, 5.0)
+            self.h_a.set(t, 1.0 if t < self._t_pass and self.h_a.target > 0.0 else 0.0)
+            return J_a, np.zeros(J_a.shape[0]), 0.0
+        self._t_pass = NAN
+        ob_w = ob.x_right_px - ob.x_left_px
+        sigma = self.sigmas[min(self.k, len(self.sigmas) - 1)]
+        e_a, J_a = avoidance_task(ob, self.K, sigma, p["obstacle_width_m"], self.cam_from_body)
+        edot_a = -p["lambda_a"] * e_a
+        want = e_a > 0.0
+        if p["avoidance_task"] == "corridor":
+            e_c, J_a = corridor_task(ob, self.K, p["obstacle_width_m"], p["clearance_m"],
+                                     self.cam_from_body)
+            edot_a = -p["lambda_c"] * e_c
+            self._Z_last = p["obstacle_width_m"] * self.K[0, 0] / max(ob_w, 1.0)
+            want = e_c > 0.0 and self._Z_last < p["avoid_range_m"]
+        self._last_J_a = J_a if want or self.h_a.target > 0.0 else None
+        self.h_a.set(t, 1.0 if want else 0.0)
+        return J_a, edot_a, ob_w
+
+    def _switch(self, t: float, eps: float) -> None:
+        """Eq. 7 and imgChVerif: next key on eps < T_eps (or, with feed-forward, eps rising
+        over the last `rising_n` cycles while under `rising_max_px`: ours, so a vehicle that
+        is being carried away from a key does not skip the keys after it); at the last key
+        eps < the final threshold."""
+        p = self.p
+        last = self.k == len(self.path.keys) - 1
+        self._eps_hist.append(eps)
+        hist = self._eps_hist[-(p["rising_n"] + 1):]
+        rising = (p["feedforward"] and not last and len(hist) == p["rising_n"] + 1
+                  and eps < p["rising_max_px"]
+                  and all(b > a for a, b in zip(hist[:-1], hist[1:], strict=False)))
+        if last and eps < p["t_eps_final_px"]:
+            self._switches.append((t, self.k, "eps"))
+            self._t_goal = t
+            self.phase = "final"
+            self.events.append((t, "goal_reached"))
+            self._command(t, np.zeros(4))
+        elif not last and (eps < p["t_eps_px"] or rising):
+            self._switches.append((t, self.k, "rising" if rising and eps >= p["t_eps_px"]
+                                   else "eps"))
+            self.k += 1
+            self.phase = "matching"
+            self._t_target = t
+            if p["smoothing"]:
+                self.h_t.restart(t, p["h0"])
+        elif math.isnan(self._t_target):
+            self._t_target = t
+        elif t - self._t_target >= p["target_timeout_s"]:
+            self._finish(t, f"aborted: key {self.k + 1} not reached in "
+                            f"{p['target_timeout_s']:g} s (eps {eps:.1f} px)")
+
+    def _command(self, t: float, nu: np.ndarray) -> None:
+        p = self.p
+        nu = np.array(nu, dtype=float)
+        vh = math.hypot(nu[0], nu[1])
+        if vh > p["v_max_mps"]:
+            nu[:2] *= p["v_max_mps"] / vh
+        nu[2] = min(max(nu[2], -p["v_max_mps"]), p["v_max_mps"])
+        wz = math.radians(p["wz_max_dps"])
+        nu[3] = min(max(nu[3], -wz), wz)
+        self._dnu_max = max(self._dnu_max, float(np.max(np.abs(nu - self._cmd))))
+        self._cmd = nu
+        self._new_cmd = True
+
+    def _finish(self, t: float, outcome: str) -> None:
+        self.outcome = outcome
+        self.phase = "landing"
+        self.events.append((t, "goal" if outcome == "goal_reached" else "abort"))
+        self.seq.land(t, self.client)
+
+    # ---------------------------------------------------------------- per tick
+    def on_tick(self, t: float) -> None:
+        c = self.client
+        c.poll(t)
+        seq = self.seq
+        if self.phase == "prelude":
+            if seq.step(t, c, self._hold):
+                self.phase = "matching"
+                self.outcome = "flying"
+                self.events.append((t, "repeat"))
+            return
+        if self.phase in ("matching", "servo", "final"):
+            if self._new_cmd or t - self._t_sent >= 0.1:
+                vx, vy, vz, wz = self._cmd
+                c.set_velocity_target(vx, vy, vz, yaw_rate=wz, frame="body")
+                self._new_cmd = False
+                self._t_sent = t
+            return
+        seq.step(t, c, self._hold)
+        if seq.state == "landed":
+            self.phase = "done"
+            self.done = True
+
+    def metrics(self) -> dict[str, Any]:
+        switch_t = [s[0] for s in self._switches]
+        return {
+            "outcome": self.outcome,
+            "goal_reached": self.outcome == "goal_reached",
+            "goal_time_s": self._t_goal if not math.isnan(self._t_goal) else None,
+            "keys": len(self.path.keys) if self.path else 0,
+            "keys_reached": len(self._switches),
+            "switch_times_s": switch_t,
+            "switches_by_rising": sum(1 for s in self._switches if s[2] == "rising"),
+            "rematches": self._rematches,
+            "avoidance_active_s": _intervals(self._ha_log),
+            "visibility_active_s": _intervals(self._hm_log),
+            "command_step_max": self._dnu_max,
+            "vision_cycles": len(self.frame_log),
+        }
