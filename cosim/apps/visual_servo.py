@@ -8,7 +8,8 @@ at a target change, match the frame with key k (SIFT / Shi-Tomasi / ORB, ratio t
 RANSAC) and sort the points; otherwise track them with pyramidal LK. Then the homography of a
 virtual plane (fallback: dominant plane), the visual error of Eq. 2, the adaptive gain of
 Eq. 4, the law of Eq. 3, the camera-to-body transform of Eqs. 5-6, feed-forward (Eqs. 31-32,
-with the "error rising over the last five cycles" switch), the hierarchy avoidance >
+with the "error rising over the last five cycles" switch; none towards the last key, ours:
+a constant feed-forward would hold the vehicle off the final pose), the hierarchy avoidance >
 visibility > servoing (Eqs. 13-20) and the target-change smoothing (Eqs. 28-30). Switch on
 eps < T_eps (Eq. 7); at the last key, hold `hold_final_s` and land.
 
@@ -241,7 +242,7 @@ class VisualServoApp:
         nu_c, lam = self._law(e)
         nu_v = self.body_from_cam @ nu_c
         ff = np.zeros(4)
-        if self.nu_p and self.k >= 1:
+        if self.nu_p and 1 <= self.k < len(self.path.keys) - 1:   # none at the last key
             ff = self.nu_p[self.k - 1]
             nu_v = p["p"] * nu_v + (1.0 - p["p"]) * ff
         J_a, edot_a, ob_px = self._avoidance(t, image) if p["avoidance"] else (None, 0.0, 0.0)

@@ -113,6 +113,8 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
         f"scenario  {summary['scenario']}  ({summary['vehicle']}, app {summary['app']}, "
         f"{summary['mode'].upper()}, seed {summary['seed']})",
         f"exit      {summary['exit_reason']}: {summary['message']}",
+        *([f"app       {summary['metrics']['outcome']}"]
+          if isinstance(summary["metrics"].get("outcome"), str) else []),
         f"sim time  {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall "
         f"({summary['real_time_factor']:.0f}x real time)",
     ]
@@ -126,6 +128,11 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
         "speed_max_mps": ("speed max", "{:.2f} m/s"),
         "position_error_max_m": ("waypoint error max", "{:.3f} m"),
         "min_clearance_m": ("min clearance", "{:.3f} m"),
+        "keys_reached": ("keys reached", "{:d}"),
+        "goal_time_s": ("last key at", "{:.2f} s"),
+        "final_pose_error_m": ("final pose error", "{:.3f} m"),
+        "final_yaw_error_deg": ("final yaw error", "{:.2f} deg"),
+        "taught_path_speed_mps": ("taught path speed", "{:.3f} m/s"),
     }
     for key, (label, f) in fmt.items():
         if key in m and m[key] is not None:

@@ -8,7 +8,8 @@ key) in its metrics. From the recorded true state:
   (the vehicle's position when the repeat began, then the keys in order), over the repeat
   (from the app's 'repeat' event to goal_time_s, or to the end of the run).
 - mean_forward_speed_mps: mean body-forward speed over the same span; repeat_time_s its
-  length.
+  length; taught_path_length_m the polyline's length and taught_path_speed_mps that length
+  over repeat_time_s when the goal was reached (paper 2's "7.71 m in 51.32 s").
 """
 
 from __future__ import annotations
@@ -60,6 +61,9 @@ def taught_metrics(res, app_metrics: dict[str, Any]) -> dict[str, Any]:
     yaw = _yaw(qw[span], qx[span], qy[span], qz[span])
     m["mean_forward_speed_mps"] = float(np.mean(vx[span] * np.cos(yaw) + vy[span] * np.sin(yaw)))
     m["repeat_time_s"] = float(t_end - t_rep)
+    m["taught_path_length_m"] = float(np.sum(np.linalg.norm(np.diff(V, axis=0), axis=1)))
+    if t_goal is not None and t_end > t_rep:
+        m["taught_path_speed_mps"] = m["taught_path_length_m"] / m["repeat_time_s"]
     if t_goal is not None:
         i = min(int(np.searchsorted(t, t_goal)), len(t) - 1)
         n, e, dd, yaw_deg = poses[-1]

@@ -6,11 +6,10 @@ Values from paper 2 Sec. 5 (reference/paper2-visual-servoing.md §3). Names:
 - `w_ratio`: lambda_w = w_ratio * lambda.
 - `t_eps_px`, `t_eps_final_px`: Eq. 7 switching thresholds (intermediate, final key).
 - `avoidance`, `sigma` (a number or one per key), `lambda_a`, `obstacle_width_m`: Sec. 3.1.
-  `avoidance_task`: "width" is the paper's Eq. 8 alone (it slows the approach but never
-  steers round a column dead ahead); "corridor" (ours, default) is active in the same range
-  (ours, default) is active while the column, estimated `avoid_range_m` or closer, stands in
-  the corridor of half-width `clearance_m` + half the column that the vehicle sweeps, and
-  pushes it out with gain `lambda_c`.
+  `avoidance_task`: "width" is the paper's Eq. 8 alone (it mostly slows the approach: see
+  tasks.py); "corridor" (ours, default) is active while the column, estimated
+  `avoid_range_m` or closer, stands in the corridor of half-width `clearance_m` + half the
+  column that the vehicle sweeps, and pushes it out with gain `lambda_c`.
 - `visibility`, `lambda_m`, `margin`, `visibility_depth_m`: Sec. 3.2.
 - `ramp_s`: activation ramps h_a, h_m (Eq. 20); `smoothing`, `smoothing_s`, `h0`: Eqs. 28-30.
 - `feedforward`, `gamma`, `p`, `rising_n`: Eqs. 31-32 and the "error rising" switch rule,
