@@ -292,3 +292,16 @@ def test_teach_command_renders_a_folder_a_run_can_use(tmp_path, capsys):
     assert img.shape == (240, 428, 3) and img.std() > 20
     assert cli(["teach", str(E1), "--fly", "--via", "9:1,1,1"]) == 2   # bad key number
     assert "--via" in capsys.readouterr().err
+
+
+def test_presets_fill_in_and_every_parameter_can_be_set_from_the_command_line():
+    sc = load_scenario(E2)
+    app = VisualServoApp(sc.app.params)
+    assert app.p["smoothing"] is True and app.p["t_eps_px"] == 12.0   # the e2 preset
+    sc2 = with_set(sc, {"app.params.smoothing": False, "app.params.avoidance": False,
+                        "app.params.feedforward": True, "app.params.preset": "e3",
+                        "app.params.t_eps_px": 9})
+    p = VisualServoApp(sc2.app.params).p
+    assert (p["smoothing"], p["avoidance"], p["feedforward"], p["t_eps_px"]) == (
+        False, False, True, 9)
+    assert p["detector"] == "gftt" and p["l0"] == 2.1                  # the rest from e3

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from cosim.apps.base import NAN, AppContext, FlightSequencer, check_params
+from cosim.apps.base import NAN, AppContext, FlightSequencer
 from cosim.apps.vs import geometry as G
 from cosim.apps.vs import visual_path as VP
 from cosim.apps.vs.features import (
@@ -41,7 +41,7 @@ from cosim.apps.vs.features import (
     robust_inliers,
     sort_points,
 )
-from cosim.apps.vs.presets import DEFAULTS, resolve
+from cosim.apps.vs.presets import resolve
 from cosim.apps.vs.tasks import (
     avoidance_task,
     corridor_task,
@@ -75,7 +75,7 @@ class VisualServoApp:
     frame_columns = FRAME_COLUMNS
 
     def __init__(self, params: dict[str, Any]) -> None:
-        p = resolve(check_params(params, DEFAULTS, "visual_servo"))
+        p = resolve(params)
         self.p = p
         keys = p["keys"]
         if not isinstance(keys, list) or not all(

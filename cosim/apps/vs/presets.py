@@ -20,21 +20,24 @@ from __future__ import annotations
 
 from typing import Any
 
+from cosim.apps.base import check_params
+
 DEFAULTS: dict[str, Any] = {
     "preset": "e1",
     "keys": [],                   # [n, e, d, yaw_deg] poses to teach at (render)
     "visual_path": "",            # a taught folder; "" = teach the keys into the run folder
     "takeoff_alt_m": 1.0,
-    "detector": "",               # "" = the preset's
+    "detector": "sift",
     "n_features": 800,
     "homography": "virtual_plane",
-    "l0": None, "linf": None, "l0_slope": None, "vy_extra": None, "w_ratio": 0.5,
-    "t_eps_px": None, "t_eps_final_px": None,
-    "avoidance": None, "avoidance_task": "corridor", "sigma": [], "lambda_a": 0.01,
+    # typed defaults (E1's); the preset's values replace them, then the user's replace those
+    "l0": 2.8, "linf": 0.1, "l0_slope": 5.0, "vy_extra": 2.5, "w_ratio": 0.5,
+    "t_eps_px": 6.0, "t_eps_final_px": 6.0,
+    "avoidance": True, "avoidance_task": "corridor", "sigma": [], "lambda_a": 0.01,
     "obstacle_width_m": 0.08, "clearance_m": 0.35, "lambda_c": 0.8, "avoid_range_m": 2.0,
-    "visibility": None, "lambda_m": 0.2, "margin": 0.1, "visibility_depth_m": 2.0,
-    "ramp_s": None, "smoothing": None, "smoothing_s": 1.6, "h0": 0.2,
-    "feedforward": None, "gamma": 0.75, "p": 0.5, "rising_n": 5,
+    "visibility": True, "lambda_m": 0.2, "margin": 0.1, "visibility_depth_m": 2.0,
+    "ramp_s": 1.0, "smoothing": False, "smoothing_s": 1.6, "h0": 0.2,
+    "feedforward": False, "gamma": 0.75, "p": 0.5, "rising_n": 5,
     "rising_max_px": 54.0,
     "min_matches": 16, "min_tracked": 8, "outlier_px": 2.0,
     "v_max_mps": 1.0, "wz_max_dps": 60.0,
@@ -62,19 +65,12 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
-def resolve(p: dict[str, Any]) -> dict[str, Any]:
-    """Fill the preset's values into parameters the user left unset; check the rest."""
-    name = p["preset"]
+def resolve(params: dict[str, Any]) -> dict[str, Any]:
+    """The app's parameters: DEFAULTS, then the preset's values, then the user's; checked."""
+    name = params.get("preset", DEFAULTS["preset"])
     if name not in PRESETS:
         raise ValueError(f"app.params.preset: got {name!r}; allowed: {', '.join(PRESETS)}")
-    out = dict(p)
-    for k, v in PRESETS[name].items():
-        if out[k] is None or (k in ("detector",) and out[k] == "") or (
-                k == "sigma" and out[k] == []):
-            out[k] = v
-    for k in ("avoidance", "visibility", "smoothing", "feedforward"):
-        if not isinstance(out[k], bool):
-            raise ValueError(f"app.params.{k}: got {out[k]!r}; expected true or false")
+    out = check_params({**PRESETS[name], **params}, DEFAULTS, "visual_servo")
     for k in ("l0", "linf", "l0_slope", "t_eps_px", "t_eps_final_px", "lambda_a", "lambda_m",
               "obstacle_width_m", "clearance_m", "lambda_c", "avoid_range_m", "outlier_px",
               "rising_max_px", "visibility_depth_m", "v_max_mps", "wz_max_dps",

@@ -65,8 +65,7 @@ def _pose_at(res, t: float) -> tuple[float, float, float, float]:
 
 
 def teach_command(args) -> int:
-    from cosim.apps.vs.features import DETECTORS
-    from cosim.apps.vs.presets import DEFAULTS, PRESETS
+    from cosim.apps.vs.presets import resolve
     from cosim.scenario.parse import load_scenario, with_set
     from cosim.studies.sweep import parse_sets
 
@@ -75,15 +74,11 @@ def teach_command(args) -> int:
         sc = with_set(sc, {k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
     if sc.app.name != "visual_servo":
         raise ScenarioError("app.name", sc.app.name, "visual_servo (a repeat scenario)")
-    params = sc.app.params
-    keys = params.get("keys") or []
+    params = resolve(sc.app.params)        # checked when the scenario was loaded
+    keys = params["keys"]
     if not keys:
         raise ScenarioError("app.params.keys", keys, "the [n, e, d, yaw_deg] poses to teach")
-    preset = PRESETS.get(params.get("preset", DEFAULTS["preset"]), PRESETS["e1"])
-    detector = params.get("detector") or preset["detector"]
-    if detector not in DETECTORS:
-        raise ScenarioError("app.params.detector", detector, ", ".join(DETECTORS))
-    n_features = int(params.get("n_features", DEFAULTS["n_features"]))
+    detector, n_features = params["detector"], params["n_features"]
     out = Path(args.out or f"runs/visual-paths/{sc.name}")
     poses = [tuple(float(v) for v in k) for k in keys]
     if not args.fly:
@@ -103,7 +98,7 @@ def teach_command(args) -> int:
             is_key.append(False)
         route.append([n, e, d, hover, yaw])
         is_key.append(True)
-    app = _TeachFlight({"takeoff_alt_m": float(params.get("takeoff_alt_m", 1.0)),
+    app = _TeachFlight({"takeoff_alt_m": float(params["takeoff_alt_m"]),
                         "waypoints": route, "tolerance_m": 0.05, "setpoint_every": 4},
                        hover, is_key)
     res = run_scenario(sc, RunOptions(app_override=app))
