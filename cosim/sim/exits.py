@@ -75,6 +75,7 @@ class ExitMonitor:
         self.t_touch: tuple[float, float, float] | None = None   # (t, n, e) of the touchdown
         self.touchdown: tuple[float, float, float] | None = None  # the final one, at exit
         self.rest_ticks = int(round(REST_TIMEOUT_S / tick_s))
+        self.disarmed_ticks = 0     # ticks on the ground disarmed (the app's time to see it)
         # 3D worlds: clearance of the body sphere to walls, ceiling, boxes, columns
         self.scene = scene if scene is not None and not scene.empty else None
         self.body_radius = body_radius
@@ -132,12 +133,15 @@ class ExitMonitor:
 
     def landed(self, disarmed: bool) -> Exit | None:
         """On the ground after flying: complete when disarmed and the app is done; LANDED when
-        disarmed a while (or armed too long) without the app finishing."""
+        disarmed for REST_TIMEOUT_S / 3 (counted from the disarm, so a land detector that
+        takes its time does not cut the app's turn) or armed on the ground for REST_TIMEOUT_S
+        without the app finishing."""
         app = self.app
         if disarmed and (app is None or app.done):
             self.touchdown = self.t_touch
             return ExitReason.MISSION_COMPLETE, "mission complete"
-        if (disarmed and self.ground_ticks > self.rest_ticks // 3
+        self.disarmed_ticks = self.disarmed_ticks + 1 if disarmed else 0
+        if (self.disarmed_ticks > self.rest_ticks // 3
                 or self.ground_ticks > self.rest_ticks):
             self.touchdown = self.t_touch
             return ExitReason.LANDED, "landed before the app finished"

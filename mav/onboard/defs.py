@@ -59,7 +59,9 @@ SP_MAX_YAW_RATE = 20.0      # rad/s
 
 # ---- ground / air detection
 AIRBORNE_AGL_M = 0.15       # m above home: airborne (ON_GROUND -> IN_AIR)
-TOUCH_VZ_MPS = 0.10         # m/s, |vz| below this while landing ...
+TOUCH_VZ_MPS = 0.10         # m/s, |vz| (low-passed, TOUCH_VZ_TAU_S) below this while landing ...
+TOUCH_VZ_TAU_S = 0.25       # s, the land detector's filter on vz: odometry noise must not
+                            # reset it (PX4 decides on the estimator's filtered velocity)
 TOUCH_AGL_M = 0.30          # ... and below this height above home ...
 TOUCH_TRIG_US = 200_000     # ... for this long: touched down
 TOUCH_STALL_US = 500_000    # or descent stalled this long after LAND_STALL_AFTER (any height)

@@ -24,6 +24,7 @@ from mav.onboard.defs import (
     TOUCH_STALL_US,
     TOUCH_TRIG_US,
     TOUCH_VZ_MPS,
+    TOUCH_VZ_TAU_S,
     M,
 )
 from mav.onboard.links import Outbox
@@ -47,6 +48,8 @@ class Navigator:
         self.land_t0 = 0
         self.touch_since = -1
         self.stall_since = -1
+        self.vz_f = 0.0          # m/s, low-passed vertical speed (TOUCH_VZ_TAU_S)
+        self.t_f = -1            # us, when vz_f was last updated (-1: restart from vz)
 
     # ------------------------------------------------------------------ take-off
     def cmd_takeoff(self, yaw_deg: float, alt: float, frame: int | None) -> int:
@@ -134,13 +137,19 @@ class Navigator:
     def enter_land(self) -> None:
         self.land_t0 = self.vs.t_us
         self.touch_since = self.stall_since = -1
+        self.t_f = -1
 
     def step_land(self, t: int) -> None:
         vs = self.vs
         s = vs.state
         if vs.landed_state == ON_GROUND:
             return
-        slow = abs(s.vz) < TOUCH_VZ_MPS
+        if self.t_f >= 0:
+            self.vz_f += min(1.0, (t - self.t_f) * 1e-6 / TOUCH_VZ_TAU_S) * (s.vz - self.vz_f)
+        else:
+            self.vz_f = s.vz
+        self.t_f = t
+        slow = abs(self.vz_f) < TOUCH_VZ_MPS
         if slow and self.cmd.agl() < TOUCH_AGL_M:
             if self.touch_since < 0:
                 self.touch_since = t
