@@ -275,6 +275,7 @@ def test_lost_view_hovers_then_aborts_with_a_reason():
     s = summarize(run_scenario(sc))
     m = s["metrics"]
     assert m["outcome"].startswith("aborted: few matches"), m["outcome"]
+    assert s["exit_reason"] == "app_aborted"
     assert m["goal_reached"] is False and m["rematches"] > 10
     assert s["criteria"]["must_complete"]["passed"] is False and not s["passed"]
     assert "app: aborted" in s["criteria"]["must_complete"]["value"]

@@ -108,6 +108,8 @@ class IPSParams:
         return replace(cls(k_t=150.0, r_min=26.0, r_max=28.0, arc_width=2.3), **overrides)
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.k_t <= 255.0:
+            raise ValueError(f"k_t must be in (0, 255] (F of a plain floor is 0), got {self.k_t}")
         if not (self.gg >= 1.0 and self.gb >= 1.0):
             raise ValueError("gg and gb must be >= 1")
         if not 0 < self.r_min <= self.r_max:
@@ -115,7 +117,7 @@ class IPSParams:
         if self.r_max >= min(self.width, self.height) / 2:
             raise ValueError("r_max must fit inside the frame")
         if not (0 < self.arc_width <= 2 * math.pi and 0 < self.search_arc_width <= 2 * math.pi):
-            raise ValueError("arc widths must be in (0, 2 pi]")
+            raise ValueError("arc_width and search_arc_width must be in (0, 2 pi]")
         if self.square_kernel < 1 or self.disk_radius < 1:
             raise ValueError("kernel sizes must be positive")
         if self.marker_kernel not in ("octagon", "ellipse"):

@@ -47,6 +47,36 @@ DEFAULTS: dict[str, Any] = {
 }
 
 
+# why the planner landed -> the app's outcome; only "marker" is its goal (a landing on what it
+# took for the marker: the landing error, against the world's marker, says whether it was)
+OUTCOMES = {
+    "marker": "goal_reached: landed on the marker it saw",
+    "lost": "aborted: line lost for lost_timeout_s",
+    "timeout": "aborted: mission_timeout_s reached",
+    "none": "not finished",
+}
+
+
+# the planner's / IPS's names -> the parameter a user writes (errors name the latter)
+USER_NAMES = {"gain_track": "alpha", "gain_marker": "beta", "deriv_gain": "deriv_gain",
+              "z_hover": "hover_alt_m", "lost_timeout": "lost_timeout_s",
+              "mission_timeout": "mission_timeout_s", "r_min": "r_min_px",
+              "r_max": "r_max_px", "arc_width": "arc_width_rad", "k_t": "k_t"}
+
+
+def _user_error(msg: str, p: dict[str, Any]) -> ValueError:
+    """A planner / IPS check's message in the user's names: app.params.NAME: got V; ..."""
+    import re
+
+    found = [(m.start(), k) for k in USER_NAMES if (m := re.search(rf"\b{k}\b", msg))]
+    for k in sorted(USER_NAMES, key=len, reverse=True):
+        msg = re.sub(rf"\b{k}\b", USER_NAMES[k], msg)
+    if not found:
+        return ValueError(f"app.params: {msg}")
+    name = USER_NAMES[min(found)[1]]
+    return ValueError(f"app.params.{name}: got {p.get(name)!r}; expected {msg}")
+
+
 def _overrides(p: dict[str, Any], mapping: dict[str, str]) -> dict[str, float]:
     """The parameters the user gave (not None), renamed to the planner's / IPS's names."""
     return {dst: float(p[src]) for src, dst in mapping.items() if p[src] is not None}
@@ -76,7 +106,7 @@ class LineFollowerApp:
             self.planner_params = maker_pl(**pl)
             self.ips_params = maker_ip(**ip)
         except ValueError as exc:
-            raise ValueError(f"app.params: {exc}") from None
+            raise _user_error(str(exc), p) from None
         self.every = int(p["setpoint_every"])
         if self.every < 1:
             raise ValueError("app.params.setpoint_every: expected an integer >= 1")
@@ -139,6 +169,16 @@ class LineFollowerApp:
             self.phase = "done"
             self.done = True
 
+    @property
+    def outcome(self) -> str:
+        reason = self.logic.reason or "none"
+        return OUTCOMES.get(reason, f"aborted: {reason}")
+
+    @property
+    def goal_reached(self) -> bool:
+        return self.logic.reason == "marker"
+
     def metrics(self) -> dict[str, Any]:
         return {"landing_reason": self.logic.reason or "none",
+                "outcome": self.outcome, "goal_reached": self.goal_reached,
                 "transitions": [list(tr) for tr in self.logic.transitions]}

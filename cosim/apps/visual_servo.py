@@ -378,11 +378,15 @@ class VisualServoApp:
             self.phase = "done"
             self.done = True
 
+    @property
+    def goal_reached(self) -> bool:
+        return self.outcome == "goal_reached"
+
     def metrics(self) -> dict[str, Any]:
         switch_t = [s[0] for s in self._switches]
         return {
             "outcome": self.outcome,
-            "goal_reached": self.outcome == "goal_reached",
+            "goal_reached": self.goal_reached,
             "goal_time_s": self._t_goal if not math.isnan(self._t_goal) else None,
             "keys": len(self.path.keys) if self.path else 0,
             "keys_reached": len(self._switches),

@@ -2,11 +2,15 @@
 
 Definitions (also in the README):
 - mission_time_s: from the app's take-off command to the final touchdown (s).
-- path error while following: horizontal distance from the vehicle to the nearest point of
-  the track centreline, over the ticks in the app's 'following' phase: RMS, max, per track part.
+- path error while following: horizontal distance from the vehicle to the part of the track
+  centreline it should be on (cosim/outputs/progress.py: a cursor that follows the vehicle
+  along the route, so a leg that crosses or comes near does not count), over the following
+  span (first to last tick of the app's 'following' phase): RMS, max, per track part.
+- track_coverage: the fraction of the route (the centreline parts joined in track order)
+  flown in order, within COVERAGE_TOL_M, from the start of following to the end of the run.
 - landing_error_m: horizontal distance from the touchdown point to the end-marker centre.
 - line_in_view_s: camera frames in which the app saw the line, times the frame period.
-- speed_mean_mps / speed_max_mps: horizontal speed while following.
+- speed_mean_mps / speed_max_mps: horizontal speed over the following span.
 - min_clearance_m (3D worlds): the smallest distance between the vehicle's body sphere
   (``body_radius`` of the airframe) and a wall, the ceiling, a box or a column over the run,
   with its time (min_clearance_t_s) and what it was (min_clearance_to); negative ends the run
@@ -20,12 +24,15 @@ from typing import Any
 
 import numpy as np
 
+from cosim.outputs.progress import track_progress
 from cosim.scenario.records import Criteria
 from cosim.sim.exits import ExitReason
 from cosim.sim.master import RunResult
 from cosim.sim.recorder import COL
 
 __all__ = ["COL", "compute_metrics", "evaluate"]
+
+COVERAGE_TOL_M = 0.15    # m: a centreline point is passed when the vehicle comes this close
 
 
 def compute_metrics(res: RunResult, world) -> dict[str, Any]:
@@ -39,18 +46,27 @@ def compute_metrics(res: RunResult, world) -> dict[str, Any]:
     if "following" in res.phases and res.ticks and world.centreline():
         phase, x, y, vx, vy = res.recorded.columns("phase", "x", "y", "vx", "vy")
         mask = phase == res.phases.index("following")
-        if mask.any():
-            xy = np.column_stack((x[mask], y[mask]))
-            d, part = world.distance_to_track(xy)
+        fol = np.flatnonzero(mask)
+        if fol.size:
+            # the following span: first to last tick of 'following' (a search or a lost
+            # line inside it counts); coverage goes on to the end of the run
+            i0, i1 = int(fol[0]), int(fol[-1]) + 1
+            xy = np.column_stack((x[i0:], y[i0:]))
+            cov, err = track_progress(world.centreline(), xy, COVERAGE_TOL_M)
+            d = err[: i1 - i0]
+            _, part = world.distance_to_track(xy[: i1 - i0])
+            m["track_coverage"] = cov
             m["path_error_rms_m"] = float(np.sqrt(np.mean(d**2)))
             m["path_error_max_m"] = float(d.max())
             m["path_error_rms_by_part_m"] = {
                 str(int(p)): float(np.sqrt(np.mean(d[part == p] ** 2))) for p in np.unique(part)
             }
-            vh = np.hypot(vx[mask], vy[mask])
+            vh = np.hypot(vx[i0:i1], vy[i0:i1])
             m["speed_mean_mps"] = float(vh.mean())
             m["speed_max_mps"] = float(vh.max())
             m["following_time_s"] = float(mask.sum() * res.scenario.timing.tick_s)
+            m["following_span_s"] = [float(i0 * res.scenario.timing.tick_s),
+                                     float(i1 * res.scenario.timing.tick_s)]
     marker = getattr(world, "marker", None)
     if res.touchdown is not None and marker is not None:
         cn, ce = marker.center
@@ -102,9 +118,12 @@ def evaluate(criteria: Criteria, metrics: dict[str, Any], exit_reason: ExitReaso
         v = metrics.get(metric)
         out[crit] = {"value": v, "limit": limit,
                      "passed": v is not None and math.isfinite(v) and v <= limit}
-    if criteria.min_clearance_min_m is not None:     # a floor, not a ceiling
-        v = metrics.get("min_clearance_m")
-        out["min_clearance_min_m"] = {
-            "value": v, "limit": criteria.min_clearance_min_m,
-            "passed": v is not None and math.isfinite(v) and v >= criteria.min_clearance_min_m}
+    for crit, metric in (("min_clearance_min_m", "min_clearance_m"),      # floors
+                         ("coverage_min", "track_coverage")):
+        limit = getattr(criteria, crit)
+        if limit is None:
+            continue
+        v = metrics.get(metric)
+        out[crit] = {"value": v, "limit": limit,
+                     "passed": v is not None and math.isfinite(v) and v >= limit}
     return out

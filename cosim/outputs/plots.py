@@ -64,9 +64,8 @@ def plot_run(res, world, out: Path) -> list[Path]:
     axs[1].set_ylabel("velocity NED (m/s)")
     axs[1].legend(fontsize=8, ncol=4)
     if has_track:
-        d, _ = world.distance_to_track(s[:, [COL["x"], COL["y"]]])
-        axs[2].plot(t, d, label="distance to track")
-        axs[2].set_ylabel("path error (m)")
+        _path_error(axs[2], res, world, s, t)
+    _shade_phases(axs, res, s, t)
     axs[-1].set_xlabel("time (s)")
     for a in axs:
         a.grid(True, alpha=0.3)
@@ -78,6 +77,51 @@ def plot_run(res, world, out: Path) -> list[Path]:
         if p is not None:
             paths.append(p)
     return paths
+
+
+def _path_error(ax, res, world, s, t) -> None:
+    """The path error of the summary (progress.py), over the same following span."""
+    from cosim.outputs.metrics import COVERAGE_TOL_M
+    from cosim.outputs.progress import track_progress
+
+    span = _following_span(res, s, t)
+    ax.set_ylabel("path error (m)")
+    if span is None:
+        ax.text(0.5, 0.5, "never following", transform=ax.transAxes, ha="center")
+        return
+    k = (t >= span[0]) & (t < span[1])
+    _, err = track_progress(world.centreline(), s[k][:, [COL["x"], COL["y"]]],
+                            COVERAGE_TOL_M)
+    ax.plot(t[k], err, label="to the part of the track the vehicle should be on")
+    ax.legend(fontsize=8)
+
+
+def _following_span(res, s, t):
+    if "following" not in res.phases:
+        return None
+    fol = np.flatnonzero(s[:, COL["phase"]] == res.phases.index("following"))
+    return (t[fol[0]], t[fol[-1]] + 1e-9) if fol.size else None
+
+
+def _shade_phases(axs, res, s, t) -> None:
+    """Background bands per app phase (legend on the top axes), and the wind if any."""
+    ph = s[:, COL["phase"]].astype(int)
+    cuts = np.flatnonzero(np.diff(ph)) + 1
+    starts = np.concatenate(([0], cuts))
+    ends = np.concatenate((cuts, [len(ph)]))
+    cmap = plt.get_cmap("Pastel1")
+    seen = set()
+    for a, b in zip(starts, ends, strict=True):
+        i = int(ph[a])
+        name = res.phases[i] if 0 <= i < len(res.phases) else "?"
+        for ax in axs:
+            ax.axvspan(t[a], t[b - 1], color=cmap(i % 9), alpha=0.35, lw=0,
+                       label=name if ax is axs[0] and name not in seen else None)
+        seen.add(name)
+    axs[0].legend(fontsize=7, ncol=4, loc="upper right")
+    wn, we, wd = res.scenario.wind_ned_mps
+    if wn or we or wd:
+        axs[0].set_title(f"wind N {wn:g} E {we:g} D {wd:g} m/s", fontsize=9)
 
 
 def _draw_scene(ax, scene) -> None:

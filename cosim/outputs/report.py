@@ -17,7 +17,8 @@ from cosim.outputs.metrics import COL, compute_metrics, evaluate
 from cosim.sim.master import RunResult
 from cosim.sim.recorder import SERIES_COLUMNS
 
-FAILED_EXITS = {"component_error", "crashed", "left_arena", "collision", "interrupted"}
+FAILED_EXITS = {"component_error", "crashed", "left_arena", "collision", "interrupted",
+                "app_aborted"}
 def versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
     for pkg in ("cosim", "fmpy", "pymavlink", "numpy", "opencv-python-headless", "control"):
@@ -120,6 +121,7 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
     ]
     fmt = {
         "mission_time_s": ("mission time", "{:.2f} s"),
+        "track_coverage": ("track coverage", "{:.1%}"),
         "path_error_rms_m": ("path error RMS", "{:.3f} m"),
         "path_error_max_m": ("path error max", "{:.3f} m"),
         "landing_error_m": ("landing error", "{:.3f} m"),

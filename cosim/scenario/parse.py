@@ -90,14 +90,13 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         )
     world_table = _load_world(raw, base_dir)
     st = table(v, "start", "vehicle")
-    if "start" not in v and isinstance(world_table.get("start"), dict):
-        st = world_table["start"]  # the world's suggested start pose
     no_unknown(st, {"n", "e", "yaw_deg"}, "vehicle.start")
-    start = Start(
-        n=number(st, "n", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
-        e=number(st, "e", "vehicle.start", 0.0, lo=-1e4, hi=1e4),
-        yaw_deg=number(st, "yaw_deg", "vehicle.start", 0.0, lo=-180.0, hi=360.0),
-    )
+    ws = world_table.get("start")     # the world's suggested start: fills what st leaves out
+    ws = ws if isinstance(ws, dict) else {}
+    start = Start(**{
+        k: number(st, k, "vehicle.start", lo=lo, hi=hi) if k in st
+        else number(ws, k, "world.start", 0.0, lo=lo, hi=hi)
+        for k, lo, hi in (("n", -1e4, 1e4), ("e", -1e4, 1e4), ("yaw_deg", -180.0, 360.0))})
 
     # timing
     tm = table(raw, "timing", "")
@@ -147,7 +146,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     c = table(raw, "criteria", "")
     known = {"must_complete", "landing_error_max_m", "path_rms_max_m", "path_max_m",
              "mission_time_max_s", "position_error_max_m", "final_pose_error_max_m",
-             "final_yaw_error_max_deg", "min_clearance_min_m"}
+             "final_yaw_error_max_deg", "min_clearance_min_m", "coverage_min"}
     no_unknown(c, known, "criteria")
 
     def opt(key: str) -> float | None:
@@ -163,10 +162,18 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         final_pose_error_max_m=opt("final_pose_error_max_m"),
         final_yaw_error_max_deg=opt("final_yaw_error_max_deg"),
         min_clearance_min_m=opt("min_clearance_min_m"),
+        coverage_min=number(c, "coverage_min", "criteria", lo=0.0, hi=1.0)
+        if "coverage_min" in c else None,
     )
 
     # the parts owned by other modules, parsed here once into their records
     world = World.from_dict(world_table, "world")
+    a = world.arena
+    if not (a.n_min <= start.n <= a.n_max and a.e_min <= start.e <= a.e_max):
+        where = "vehicle.start" if st else "world.start"
+        raise ScenarioError(where, {"n": start.n, "e": start.e},
+                            f"a start inside the world's arena (N {a.n_min:g} to {a.n_max:g}, "
+                            f"E {a.e_min:g} to {a.e_max:g})")
     camera = parse_camera(camera_table, "camera") if camera_table is not None else None
     check_app(app)
     return Scenario(

@@ -55,6 +55,7 @@ class Criteria:
     final_pose_error_max_m: float | None = None   # taught paths: at the last key (m)
     final_yaw_error_max_deg: float | None = None  # taught paths: at the last key (deg)
     min_clearance_min_m: float | None = None      # 3D worlds: the body sphere's least gap
+    coverage_min: float | None = None             # tracks: fraction flown in order (0-1)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,8 @@ from cosim.plant.fmu import Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_Z
 
 
 class ExitReason(enum.Enum):
-    MISSION_COMPLETE = "mission_complete"   # the app finished and the vehicle is down, disarmed
+    MISSION_COMPLETE = "mission_complete"   # the app reached its goal; vehicle down, disarmed
+    APP_ABORTED = "app_aborted"             # the app gave up (its reason in the message); down
     LANDED = "landed"                       # down and disarmed, but the app did not finish
     CRASHED = "crashed"                     # hard touchdown or flipped
     LEFT_ARENA = "left_arena"               # outside the world's arena or above the ceiling
@@ -139,6 +140,9 @@ class ExitMonitor:
         app = self.app
         if disarmed and (app is None or app.done):
             self.touchdown = self.t_touch
+            if getattr(app, "goal_reached", True) is False:
+                return ExitReason.APP_ABORTED, (f"the app ended without reaching its goal: "
+                                                f"{getattr(app, 'outcome', 'no reason')}")
             return ExitReason.MISSION_COMPLETE, "mission complete"
         self.disarmed_ticks = self.disarmed_ticks + 1 if disarmed else 0
         if (self.disarmed_ticks > self.rest_ticks // 3
