@@ -306,15 +306,14 @@ class VisualServoApp:
 
     def _switch(self, t: float, eps: float) -> None:
         """Eq. 7 and imgChVerif: next key on eps < T_eps (or, with feed-forward, eps rising
-        over the last `rising_n` cycles while under `rising_max_px`: ours, so a vehicle that
-        is being carried away from a key does not skip the keys after it); at the last key
-        eps < the final threshold."""
+        over the last `rising_n` cycles; with `rising_max_px` > 0 only below it, ours, an
+        option); at the last key eps < the final threshold."""
         p = self.p
         last = self.k == len(self.path.keys) - 1
         self._eps_hist.append(eps)
         hist = self._eps_hist[-(p["rising_n"] + 1):]
         rising = (p["feedforward"] and not last and len(hist) == p["rising_n"] + 1
-                  and eps < p["rising_max_px"]
+                  and (p["rising_max_px"] <= 0.0 or eps < p["rising_max_px"])
                   and all(b > a for a, b in zip(hist[:-1], hist[1:], strict=False)))
         if last and eps < p["t_eps_final_px"]:
             self._switches.append((t, self.k, "eps"))

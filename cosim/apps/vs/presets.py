@@ -12,8 +12,8 @@ Values from paper 2 Sec. 5 (reference/paper2-visual-servoing.md §3). Names:
   column that the vehicle sweeps, and pushes it out with gain `lambda_c`.
 - `visibility`, `lambda_m`, `margin`, `visibility_depth_m`: Sec. 3.2.
 - `ramp_s`: activation ramps h_a, h_m (Eq. 20); `smoothing`, `smoothing_s`, `h0`: Eqs. 28-30.
-- `feedforward`, `gamma`, `p`, `rising_n`: Eqs. 31-32 and the "error rising" switch rule,
-  which (ours) applies only while eps < `rising_max_px` (3 x T_eps by default: near the key).
+- `feedforward`, `gamma`, `p`, `rising_n`: Eqs. 31-32 and the "error rising" switch rule;
+  `rising_max_px` > 0 (ours, off by default) applies that rule only while eps is below it.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ DEFAULTS: dict[str, Any] = {
     "visibility": True, "lambda_m": 0.2, "margin": 0.1, "visibility_depth_m": 2.0,
     "ramp_s": 1.0, "smoothing": False, "smoothing_s": 1.6, "h0": 0.2,
     "feedforward": False, "gamma": 0.75, "p": 0.5, "rising_n": 5,
-    "rising_max_px": 54.0,
+    "rising_max_px": 0.0,         # 0: no bound (the paper's rule)
     "min_matches": 16, "min_tracked": 8, "outlier_px": 2.0,
     "v_max_mps": 1.0, "wz_max_dps": 60.0,
     "lost_timeout_s": 5.0, "target_timeout_s": 90.0, "hold_final_s": 1.0,
@@ -73,10 +73,13 @@ def resolve(params: dict[str, Any]) -> dict[str, Any]:
     out = check_params({**PRESETS[name], **params}, DEFAULTS, "visual_servo")
     for k in ("l0", "linf", "l0_slope", "t_eps_px", "t_eps_final_px", "lambda_a", "lambda_m",
               "obstacle_width_m", "clearance_m", "lambda_c", "avoid_range_m", "outlier_px",
-              "rising_max_px", "visibility_depth_m", "v_max_mps", "wz_max_dps",
+              "visibility_depth_m", "v_max_mps", "wz_max_dps",
               "lost_timeout_s", "target_timeout_s", "takeoff_alt_m"):
         if not float(out[k]) > 0.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number > 0")
+    if not float(out["rising_max_px"]) >= 0.0:
+        raise ValueError(f"app.params.rising_max_px: got {out['rising_max_px']!r}; expected a "
+                         "number >= 0 (0: no bound)")
     for k in ("h0", "p", "gamma", "margin"):
         if not 0.0 <= float(out[k]) <= 1.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number in [0, 1]")
