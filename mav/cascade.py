@@ -97,6 +97,9 @@ class Gains(NamedTuple):
     k_xy: float          # 1/s, position -> horizontal velocity
     k_vxy: float         # rad s/m, velocity error -> tilt
     c_drag: float        # rad s/m, drag feed-forward tilt per m/s
+    ki_vxy: float        # rad/m, horizontal velocity-error integral -> tilt (wind, PX4's
+                         # MPC_XY_VEL_I_ACC), integrated in the world frame
+    xy_i_lim: float      # rad, tilt the horizontal integrator may hold
     xy_err_max: float    # m, per-axis position error saturation
     vxy_max: float       # m/s, horizontal speed limit
     tilt_max: float      # rad
@@ -150,6 +153,7 @@ class QuadCascade:
         self._i_p = 0.0   # pitch integrator, N m
         self._i_r = 0.0   # roll integrator, N m
         self._i_z = 0.0   # altitude integrator, N of upward thrust
+        self._i_n = self._i_e = 0.0   # horizontal integrator, rad of tilt towards N / E
         self._yaw_ref = 0.0  # rad, heading reference
         self._n = 0       # armed ticks since arming (0: take the heading as reference)
         self._g: Gains | None = None
@@ -226,7 +230,8 @@ class QuadCascade:
             g["k_psi"], g["k_r"], g["yawrate_max"],
             g["k_z"], g["k_vz"], g["ki_z_pos"], g["ki_z_vpos"], g["ki_z_vel"], g["z_i_lim"],
             g["vz_max"], g["thrust_max_total"],
-            g["k_xy"], g["k_vxy"], g["c_drag"], g["xy_err_max"], g["vxy_max"], g["tilt_max"],
+            g["k_xy"], g["k_vxy"], g["c_drag"], g.get("ki_vxy", 0.0), g.get("xy_i_lim", 0.0),
+            g["xy_err_max"], g["vxy_max"], g["tilt_max"],
             v.weight,
             Ai[0][0], Ai[0][2], Ai[0][3], Ai[1][0], Ai[1][2], Ai[1][3],
             Ai[2][0], Ai[2][2], Ai[2][3], Ai[3][0], Ai[3][2], Ai[3][3],
@@ -239,6 +244,7 @@ class QuadCascade:
     def reset(self) -> None:
         """Clear the integrators and the heading reference."""
         self._i_p = self._i_r = self._i_z = 0.0
+        self._i_n = self._i_e = 0.0
         self._yaw_ref = 0.0
         self._n = 0
 
@@ -256,7 +262,7 @@ class QuadCascade:
         (kp_p, ki_p, kd_p, kp_r, ki_r, kd_r, i_lim, kb,
          k_psi, k_r, r_max,
          k_z, k_vz, ki_zp, ki_zvp, ki_zv, zi_lim, vz_max, t_tot_max,
-         k_xy, k_vxy, c_drag, e_max, v_max, tilt_max,
+         k_xy, k_vxy, c_drag, ki_vxy, xy_i_lim, e_max, v_max, tilt_max,
          weight,
          m0t, m0m, m0l, m1t, m1m, m1l, m2t, m2m, m2l, m3t, m3m, m3l, my,
          t_max, c_u, arm_a, dt, integ) = self._g
@@ -315,14 +321,29 @@ class QuadCascade:
             f = v_max / _sqrt(v2)
             vcx *= f
             vcy *= f
-        # forward acceleration needs nose down (negative pitch); rightward needs roll right
-        pitch_ref = -(k_vxy * (vcx - vxb) + c_drag * fxb)
-        roll_ref = k_vxy * (vcy - vyb) + c_drag * fyb
+        # forward acceleration needs nose down (negative pitch); rightward needs roll right.
+        # The integrator (world N/E, so a turn does not carry it off the wind) in body axes:
+        i_n, i_e = self._i_n, self._i_e
+        ixb = cy * i_n + sy * i_e
+        iyb = cy * i_e - sy * i_n
+        pitch_ref = -(k_vxy * (vcx - vxb) + c_drag * fxb + ixb)
+        roll_ref = k_vxy * (vcy - vyb) + c_drag * fyb + iyb
         t2 = pitch_ref * pitch_ref + roll_ref * roll_ref
-        if t2 > tilt_max * tilt_max:
+        tilt_sat = t2 > tilt_max * tilt_max
+        if tilt_sat:
             f = tilt_max / _sqrt(t2)
             pitch_ref *= f
             roll_ref *= f
+        if ki_vxy > 0.0 and not tilt_sat:   # anti-windup: frozen while the tilt saturates
+            evx, evy = vcx - vxb, vcy - vyb
+            i_n += ki_vxy * dt * (cy * evx - sy * evy)
+            i_e += ki_vxy * dt * (sy * evx + cy * evy)
+            i2 = i_n * i_n + i_e * i_e
+            if i2 > xy_i_lim * xy_i_lim:
+                f = xy_i_lim / _sqrt(i2)
+                i_n *= f
+                i_e *= f
+            self._i_n, self._i_e = i_n, i_e
 
         # ---- vertical: altitude -> climb rate -> thrust (NED: up is -z)
         vz = s.vz

@@ -49,6 +49,9 @@ class MamboController(QuadCascade):
         _p("MC_XY_D", 0.2, 0.01, 1.0, "rad/(m/s)",
            "XY velocity damping = velocity-mode P gain (template 0.1)"),
         _p("MC_XY_ERR_MAX", 3.0, 0.1, 10.0, "m", "XY position error saturation per axis"),
+        _p("MC_XY_VEL_I", 0.1, 0.0, 5.0, "1/s",
+           "horizontal velocity integral, per second of the velocity gain (0: off; wind)"),
+        _p("MC_XY_I_LIM", 0.17, 0.0, 0.5, "rad", "tilt the horizontal integrator may hold"),
         _p("MPC_XY_VEL_MAX", 2.0, 0.1, 7.0, "m/s", "horizontal speed limit"),
         _p("MPC_TILTMAX_AIR", 25.0, 5.0, 45.0, "deg", "tilt (roll/pitch reference) limit"),
         _p("MPC_Z_VEL_MAX", 1.5, 0.1, 3.0, "m/s", "climb and descent rate limit"),
@@ -72,6 +75,7 @@ class MamboController(QuadCascade):
     PRESETS = {
         "template": {
             "MC_XY_P": 0.24, "MC_XY_D": 0.1, "MC_XY_ERR_MAX": 3.0, "MPC_XY_VEL_MAX": 7.0,
+            "MC_XY_VEL_I": 0.0,
             "MPC_TILTMAX_AIR": 45.0, "MPC_Z_VEL_MAX": 3.0,
             "MC_PITCH_P": 0.013, "MC_ROLL_P": 0.011, "MC_RP_I": 0.01, "MC_RP_I_LIM": 2.0,
             "MC_RP_AW": 0.001, "MC_PITCH_D": 0.002, "MC_ROLL_D": 0.003,
@@ -104,6 +108,7 @@ class MamboController(QuadCascade):
             "k_xy": p["MC_XY_P"] / p["MC_XY_D"], "k_vxy": p["MC_XY_D"],
             # velocity feed-forward also cancels the airframe drag: tilt = drag*v/(m*g)
             "c_drag": v.drag_xy / v.weight,
+            "ki_vxy": p["MC_XY_VEL_I"] * p["MC_XY_D"], "xy_i_lim": p["MC_XY_I_LIM"],
             "xy_err_max": p["MC_XY_ERR_MAX"], "vxy_max": p["MPC_XY_VEL_MAX"],
             "tilt_max": p["MPC_TILTMAX_AIR"] * _D2R,
         }
@@ -121,6 +126,9 @@ class Bebop2Controller(QuadCascade):
         _p("MPC_XY_VEL_P", 2.0, 0.1, 10.0, "1/s",
            "horizontal velocity gain (acceleration per velocity error)"),
         _p("MPC_XY_ERR_MAX", 5.0, 0.1, 20.0, "m", "XY position error saturation per axis"),
+        _p("MPC_XY_VEL_I_ACC", 0.4, 0.0, 10.0, "1/s^2",
+           "horizontal velocity integral (acceleration per m/s of error per s; 0: off; wind)"),
+        _p("MPC_XY_I_LIM", 0.17, 0.0, 0.6, "rad", "tilt the horizontal integrator may hold"),
         _p("MPC_XY_VEL_MAX", 5.0, 0.5, 15.0, "m/s", "horizontal speed limit"),
         _p("MPC_TILTMAX_AIR", 20.0, 5.0, 35.0, "deg", "Parrot MaxTilt"),
         _p("MPC_Z_P", 1.5, 0.0, 5.0, "1/s", "altitude -> vertical velocity gain"),
@@ -161,6 +169,7 @@ class Bebop2Controller(QuadCascade):
             "thrust_max_total": p["MC_THR_MAX"] * 4.0 * v.thrust_max,
             "k_xy": p["MPC_XY_P"], "k_vxy": p["MPC_XY_VEL_P"] / g,
             "c_drag": v.drag_xy / v.weight,
+            "ki_vxy": p["MPC_XY_VEL_I_ACC"] / g, "xy_i_lim": p["MPC_XY_I_LIM"],
             "xy_err_max": p["MPC_XY_ERR_MAX"], "vxy_max": p["MPC_XY_VEL_MAX"],
             "tilt_max": p["MPC_TILTMAX_AIR"] * _D2R,
         }

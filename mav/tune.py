@@ -18,8 +18,9 @@ yaw        N = k_r*(k_psi*(psi_r - psi) - r)               yaw torque / heading
 yaw_rate   N = k_r*(r_r - r) (Bebop 2 only)                yaw torque / yaw rate
 alt        T = k_vz*(vz - k_z*(z_r - z)) - I               thrust / z (position mode)
 vz         T = k_vz*(vz - vz_r) - I                        thrust / vz (velocity mode)
-x, y       tilt_r = k_vxy*(k_xy*e - v), through attitude   tilt reference / position
-vx, vy     tilt_r = k_vxy*(v_r - v) + c_drag*v_r            tilt reference / velocity
+x, y       tilt_r = k_vxy*(k_xy*e - v) + I, through attitude   tilt reference / position
+vx, vy     tilt_r = k_vxy*(v_r - v) + c_drag*v_r + I        tilt reference / velocity
+           (I: the horizontal velocity integral, ki_vxy * integral of the velocity error)
 =========  ==============================================  ===========================
 """
 
@@ -256,12 +257,14 @@ def _loops(v: Airframe, ctrl) -> dict[str, tuple[ct.StateSpace, _Law, float]]:
         # position loop: attitude closed inside, plant outputs [pos, vel, tilt, rate]
         inner = _close(zoh(_lateral(v, tilt)), _Law(kp=att.kp, kd=att.kd, ki0=att.ki0,
                                                      i0=2, i1=3))
-        loops[tilt] = (inner, _Law(kp=k_vxy * k_xy, kd=k_vxy, i0=0, i1=1, sign=sign), 20.0)
+        ki_v = g.get("ki_vxy", 0.0)   # horizontal velocity integral (wind)
+        loops[tilt] = (inner, _Law(kp=k_vxy * k_xy, kd=k_vxy, ki0=ki_v * k_xy, ki1=ki_v,
+                                   i0=0, i1=1, sign=sign), 20.0)
         # velocity loop: plant outputs [vel, tilt, rate]
         inner_v = _close(zoh(_drop_pos(_lateral(v, tilt))),
                          _Law(kp=att.kp, kd=att.kd, ki0=att.ki0, i0=1, i1=2))
-        loops["v" + tilt] = (inner_v, _Law(kp=k_vxy, kff=g["c_drag"], i0=0, i1=None,
-                                           sign=sign), 20.0)
+        loops["v" + tilt] = (inner_v, _Law(kp=k_vxy, kff=g["c_drag"], ki0=ki_v, i0=0,
+                                           i1=None, sign=sign), 20.0)
     # heading
     loops["yaw"] = (zoh(_rot_axis(v.Izz, v.drag_rot, v.motor_tau)),
                     _Law(kp=g["k_r"] * g["k_psi"], kd=g["k_r"]), 5.0)

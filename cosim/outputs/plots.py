@@ -120,8 +120,18 @@ def _shade_phases(axs, res, s, t) -> None:
         seen.add(name)
     axs[0].legend(fontsize=7, ncol=4, loc="upper right")
     wn, we, wd = res.scenario.wind_ned_mps
-    if wn or we or wd:
-        axs[0].set_title(f"wind N {wn:g} E {we:g} D {wd:g} m/s", fontsize=9)
+    spec = res.scenario.wind
+    extra = ""
+    if spec is not None and spec.turbulence is not None:
+        extra += f", turbulence sigma {spec.turbulence[0]:g} m/s"
+    if wn or we or wd or extra or (spec is not None and spec.gusts):
+        axs[0].set_title(f"wind N {wn:g} E {we:g} D {wd:g} m/s{extra}"
+                         + (", gusts hatched" if spec is not None and spec.gusts else ""),
+                         fontsize=9)
+    for g in (spec.gusts if spec is not None else ()):
+        for ax in axs:
+            ax.axvspan(g.start_s, g.start_s + g.duration_s, facecolor="none", hatch="//",
+                       edgecolor="grey", lw=0)
 
 
 def _draw_scene(ax, scene) -> None:

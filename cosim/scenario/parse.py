@@ -22,6 +22,7 @@ from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Sta
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
 from cosim.sensors.camera import parse_camera
 from cosim.world.floor import World
+from cosim.world.wind import parse_wind
 
 # --------------------------------------------------------------------------- parsing
 NAME_OK = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,79}")
@@ -133,11 +134,8 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         att_std_rad=number(n, "att_std_rad", w, 0.0, lo=0.0, hi=1.0),
         rate_std_radps=number(n, "rate_std_radps", w, 0.0, lo=0.0, hi=10.0),
     )
-    wd = table(raw, "wind", "")
-    no_unknown(wd, {"n_mps", "e_mps", "d_mps"}, "wind")
-    wind = tuple(
-        number(wd, k, "wind", 0.0, lo=-30.0, hi=30.0) for k in ("n_mps", "e_mps", "d_mps")
-    )
+    wind_spec = parse_wind(table(raw, "wind", ""))
+    wind = wind_spec.mean
     faults = table(raw, "faults", "")
     if faults:
         raise ScenarioError("faults", faults, "an empty table (fault injection is reserved)")
@@ -180,6 +178,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         name=name, description=description, seed=seed, vehicle=vehicle, start=start,
         timing=timing, world=world, camera=camera, app=app, noise=noise,
         wind_ned_mps=wind, criteria=criteria, source=source, raw=raw, world_table=world_table,
+        wind=wind_spec,
     )
 
 

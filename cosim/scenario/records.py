@@ -81,3 +81,4 @@ class Scenario:
     source: str = ""                          # path of the file, for the summary
     raw: dict[str, Any] = field(default_factory=dict, repr=False)  # the TOML, for re-parsing
     world_table: dict[str, Any] = field(default_factory=dict, repr=False)  # [world], file merged
+    wind: Any = None                          # cosim.world.wind.WindSpec (mean = wind_ned_mps)

@@ -171,6 +171,11 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     cam_every = sc.timing.camera_every
     sensor = OdometrySensor(sc.noise, np.random.default_rng([sc.seed, 0]))
     wind_n, wind_e, wind_d = sc.wind_ned_mps
+    gusty = None                 # gusts or turbulence: the wind changes every tick
+    if sc.wind is not None and not sc.wind.steady:
+        from cosim.world.wind import WindField
+
+        gusty = WindField(sc.wind, h, sc.seed).at
     hooks = opts.hooks
     fps = 1.0 / (cam_every * h)
     video = VideoSink(run_dir / "camera.mp4", fps) if opts.video else None
@@ -264,6 +269,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                     u1, u2, u3, u4 = hooks.on_actuators(t_us, (u1, u2, u3, u4))
                 vz = y[Y_VZ]
                 stage = "plant"
+                if gusty is not None:
+                    wind_n, wind_e, wind_d = gusty(k)
                 y = plant_step(u1, u2, u3, u4, wind_n, wind_e, wind_d)
                 # 7b. exit conditions on the state at t_k+1
                 ended = check_exit(t, y, vz, (u1, u2, u3, u4))
