@@ -96,6 +96,13 @@ class IPSParams:
     initial_direction: float = -0.75 * math.pi  # rad, atan2(e_x, e_y): lower-left
     width: int = 160                         # px, frame width
     height: int = 120                        # px, frame height
+    # the "general" preset's additions (off in released / paper):
+    adaptive_k_t: bool = False               # per frame K_T = clamp(F_p99 / 2, k_t_min, k_t)
+    k_t_min: float = 40.0                    # lowest adaptive threshold (F units)
+    marker_shape: bool = False               # marker: only in a disc-sized blob wholly in view
+    marker_r_px: float = 14.5                # px, the marker disc's radius in the image
+    nearest_always: bool = False             # keep only the ring branch nearest the direction
+    initial_search: bool = False             # the first frame searches the whole ring
 
     @classmethod
     def released(cls, **overrides: float) -> IPSParams:
@@ -106,6 +113,32 @@ class IPSParams:
     def paper(cls, **overrides: float) -> IPSParams:
         """Table I of the paper; kernel sizes it does not give are the released ones."""
         return replace(cls(k_t=150.0, r_min=26.0, r_max=28.0, arc_width=2.3), **overrides)
+
+    @classmethod
+    def general(cls, *, camera_height_m: float, vfov_deg: float = 45.0, width: int = 160,
+                height: int = 120, line_width_m: float = 0.10, marker_radius_m: float = 0.10,
+                lookahead_m: float = 0.19, **overrides: float) -> IPSParams:
+        """Pixel constants from the camera model, the height and the line (issue 12): the
+        ring at `lookahead_m` on the floor, the track erosion half the line's width, the
+        marker erosion three quarters of the marker's radius; adaptive threshold, disc-shaped
+        marker, nearest-branch tracking, a first frame that searches the whole ring.
+        At the seed mission's 1.0 m camera height this gives the released 27-28 px ring, an
+        7 px square (released 8) and an 11 px disk (released 11)."""
+        if not (camera_height_m > 0.0 and 0.0 < vfov_deg < 170.0 and line_width_m > 0.0
+                and marker_radius_m > 0.0 and lookahead_m > 0.0):
+            raise ValueError("camera_height_m, vfov_deg, line_width_m, marker_radius_m and "
+                             "lookahead_m must be positive")
+        f = 0.5 * height / math.tan(0.5 * math.radians(vfov_deg))     # px
+        px = f / camera_height_m                                       # px per metre
+        r = lookahead_m * px
+        line = line_width_m * px
+        marker = marker_radius_m * px
+        base = cls(r_min=max(2.0, r - 0.5), r_max=r + 0.5,
+                   square_kernel=max(1, int(round(0.5 * line))),
+                   disk_radius=max(1, int(round(0.75 * marker))), marker_r_px=marker,
+                   width=width, height=height, adaptive_k_t=True, marker_shape=True,
+                   nearest_always=True, initial_search=True)
+        return replace(base, **overrides)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.k_t <= 255.0:
@@ -144,6 +177,8 @@ class IPSResult:
     direction: float                          # rad, atan2(e_x, e_y) of the VTP (or last one)
     n_ring_px: int                            # track pixels kept in the ring/arc
     marker_evaluated: bool                    # whether the marker branch ran
+    line_e: tuple[float, float] | None = None  # general preset, nothing on the ring: (e_x,
+                                              # e_y) px of the nearest red in view (acquire)
 
 
 class ImageProcessor:
@@ -231,8 +266,64 @@ class ImageProcessor:
 
     def reset(self) -> None:
         """Back to the initial state: previous track "seen" in the initial direction."""
-        self.prev_seen = True
+        self.prev_seen = not self.params.initial_search
         self.prev_direction = self.params.initial_direction
+
+    def _threshold_matrix(self, image_rgb: np.ndarray) -> np.ndarray:
+        """The binarisation matrix for this frame (adaptive K_T: half the frame's 99th
+        percentile of F, within [k_t_min, k_t]: a dark or low-contrast red line still
+        passes, a bright one keeps the configured threshold)."""
+        p = self.params
+        if not p.adaptive_k_t:
+            return self._bin_m
+        f = cv2.transform(image_rgb, np.array([[1.0, -1.0 / p.gg, -1.0 / p.gb]],
+                                               dtype=np.float32))
+        k = min(p.k_t, max(p.k_t_min, 0.5 * float(np.percentile(f, 99.0))))
+        return np.array([[_SCALE, -_SCALE / p.gg, -_SCALE / p.gb, 1.0 - _SCALE * k]],
+                        dtype=np.float32)
+
+    def _nearest_red(self, image_rgb, binary, bin_m) -> tuple[float, float] | None:
+        """(e_x, e_y) px of the line pixel (after the track erosion) nearest the image centre,
+        or None: where to fly to find the line from a start beside it."""
+        if binary is None:
+            binary = cv2.transform(image_rgb, bin_m)
+        e = cv2.erode(binary, self._k_square)
+        idx = np.flatnonzero(e)
+        if not idx.size:
+            return None
+        w = self.params.width
+        r0, c0 = self.center_rc
+        rows, cols = idx // w + self._vtp_shift, idx % w + self._vtp_shift
+        k = int(np.argmin((rows - r0) ** 2 + (cols - c0) ** 2))
+        return float(r0 - rows[k]), float(cols[k] - c0)
+
+    def _marker_disc(self, binary: np.ndarray) -> tuple[float, float] | None:
+        """The released marker test (what survives the disk erosion) kept only where it lies
+        in a disc-sized red blob wholly in view: area 0.5-2 pi r^2, at least half of its
+        bounding box filled, not cut by the image border. A line's sharp corner belongs to a
+        blob whose legs run out of the image and is refused; a marker first seen at the border
+        is accepted a few frames later (the planner coasts on). Centroid (row, col) of the
+        surviving pixels of the accepted blobs, or None."""
+        p = self.params
+        e = binary
+        for kernel, n in self._k_marker:
+            e = cv2.erode(e, kernel, iterations=n)
+        if not cv2.countNonZero(e):
+            return None
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(
+            (binary > 0).astype(np.uint8), connectivity=8)
+        want = math.pi * p.marker_r_px ** 2
+        ok = np.zeros(n, bool)
+        for i in range(1, n):
+            x, y, w, h, area = (int(v) for v in stats[i])
+            inside = x > 0 and y > 0 and x + w < p.width and y + h < p.height
+            ok[i] = inside and 0.5 * want <= area <= 2.0 * want and area >= 0.5 * w * h
+        idx = np.flatnonzero(e)
+        idx = idx[ok[labels.ravel()[idx]]]
+        if not idx.size:
+            return None
+        w = p.width
+        return float((idx // w).mean()), float((idx % w).mean())
 
     # ------------------------------------------------------------------ steps
     def binarise(self, image_rgb: np.ndarray) -> np.ndarray:
@@ -243,11 +334,14 @@ class ImageProcessor:
                              f"{image_rgb.shape} {image_rgb.dtype}")
         return cv2.transform(image_rgb, self._bin_m)
 
-    def process(self, image_rgb: np.ndarray, detect_marker: bool | None = None) -> IPSResult:
+    def process(self, image_rgb: np.ndarray, detect_marker: bool | None = None,
+                forward_only: bool = False) -> IPSResult:
         """Run the IPS on one frame and update the direction state.
 
         detect_marker: None (released behaviour) runs the marker branch only when the track
-        is not found in this frame; True always; False never.
+        is not found in this frame; True always; False never. forward_only: a search (after
+        a miss) looks only at the half ring ahead of the last direction (the planner asks for
+        it while it coasts over a gap, so the line behind is not taken for the way on).
         """
         p = self.params
         if image_rgb.shape != (p.height, p.width, 3) or image_rgb.dtype != np.uint8:
@@ -255,22 +349,24 @@ class ImageProcessor:
                              f"{image_rgb.shape} {image_rgb.dtype}")
         cr, cc = self._crop
         binary = None
+        bin_m = self._threshold_matrix(image_rgb)
         if detect_marker:
-            binary = cv2.transform(image_rgb, self._bin_m)
+            binary = cv2.transform(image_rgb, bin_m)
             crop = binary[cr, cc]
         else:
-            crop = cv2.transform(image_rgb[cr, cc], self._bin_m)
+            crop = cv2.transform(image_rgb[cr, cc], bin_m)
         eroded = cv2.erode(crop, self._k_square)
         vals = eroded.ravel()[self._ring_idx]
         cos_p, sin_p = math.cos(self.prev_direction), math.sin(self.prev_direction)
-        thr = self._cos_half if self.prev_seen else self._cos_half_search
+        thr = self._cos_half if self.prev_seen else (
+            max(0.0, self._cos_half_search) if forward_only else self._cos_half_search)
         sel = vals > 0
         if thr > -1.0:
             sel &= (self._ring_cos * cos_p + self._ring_sin * sin_p) >= thr - 1e-12
         searching = not self.prev_seen
         n = int(np.count_nonzero(sel))
         r0, c0 = self.center_rc
-        if n and searching and p.search_nearest:
+        if n and ((searching and p.search_nearest) or p.nearest_always):
             sel = self._nearest_branch(sel, self.prev_direction)
             n = int(np.count_nonzero(sel))
         if n:
@@ -292,14 +388,17 @@ class ImageProcessor:
         mx = my = 0.0
         if run_marker:
             if binary is None:
-                binary = cv2.transform(image_rgb, self._bin_m)
-            marker_rc = self._marker(binary)
+                binary = cv2.transform(image_rgb, bin_m)
+            marker_rc = self._marker_disc(binary) if p.marker_shape else self._marker(binary)
             if marker_rc is not None:
                 mx, my = r0 - marker_rc[0], marker_rc[1] - c0
         flag_marker = marker_rc is not None
         if not flag_track and flag_marker:
             e_x, e_y = mx, my
+        line_e = None
+        if p.initial_search and not flag_track and not flag_marker:
+            line_e = self._nearest_red(image_rgb if binary is None else None, binary, bin_m)
         return IPSResult(flag_track=flag_track, flag_marker=flag_marker, e_x=e_x, e_y=e_y,
                          vtp_rc=vtp, marker_rc=marker_rc, marker_e_x=mx, marker_e_y=my,
                          direction=self.prev_direction, n_ring_px=n,
-                         marker_evaluated=run_marker)
+                         marker_evaluated=run_marker, line_e=line_e)

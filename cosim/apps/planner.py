@@ -128,6 +128,8 @@ class PlannerParams:
     lost_timeout: float = 3.0       # s in LOST before landing
     mission_timeout: float = 100.0  # s from the first call before landing (template TFinal)
     landed_z: float = -0.1          # m, NED z above which LANDING counts as landed
+    coast_m: float = 0.0            # m flown on along the last direction after a loss before
+                                    # holding (0: hold at once); lost_timeout runs from the hold
 
     def __post_init__(self) -> None:
         if not self.z_hover < 0.0:
@@ -137,7 +139,8 @@ class PlannerParams:
         if self.land_delay < 1:
             raise ValueError("land_delay must be >= 1 frame")
         for name in ("gain_track", "gain_marker", "deriv_gain", "deriv_threshold",
-                     "deriv_hold", "land_max_error", "lost_timeout", "mission_timeout"):
+                     "deriv_hold", "land_max_error", "lost_timeout", "mission_timeout",
+                     "coast_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {v}")
@@ -146,6 +149,15 @@ class PlannerParams:
     def released(cls, **overrides: Any) -> PlannerParams:
         """The released code exactly (first loss of the line latches End-Marker)."""
         return replace(cls(search_on_loss=False), **overrides)
+
+    @classmethod
+    def general(cls, **overrides: Any) -> PlannerParams:
+        """The released gains with the robustness a user needs on tracks nobody tuned for:
+        search on loss, and a loss first coasts 0.35 m on along the last direction (a missed
+        frame or a gap in the line is crossed instead of searched from where it began); when
+        nothing is found ahead the vehicle goes back to where it lost the line and searches
+        the whole ring there (a sharp corner)."""
+        return replace(cls(search_on_loss=True, coast_m=0.35), **overrides)
 
     @classmethod
     def paper(cls, **overrides: Any) -> PlannerParams:
@@ -184,6 +196,8 @@ class MissionLogic:
         self._prev_ex = self._prev_ey = _NAN
         self._land_hist = [_NAN] * (p.land_delay + 1)
         self._k = 0                       # frames in END_MARKER
+        self._lost_xy = (_NAN, _NAN)      # where the line was lost (coasting from there)
+        self._t_hold = -_INF              # s, when holding began in LOST
 
     # ------------------------------------------------------------------ properties
     @property
@@ -193,6 +207,11 @@ class MissionLogic:
         if self.state in (MissionState.END_MARKER, MissionState.LOST):
             return True
         return None
+
+    @property
+    def coasting(self) -> bool:
+        """Flying on over a loss (coast_m): the IPS should search only ahead."""
+        return self.state is MissionState.LOST and self._servo
 
     # ------------------------------------------------------------------ camera rate
     def on_ips(self, t: float, ips: Any, est_xy: tuple[float, float] | Any, est_z: float,
@@ -215,6 +234,8 @@ class MissionLogic:
             if ips.flag_track and self._z_lo < est_z < self._z_hi:
                 self._enter(S.FOLLOWING, t, "track seen at hover height")
                 self._servo_on(t, ips.e_x, ips.e_y, p.gain_track)
+            elif getattr(ips, "line_e", None) is not None and self._z_lo < est_z < self._z_hi:
+                self._servo_on(t, *ips.line_e, p.gain_track)   # a start beside the line
             return
         if st is S.FOLLOWING or st is S.LOST:
             if ips.flag_track:
@@ -227,11 +248,21 @@ class MissionLogic:
             elif st is S.FOLLOWING:
                 if p.search_on_loss:
                     self._enter(S.LOST, t, "track lost")
+                    if p.coast_m > 0.0 and self._servo:   # fly on with the last offsets
+                        self._lost_xy = (x, y)
+                        return
                 else:
                     self._enter(S.END_MARKER, t, "track lost (released latch)")
                     self._land_hist_push(_NAN)
                 self._hold(x, y)
-            elif t - self.t_state >= p.lost_timeout:
+                self._t_hold = t
+            elif self._servo:                             # coasting
+                if math.hypot(x - self._lost_xy[0], y - self._lost_xy[1]) >= p.coast_m:
+                    # nothing ahead: back to where the line was lost (a sharp corner's new
+                    # leg is on the ring there) and search the whole ring
+                    self._hold(*self._lost_xy)
+                    self._t_hold = t
+            elif t - max(self.t_state, self._t_hold) >= p.lost_timeout:
                 self._enter(S.LANDING, t, "lost")
                 self._hold(x, y)
             return
@@ -262,10 +293,13 @@ class MissionLogic:
             self._hold(float(x), float(y))
             return self._hold_x, self._hold_y, 0.0, Action.LAND
         if st is MissionState.TAKEOFF:
+            if self._servo and self._z_lo < z < self._z_hi:   # acquiring the line
+                return (float(x) + self._off_n, float(y) + self._off_e, p.z_hover,
+                        Action.TAKEOFF)
             return self._hold_x, self._hold_y, p.z_hover, Action.TAKEOFF
-        if st is MissionState.LOST:
+        if st is MissionState.LOST and not self._servo:
             return self._hold_x, self._hold_y, p.z_hover, Action.HOLD
-        # FOLLOWING / END_MARKER
+        # FOLLOWING / END_MARKER, LOST while coasting
         if not self._servo:
             return self._hold_x, self._hold_y, p.z_hover, Action.FOLLOW
         if not (self._z_lo < z < self._z_hi):
