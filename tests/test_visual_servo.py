@@ -256,7 +256,8 @@ def test_e2_follows_four_keys_past_two_obstacles():
     m = s["metrics"]
     assert s["exit_reason"] == "mission_complete" and s["passed"], s["message"]
     assert m["keys_reached"] == 4 and m["outcome"] == "goal_reached"
-    assert len(m["avoidance_active_s"]) == 2        # the cylinder, then the bar
+    act = m["avoidance_active_s"]                   # the cylinder, then (after 10 s) the bar
+    assert act[0][1] < 9.0 and any(on > 10.0 for on, _ in act[1:])
     assert m["final_pose_error_m"] < 0.15 and m["final_yaw_error_deg"] < 3.0
     assert m["min_clearance_m"] > 0.0
     # smoothing at target changes: the command right after a switch is a fraction h0 of it

@@ -245,7 +245,8 @@ class VisualServoApp:
         if self.nu_p and 1 <= self.k < len(self.path.keys) - 1:   # none at the last key
             ff = self.nu_p[self.k - 1]
             nu_v = p["p"] * nu_v + (1.0 - p["p"]) * ff
-        J_a, edot_a, ob_px = self._avoidance(t, image) if p["avoidance"] else (None, 0.0, 0.0)
+        J_a, edot_a, ob_px = (self._avoidance(t, image, float(nu_v[0])) if p["avoidance"]
+                              else (None, 0.0, 0.0))
         h_a = self.h_a.value(t)
         # visibility (Sec. 3.2)
         J_m = edot_m = None
@@ -264,16 +265,17 @@ class VisualServoApp:
         self.frame_log.append((t, float(self.k), eps, float(len(self.cur)), H_CODE[r.method],
                                *map(float, e), lam, h_a, h_m, h_t, *map(float, self._cmd),
                                *map(float, ff), ob_px))
-        self._switch(t, eps)
+        self._switch(t, eps, gray)
 
-    def _avoidance(self, t: float, image: np.ndarray) -> tuple[Any, Any, float]:
+    def _avoidance(self, t: float, image: np.ndarray, v_fwd: float) -> tuple[Any, Any, float]:
         """Sec. 3.1: (J_a, desired rate, apparent width px) and the activation's target.
 
         Corridor task: once the column has gone out of view beside the vehicle, the task
         stays on as a sideways hold (`lateral_hold`) for the time the vehicle needs to pass
         it at the commanded forward speed (its last depth plus the clearance, at most 5 s),
         then ramps down (ours: the paper ramps down as soon as the column leaves the view,
-        which lets the servo pull the vehicle back into the column's side)."""
+        which lets the servo pull the vehicle back into the column's side). It is wanted only
+        while the servo moves forward (towards the column)."""
         p = self.p
         ob = find_obstacle(image)
         if ob is None:
@@ -299,15 +301,33 @@ class VisualServoApp:
                                      self.cam_from_body)
             edot_a = -p["lambda_c"] * e_c
             self._Z_last = p["obstacle_width_m"] * self.K[0, 0] / max(ob_w, 1.0)
-            want = e_c > 0.0 and self._Z_last < p["avoid_range_m"]
+            # only while the servo closes on it: a key that stands near a column (E2's second
+            # key is 0.75 m in front of the bar) is reached, not held off by the corridor
+            want = e_c > 0.0 and self._Z_last < p["avoid_range_m"] and v_fwd > 0.02
         self._last_J_a = J_a if want or self.h_a.target > 0.0 else None
         self.h_a.set(t, 1.0 if want else 0.0)
         return J_a, edot_a, ob_w
 
-    def _switch(self, t: float, eps: float) -> None:
+    def _verified(self, gray: np.ndarray) -> bool:
+        """At the last key: eps from tracked points can drift low while the pose is still off
+        (LK drift, a thinned point set), so the goal is confirmed by matching the frame with
+        the key afresh (ours). When the fresh matches disagree, servoing goes on with them."""
+        key = self.path.keys[self.k]
+        pts, desc = self.det.detect(gray)
+        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * self.k)
+        if len(tgt) < self.p["min_tracked"]:
+            return False
+        if float(np.mean(np.linalg.norm(cur - tgt, axis=1))) < self.p["t_eps_final_px"]:
+            return True
+        self.tgt, self.cur = sort_points(tgt, cur)
+        self._rematches += 1
+        return False
+
+    def _switch(self, t: float, eps: float, gray: np.ndarray | None = None) -> None:
         """Eq. 7 and imgChVerif: next key on eps < T_eps (or, with feed-forward, eps rising
         over the last `rising_n` cycles; with `rising_max_px` > 0 only below it, ours, an
-        option); at the last key eps < the final threshold."""
+        option); at the last key eps < the final threshold, confirmed by a fresh match
+        (_verified)."""
         p = self.p
         last = self.k == len(self.path.keys) - 1
         self._eps_hist.append(eps)
@@ -315,7 +335,7 @@ class VisualServoApp:
         rising = (p["feedforward"] and not last and len(hist) == p["rising_n"] + 1
                   and (p["rising_max_px"] <= 0.0 or eps < p["rising_max_px"])
                   and all(b > a for a, b in zip(hist[:-1], hist[1:], strict=False)))
-        if last and eps < p["t_eps_final_px"]:
+        if last and eps < p["t_eps_final_px"] and (gray is None or self._verified(gray)):
             self._switches.append((t, self.k, "eps"))
             self._t_goal = t
             self.phase = "final"
