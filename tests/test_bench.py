@@ -30,7 +30,7 @@ def test_bench_quick_reports_every_figure(tmp_path):
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
     expected = ["plant_step", "controller_update", "udp_hil_roundtrip", "render", "ips",
-                "mission_mil", "mission_sil"]
+                "mission_mil", "mission_sil", "vision"]
     for key in expected:
         assert key in res, key
     figs = dict(_figures(res))
@@ -39,6 +39,8 @@ def test_bench_quick_reports_every_figure(tmp_path):
         for k in ("median", "min", "max"):
             assert math.isfinite(d[k]) and d[k] > 0, (name, k, d[k])
         assert d["min"] <= d["median"] <= d["max"], name
+    v = res["vision"]                       # paper 2: a SIFT match costs more than a servo cycle
+    assert v["match_sift_856x480"]["median"] > v["servo_cycle_856x480"]["median"] > 0
     for mode in ("mission_mil", "mission_sil"):
         m = res[mode]
         assert m["exit_reason"] == "mission_complete"

@@ -215,67 +215,6 @@ def bench_front(n: int, repeats: int) -> dict[str, Any]:
     return out
 
 
-def bench_vision(n: int, repeats: int) -> dict[str, Any]:
-    """Paper 2's pipeline on 856 x 480 frames of the E1 room approaching the key: matching
-    (SIFT detect + ratio test + seeded RANSAC, at each key change) and one servo cycle (LK
-    tracking, outlier filter, homography, visual error, control law, hierarchy)."""
-    import numpy as np
-
-    from cosim.apps.vs import geometry as G
-    from cosim.apps.vs.features import (
-        Detector,
-        Tracker,
-        gray_of,
-        homography,
-        match,
-        robust_inliers,
-        sort_points,
-    )
-    from cosim.scenario.parse import load_scenario
-    from cosim.sensors.front import FrontCamera
-
-    sc = load_scenario(ROOT / "scenarios" / "bebop2_vs_e1.toml")
-    cam = FrontCamera(sc.world, sc.camera)
-    K = sc.camera.K()
-    frames = [gray_of(cam.render((0.6 * i / n, 0.3 * i / n, -1.0 + 0.4 * i / n),
-                                 (1.0, 0.0, 0.0, 0.0))) for i in range(n + 1)]
-    key = gray_of(cam.render((1.5, 0.0, -0.5), (1.0, 0.0, 0.0, 0.0)))
-    det, tracker = Detector("sift", 800), Tracker()
-    kp, kd = det.detect(key)
-    S = G.body_from_camera_matrix(sc.camera.mount_B)
-    it = iter(())
-
-    def matching() -> None:
-        pts, desc = det.detect(frames[0])
-        match(det, kp, kd, pts, desc, 0)
-
-    pts, desc = det.detect(frames[0])
-    tgt0, cur0 = sort_points(*match(det, kp, kd, pts, desc, 0))
-    state = {}
-
-    def cycle() -> None:
-        nonlocal it
-        try:
-            i = next(it)
-        except StopIteration:
-            it = iter(range(1, n + 1))
-            state.update(cur=cur0, tgt=tgt0)
-            i = next(it)
-        new, keep = tracker.track(frames[i - 1], frames[i], state["cur"])
-        cur, tgt = new[keep], state["tgt"][keep]
-        inl = robust_inliers(cur, tgt, i, 2.0)
-        cur, tgt = cur[inl], tgt[inl]
-        r = homography(cur, tgt, K, "virtual_plane", i)
-        e = G.homography_error(r.H)
-        lam = G.adaptive_gain(float(np.linalg.norm(e)), 2.8, 0.1, 5.0)
-        G.hierarchy(S @ G.control_law(e, lam, 2.5), None, 0.0, 0.0, None, None, 0.0)
-        state.update(cur=cur, tgt=tgt)
-
-    return {"match_sift_856x480": _stat(_per_call_us(matching, max(3, n // 10), repeats),
-                                        "us/match"),
-            "servo_cycle_856x480": _stat(_per_call_us(cycle, n, repeats), "us/frame")}
-
-
 def bench_mission(mode: str, repeats: int) -> dict[str, Any]:
     from cosim.scenario.parse import load_scenario
     from cosim.sim.master import RunOptions, run_scenario
@@ -430,7 +369,9 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["udp_hil_roundtrip"] = bench_udp_roundtrip(n // 4, r)
     res.update(bench_render_ips(max(200, n // 20), r))
     res["front"] = bench_front(50 if quick else 200, r)
-    res["vision"] = bench_vision(20 if quick else 100, r)
+    from cosim.apps.vs.bench import bench_vision
+
+    res["vision"] = bench_vision(20 if quick else 100, r, _per_call_us, _stat)
     mr = 1 if quick else 3
     res["mission_mil"] = bench_mission("mil", mr)
     res["mission_sil"] = bench_mission("sil", mr)
