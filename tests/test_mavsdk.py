@@ -99,6 +99,10 @@ async def _mission(api_port: int, log: list[str]) -> None:
             here = await _first(tel.subscribe_position_velocity_ned(), lambda _: True,
                                 "local position")
             n, e = here.position.north_m, here.position.east_m
+            # the local frame's origin is the start, as on PX4 (the seed world's start is at
+            # world N 57, E 95): MAVSDK's stock set_position_ned(0, 0, -h) is "above home"
+            assert math.hypot(n, e) < TOL_M, (n, e)
+            n = e = 0.0
             await _step(off.set_position_ned(PositionNedYaw(n, e, -ALT_M, 0.0)),
                         "first setpoint")
             await _step(off.start(), "offboard start")

@@ -1,8 +1,9 @@
 """The offboard app contract: what the master calls, and what an app may use.
 
 An app is the software under test, a companion-computer program. It sees the vehicle only
-through MAVLink (`ctx.client`, an `mav.client.OffboardClient` on the API link) and, if the
-scenario has a camera, through frames. The master calls it synchronously in the tick order of
+through MAVLink (`ctx.client`, an `mav.client.OffboardClient` on the API link; positions in
+the vehicle's local NED frame, origin at its start: a world point w is `ctx.local(*w)`) and,
+if the scenario has a camera, through frames. The master calls it synchronously in the tick order of
 ARCHITECTURE.md: `on_frame` on camera ticks (before `on_tick`), then `on_tick` every tick.
 Neither may block.
 
@@ -29,6 +30,11 @@ class AppContext:
     frame_period_s: float | None    # s, time between camera frames, None without camera
     rng: np.random.Generator        # seeded from the scenario seed: use it, not global random
     home_ned: tuple[float, float, float]   # m, start position (world NED); apps may know it
+
+    def local(self, n: float, e: float, d: float) -> tuple[float, float, float]:
+        """A world NED point in the vehicle's local frame (MAVLink LOCAL_NED: origin at the
+        start, where its estimator initialised, as on a PX4 vehicle)."""
+        return n - self.home_ned[0], e - self.home_ned[1], d - self.home_ned[2]
 
 
 @runtime_checkable

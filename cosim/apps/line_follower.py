@@ -152,8 +152,7 @@ class LineFollowerApp:
 
     def on_start(self, ctx: AppContext) -> None:
         self.client = ctx.client
-        n, e, _ = ctx.home_ned
-        self._hold = (n, e, self.planner_params.z_hover)
+        self._hold = (0.0, 0.0, self.planner_params.z_hover)   # local: above the start
 
     def on_frame(self, t: float, image: np.ndarray) -> None:
         c = self.client

@@ -70,8 +70,10 @@ class ScriptedApp:
     def on_start(self, ctx: AppContext) -> None:
         self.ctx = ctx
         self.client = ctx.client
-        n, e, _ = ctx.home_ned
-        self._hold = (n, e, -float(self.seq.takeoff_alt_m))
+        self._hold = (0.0, 0.0, -float(self.seq.takeoff_alt_m))   # local: above the start
+        # the waypoints are world NED (the scenario's frame); the vehicle flies local NED
+        self.waypoints = [(*ctx.local(n, e, d), hold, yaw) for n, e, d, hold, yaw
+                          in self.waypoints]
 
     def on_frame(self, t: float, image: np.ndarray) -> None:
         pass

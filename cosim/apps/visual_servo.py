@@ -135,8 +135,7 @@ class VisualServoApp:
         p, vp = self.p, self.path
         self.client = ctx.client
         self.seed = int(ctx.rng.integers(0, 2**31 - 1))
-        n, e, _ = ctx.home_ned
-        self._hold = (n, e, -float(p["takeoff_alt_m"]))
+        self._hold = (0.0, 0.0, -float(p["takeoff_alt_m"]))   # local: above the start
         self.K = vp.K
         self.W, self.H = vp.size
         self.det = Detector(vp.detector, vp.n_features)

@@ -171,6 +171,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     cam_every = sc.timing.camera_every
     sensor = OdometrySensor(sc.noise, np.random.default_rng([sc.seed, 0]))
     wind_n, wind_e, wind_d = sc.wind_ned_mps
+    home_n, home_e = sc.start.n, sc.start.e   # the vehicle's local origin, in world NED
     gusty = None                 # gusts or turbulence: the wind changes every tick
     if sc.wind is not None and not sc.wind.steady:
         from cosim.world.wind import WindField
@@ -261,7 +262,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                     pi = phase_idx[ph] = len(phases)
                     phases.append(ph)
                 record((t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2],
-                        sp[0], sp[1], sp[2], pi))
+                        sp[0] + home_n, sp[1] + home_e, sp[2], pi))   # setpoints: local -> world
                 if k & FLUSH_MASK == FLUSH_MASK:
                     spool.flush()
                 # 6. the motor commands -> the plant, stepped to t_k+1

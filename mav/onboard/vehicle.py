@@ -106,6 +106,7 @@ class Onboard:
         self.parameters = prm = Parameters(vs, out, chans, lambda s, c: self.commands.for_us(s, c))
         self.failsafe = Failsafe(vs, out, cmd, prm.apply)
         self.geo = wire.FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
+        self.origin = (0.0, 0.0)   # m, simulator NED of the local origin (set by the 1st ODOMETRY)
         self.telemetry = tel = Telemetry(vs, out, cmd, prm, self.geo, cfg.sysid,
                                          cfg.origin_alt_m)
         self.commands = Commands(vs, out, cmd, nav, tel, cfg.sysid, cfg.compid)
@@ -226,6 +227,9 @@ class Onboard:
             return False
         if not vs.have_state:
             vs.t_us = t_us
+            # the local frame's origin: where the estimator initialised (PX4), i.e. the
+            # vehicle's first position; every position it handles is relative to it
+            self.origin = (x, y)
         # 1. the offboard and GCS links, at the clock of the previous tick
         drain = self.input.drain
         drain(self._api)
@@ -235,7 +239,8 @@ class Onboard:
         vs.t_us = t_us
         s = vs.state
         s.t = t_us * 1e-6
-        s.x, s.y, s.z = x, y, z
+        ox, oy = self.origin
+        s.x, s.y, s.z = x - ox, y - oy, z
         s.qw, s.qx, s.qy, s.qz = qw, qx, qy, qz
         if child == FRAME_LOCAL_NED:
             s.vx, s.vy, s.vz = vx, vy, vz
