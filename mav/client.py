@@ -112,6 +112,7 @@ class OffboardClient:
         self.position_target = (NAN,) * 8
         self.battery = (NAN, NAN, NAN)
         self.statustext: deque[tuple[float, int, str]] = deque(maxlen=200)
+        self._text_id = 0          # id of the last STATUSTEXT (chunks of one text share it)
         self.acks: dict[int, CommandAck] = {}
         self.params: dict[str, float] = {}
         self.param_count = -1
@@ -240,7 +241,13 @@ class OffboardClient:
         text = msg.text
         if isinstance(text, bytes | bytearray):
             text = bytes(text).decode("ascii", errors="replace")
-        self.statustext.append((self.t, msg.severity, text.rstrip("\x00")))
+        text = text.rstrip("\x00")
+        tid, seq = getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0)
+        if tid and seq > 0 and self.statustext and self._text_id == tid:
+            t0, sev, head = self.statustext.pop()        # a MAVLink 2 chunk: join it
+            text = head + text
+        self._text_id = tid
+        self.statustext.append((self.t, msg.severity, text))
 
     def _on_global(self, f: tuple, compid: int) -> None:
         # time_boot_ms, lat, lon, alt, relative_alt, vx, vy, vz, hdg

@@ -222,3 +222,14 @@ def test_fast_telemetry_decode_matches_pymavlink(tmp_path):
             M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
             M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED} <= kinds
     assert fast.armed is False and fast.heartbeat_seen and fast.stats["rx"] > 1000
+
+
+def test_chunked_statustexts_are_joined(pair):
+    c, v = pair
+    text = "Takeoff denied: altitude 512.3 m above home is more than the 100 m allowed"
+    for seq, i in enumerate(range(0, len(text), 50)):
+        v.send(M.MAVLink_statustext_message(M.MAV_SEVERITY_WARNING, text[i:i + 50].encode(),
+                                            7, seq))
+    v.send(M.MAVLink_statustext_message(M.MAV_SEVERITY_INFO, b"short", 0, 0))
+    c.poll(0.0)
+    assert [s[2] for s in c.statustext] == [text, "short"]

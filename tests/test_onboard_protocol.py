@@ -229,8 +229,14 @@ def test_takeoff_altitude_conventions():
                                                         math.nan, math.nan), 1.0),
         ("long param7 AMSL", lambda: rig.cmd(22, 0, 0, 0, math.nan, 0, 0, home_amsl + 2.5), 2.5),
         ("int relative", lambda: rig.cmd_int(22, M.MAV_FRAME_GLOBAL_RELATIVE_ALT, z=1.5), 1.5),
-        ("int global AMSL", lambda: rig.cmd_int(22, M.MAV_FRAME_GLOBAL_INT, z=home_amsl + 0.7),
-         0.7),
+        ("int global AMSL", lambda: rig.cmd_int(22, M.MAV_FRAME_GLOBAL_INT, z=home_amsl + 1.7),
+         1.7),
+        # PX4: below home + MIS_TAKEOFF_ALT is raised to it (MAVProxy's `takeoff 1.2` sends
+        # 1.2 in param7, an AMSL altitude far below home), not denied
+        ("int AMSL 0.7 above home -> minimum", lambda: rig.cmd_int(
+            22, M.MAV_FRAME_GLOBAL_INT, z=home_amsl + 0.7), 1.0),
+        ("long param7 1.2 (MAVProxy) -> minimum", lambda: rig.cmd(22, 0, 0, 0, math.nan, 0, 0,
+                                                                   1.2), 1.0),
     ]
     for what, send, rel in cases:
         rig.set_mode(3)
@@ -239,8 +245,9 @@ def test_takeoff_altitude_conventions():
         assert rig.ack(22) == M.MAV_RESULT_ACCEPTED, what
         assert rig.ob.mode == TAKEOFF
         assert rig.ob.navigator.tko_z == pytest.approx(-rel, abs=1e-3), what
+    assert any("Using minimum takeoff altitude: 1.00 m" in t for t in rig.texts())
     rig.set_mode(3)
-    for bad in (home_amsl - 1.0, home_amsl + 500.0, math.inf):
+    for bad in (home_amsl + 500.0, math.inf):
         rig.cmd(22, 0, 0, 0, math.nan, 0, 0, bad)
         rig.tick()
         assert rig.ack(22) == M.MAV_RESULT_DENIED and rig.ob.mode == POSCTL
@@ -714,3 +721,24 @@ def test_mavlink1_packets_are_understood():
     rig.tick()
     assert rig.ob.stats["setpoints"] == 1 and rig.ob.status.of.x == 1.0
     assert rig.ob.armed and rig.ob.stats["dropped_bad_api"] == 0
+
+
+def test_long_statustexts_are_sent_in_chunks_and_short_ones_whole():
+    """MAVLink 2 STATUSTEXT chunking (id, chunk_seq) instead of cutting at 50 characters."""
+    rig = Rig()
+    rig.tick()
+    rig.clear()
+    long = "Takeoff denied: altitude 512.3 m above home is more than the 100 m allowed here"
+    rig.ob.outbox.statustext(long)
+    rig.ob.outbox.statustext("short")
+    rig.tick()
+    msgs = rig.msgs("gcs", "STATUSTEXT")
+    parts = [m for m in msgs if m.id != 0]
+    assert len(parts) == 2 and parts[0].id == parts[1].id
+    assert [m.chunk_seq for m in parts] == [0, 1]
+    assert "".join(m.text for m in parts) == long
+    assert [m.text for m in msgs if m.id == 0] == ["short"]
+    rig.ob.outbox.statustext("x" * 50 + "y" * 50)                   # exactly two full chunks
+    rig.tick()
+    tail = [m for m in rig.msgs("gcs", "STATUSTEXT") if m.id not in (0, parts[0].id)]
+    assert [len(m.text) for m in tail] == [50, 50, 0] and tail[0].id == parts[0].id + 1

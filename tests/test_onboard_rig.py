@@ -160,7 +160,15 @@ class Rig:
         return acks[-1].result if acks else None
 
     def texts(self, link: str = "gcs") -> list[str]:
-        return [m.text for m in self.msgs(link, "STATUSTEXT")]
+        out: list[str] = []
+        last_id = 0
+        for m in self.msgs(link, "STATUSTEXT"):   # chunked texts (id != 0) joined
+            if m.id and m.id == last_id and m.chunk_seq > 0:
+                out[-1] += m.text
+            else:
+                out.append(m.text)
+            last_id = m.id
+        return out
 
     def clear(self) -> None:
         self.rx = {"api": [], "gcs": []}

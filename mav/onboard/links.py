@@ -76,6 +76,7 @@ class Outbox:
         self.chans = chans
         self._sign_base = int(round((signing_epoch_unix_s - SIGNING_EPOCH_2015) * 1e5))
         self._reject_text_us: dict[str, int] = {}
+        self._text_id = 0          # the last chunked STATUSTEXT's id (1..65535)
 
     def signing_ts(self, t_us: int) -> int:
         """Signing timestamp (10 us units since 2015-01-01) at vehicle time t_us."""
@@ -88,12 +89,24 @@ class Outbox:
             sg.timestamp = ts
 
     def statustext(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
-        """Send a STATUSTEXT (<= 50 characters) on the api and gcs links."""
-        raw = text.encode("ascii", errors="replace")[:50]
+        """Send a STATUSTEXT on the api and gcs links. Up to 50 characters: one message
+        (id 0). Longer: MAVLink 2 chunks of 50 with one non-zero id and chunk_seq 0, 1, ...;
+        the last chunk is shorter than 50 (an empty one when the text fills the last), so a
+        receiver knows where the text ends (QGroundControl and MAVProxy join them)."""
+        raw = text.encode("ascii", errors="replace")[:50 * 8]
+        if len(raw) <= 50:
+            chunks, tid = [raw], 0
+        else:
+            chunks = [raw[i:i + 50] for i in range(0, len(raw), 50)]
+            if len(chunks[-1]) == 50:
+                chunks.append(b"")
+            self._text_id = tid = self._text_id % 65535 + 1
         for ch in self.chans:
             if ch.signed:
                 self.sync_signing(ch)
-            ch.send(wire.send_msg(ch.mav, M.MAVLink_statustext_message(severity, raw, 0, 0)))
+            for seq, part in enumerate(chunks):
+                ch.send(wire.send_msg(ch.mav, M.MAVLink_statustext_message(
+                    severity, part, tid, seq)))
 
     def warn_rate_limited(self, kind: str, text: str) -> None:
         """A STATUSTEXT warning about rejected input, at most once a second per kind."""

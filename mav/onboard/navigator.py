@@ -72,10 +72,18 @@ class Navigator:
             self.out.statustext(f"Takeoff denied: frame {frame} unsupported",
                                 M.MAV_SEVERITY_WARNING)
             return M.MAV_RESULT_DENIED
-        if not (math.isfinite(rel) and 0.1 <= rel <= 100.0):
-            self.out.statustext(f"Takeoff denied: altitude {rel:.2f} m above home out of "
-                                "0.1..100", M.MAV_SEVERITY_WARNING)
+        if not (math.isfinite(rel) and rel <= 100.0):
+            self.out.statustext(f"Takeoff denied: altitude {rel:.1f} m above home > 100",
+                                M.MAV_SEVERITY_WARNING)
             return M.MAV_RESULT_DENIED
+        if rel < default:
+            # PX4 (Takeoff::set_takeoff_position): an altitude below home + MIS_TAKEOFF_ALT is
+            # raised to it, with a critical message when more than 0.1 m below. MAVProxy's
+            # `takeoff 1.2` sends 1.2 in param7, an AMSL altitude: it climbs MIS_TAKEOFF_ALT.
+            if rel < default - 0.1:
+                self.out.statustext(f"Using minimum takeoff altitude: {default:.2f} m",
+                                    M.MAV_SEVERITY_CRITICAL)
+            rel = default
         s = vs.state
         self.tko_x, self.tko_y = s.x, s.y
         self.tko_z = home_d - rel
