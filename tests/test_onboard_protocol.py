@@ -742,3 +742,23 @@ def test_long_statustexts_are_sent_in_chunks_and_short_ones_whole():
     rig.tick()
     tail = [m for m in rig.msgs("gcs", "STATUSTEXT") if m.id not in (0, parts[0].id)]
     assert [len(m.text) for m in tail] == [50, 50, 0] and tail[0].id == parts[0].id + 1
+
+
+def test_ftp_requests_get_an_immediate_nak():
+    """MAVProxy first asks for @PARAM/param.pck over MAVLink FTP: NAK FileNotFound at once
+    (no 5 s wait), with the reply's seq one more than the request's."""
+    rig = Rig()
+    rig.tick()
+    rig.clear()
+    name = b"@PARAM/param.pck?withdefaults=1"
+    req = (41).to_bytes(2, "little") + bytes([0, 4, len(name), 0, 0, 0]) + bytes(4) + name
+    rig.send("gcs", M.MAVLink_file_transfer_protocol_message(0, 1, 1, list(req.ljust(251,
+                                                                                  b"\0"))))
+    reset = (42).to_bytes(2, "little") + bytes([0, 2, 0, 0, 0, 0]) + bytes(4)
+    rig.send("gcs", M.MAVLink_file_transfer_protocol_message(0, 1, 1, list(reset.ljust(251,
+                                                                                    b"\0"))))
+    rig.tick()
+    nak, ack = (bytes(m.payload) for m in rig.msgs("gcs", "FILE_TRANSFER_PROTOCOL"))
+    assert int.from_bytes(nak[0:2], "little") == 42 and nak[3] == 129 and nak[5] == 4
+    assert nak[4] == 1 and nak[12] == 10                          # size 1, FileNotFound
+    assert ack[3] == 128 and ack[5] == 2                          # ResetSessions: ACK

@@ -26,6 +26,13 @@ from mav.onboard.navigator import Navigator
 from mav.onboard.status import VehicleStatus
 from mav.onboard.telemetry import Telemetry
 
+# MAVLink FTP (https://mavlink.io/en/services/ftp.html): opcodes and error codes used here
+FTP_TERMINATE_SESSION, FTP_RESET_SESSIONS = 1, 2
+FTP_FILE_OPS = frozenset({3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14, 15, 16, 17})  # list, open,
+# read, create, write, remove, truncate, open-write, create/remove dir, rename, crc, burst
+FTP_ACK, FTP_NAK = 128, 129
+FTP_ERR_UNKNOWN_COMMAND, FTP_ERR_FILE_NOT_FOUND = 7, 10
+
 
 class Commands:
     def __init__(self, vs: VehicleStatus, outbox: Outbox, commander: Commander,
@@ -188,6 +195,29 @@ class Commands:
             ch.send(wire.send_msg(ch.mav, M.MAVLink_ping_message(
                 msg.time_usec, msg.seq, peer[0], peer[1])))
 
+    def on_ftp(self, ch: Chan, msg) -> None:
+        """MAVLink FTP: no file system here. Every file request gets the proper NAK at once
+        (FileNotFound; UnknownCommand for what is not a file operation), session resets an
+        ACK, so a client (MAVProxy fetching @PARAM/param.pck) falls back to the parameter
+        protocol at once instead of waiting for its FTP timeout."""
+        if not self.for_us(msg.target_system, 0) or len(msg.payload) < 12:
+            return
+        p = bytes(msg.payload)
+        seq = int.from_bytes(p[0:2], "little")
+        session, opcode = p[2], p[3]
+        if opcode in (FTP_ACK, FTP_NAK, 0):
+            return
+        if opcode in (FTP_TERMINATE_SESSION, FTP_RESET_SESSIONS):
+            reply, size, data = FTP_ACK, 0, b""
+        else:
+            err = FTP_ERR_FILE_NOT_FOUND if opcode in FTP_FILE_OPS else FTP_ERR_UNKNOWN_COMMAND
+            reply, size, data = FTP_NAK, 1, bytes([err])
+        out = ((seq + 1) & 0xFFFF).to_bytes(2, "little") + bytes(
+            [session, reply, size, opcode, 0, 0]) + (0).to_bytes(4, "little") + data
+        peer = ch.peer or (0, 0)
+        ch.send(wire.send_msg(ch.mav, M.MAVLink_file_transfer_protocol_message(
+            msg.target_network, peer[0], peer[1], list(out.ljust(251, b"\0")))))
+
     def ignore(self, ch: Chan, msg) -> None:
         """HEARTBEAT, COMMAND_ACK, SYSTEM_TIME: the peer is noted, nothing else to do (links do
         not time out in lockstep)."""
@@ -209,6 +239,7 @@ class Commands:
             M.MAVLINK_MSG_ID_REQUEST_DATA_STREAM: self.on_request_data_stream,
             M.MAVLINK_MSG_ID_TIMESYNC: self.on_timesync,
             M.MAVLINK_MSG_ID_PING: self.on_ping,
+            M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: self.on_ftp,
             M.MAVLINK_MSG_ID_COMMAND_ACK: self.ignore,
             M.MAVLINK_MSG_ID_SYSTEM_TIME: self.ignore,
         }
