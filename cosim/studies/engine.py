@@ -145,7 +145,10 @@ def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
     cluster = None
     if addr is None:
         n = workers or os.cpu_count() or 1
-        with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        # worker-saturation 1.0: a worker holds only the task it runs (none queued behind
+        # it), so a job that kills its worker does not take queued innocent jobs with it
+        with dask.config.set({"distributed.scheduler.allowed-failures": 1,
+                              "distributed.scheduler.worker-saturation": 1.0}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                    dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
