@@ -96,7 +96,6 @@ class VisualServoApp:
         self.path: VP.VisualPath | None = None
         self.reference_poses: list[tuple[float, float, float, float]] = []
         self._cmd = np.zeros(4)
-        self._ff = np.zeros(4)
         self._new_cmd = False
         self._t_sent = -1e9
         self._frame_i = 0
