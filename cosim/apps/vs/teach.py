@@ -56,11 +56,12 @@ def parse_via(items: list[str], n_keys: int) -> dict[int, list[list[float]]]:
 
 
 def _pose_at(res, t: float) -> tuple[float, float, float, float]:
+    from cosim.sensors.pinhole import yaw_of
+
     ts, x, y, z, qw, qx, qy, qz = res.recorded.columns("t", "x", "y", "z", "qw", "qx", "qy",
                                                        "qz")
     i = min(int(np.searchsorted(ts, t)), len(ts) - 1)
-    yaw = math.degrees(math.atan2(2.0 * (qw[i] * qz[i] + qx[i] * qy[i]),
-                                  1.0 - 2.0 * (qy[i] ** 2 + qz[i] ** 2)))
+    yaw = math.degrees(yaw_of((qw[i], qx[i], qy[i], qz[i])))
     return float(x[i]), float(y[i]), float(z[i]), yaw
 
 
@@ -107,7 +108,7 @@ def teach_command(args) -> int:
               f"{len(app.captured)} of {len(poses)} key images; nothing written")
         return 1
     flown = [_pose_at(res, t) for t, _ in app.captured]
-    VP.write(out, [img for _, img in app.captured], flown, VP._camera_dict(sc.camera),
+    VP.write(out, [img for _, img in app.captured], flown, VP.camera_dict(sc.camera),
              detector, n_features, taught_by="flight", scenario=sc.name, world=sc.world.name)
     worst = max(math.dist(a[:3], b[:3]) for a, b in zip(flown, poses, strict=True))
     print(f"{out}: {len(poses)} key images taken in hover (largest offset from the listed "

@@ -55,7 +55,7 @@ class VisualPath:
         return [k.pose for k in self.keys]
 
 
-def _camera_dict(cfg) -> dict:
+def camera_dict(cfg) -> dict:
     return {"width": cfg.width, "height": cfg.height, "fx": cfg.fx, "fy": cfg.fy,
             "cx": cfg.cx, "cy": cfg.cy, "mount_B": list(cfg.mount_B)}
 
@@ -74,7 +74,7 @@ def teach_by_render(scenario, poses, folder: Path, detector: str, n_features: in
         half = math.radians(yaw_deg) / 2.0
         q = (math.cos(half), 0.0, 0.0, math.sin(half))       # level, heading yaw_deg
         images.append(cam.render(np.array([n, e, d], dtype=float), q))
-    return write(folder, images, poses, _camera_dict(cfg), detector, n_features,
+    return write(folder, images, poses, camera_dict(cfg), detector, n_features,
                  taught_by="render", scenario=scenario.name, world=scenario.world.name)
 
 
