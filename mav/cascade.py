@@ -104,6 +104,7 @@ class Gains(NamedTuple):
     vxy_max: float       # m/s, horizontal speed limit
     tilt_max: float      # rad
     weight: float        # N
+    inv_g: float         # s^2/m, 1 / g (acceleration feed-forward -> tilt)
     m0t: float           # inverse mixer A^-1 entries: rotor 1 from thrust, pitch, roll (1/m)
     m0m: float
     m0l: float
@@ -232,7 +233,7 @@ class QuadCascade:
             g["vz_max"], g["thrust_max_total"],
             g["k_xy"], g["k_vxy"], g["c_drag"], g.get("ki_vxy", 0.0), g.get("xy_i_lim", 0.0),
             g["xy_err_max"], g["vxy_max"], g["tilt_max"],
-            v.weight,
+            v.weight, 1.0 / v.g,
             Ai[0][0], Ai[0][2], Ai[0][3], Ai[1][0], Ai[1][2], Ai[1][3],
             Ai[2][0], Ai[2][2], Ai[2][3], Ai[3][0], Ai[3][2], Ai[3][3],
             Ai[0][1],
@@ -263,7 +264,7 @@ class QuadCascade:
          k_psi, k_r, r_max,
          k_z, k_vz, ki_zp, ki_zvp, ki_zv, zi_lim, vz_max, t_tot_max,
          k_xy, k_vxy, c_drag, ki_vxy, xy_i_lim, e_max, v_max, tilt_max,
-         weight,
+         weight, inv_g,
          m0t, m0m, m0l, m1t, m1m, m1l, m2t, m2m, m2l, m3t, m3m, m3l, my,
          t_max, c_u, arm_a, dt, integ) = self._g
 
@@ -328,6 +329,11 @@ class QuadCascade:
         iyb = cy * i_e - sy * i_n
         pitch_ref = -(k_vxy * (vcx - vxb) + c_drag * fxb + ixb)
         roll_ref = k_vxy * (vcy - vyb) + c_drag * fyb + iyb
+        ax = sp.ax
+        if ax == ax:            # acceleration feed-forward: the tilt it takes, a / g
+            ay = sp.ay
+            pitch_ref -= (cy * ax + sy * ay) * inv_g
+            roll_ref += (cy * ay - sy * ax) * inv_g
         t2 = pitch_ref * pitch_ref + roll_ref * roll_ref
         tilt_sat = t2 > tilt_max * tilt_max
         if tilt_sat:

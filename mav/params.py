@@ -57,6 +57,35 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
                  "battery internal resistance (-1: the vehicle preset's)"),
     OnboardParam("BAT_LOW_THR", 0.15, 0.05, 0.5, "1", "remaining charge that warns"),
     OnboardParam("BAT_CRIT_THR", 0.07, 0.01, 0.5, "1", "remaining charge that warns critically"),
+    # automatic flight to a point (missions, RTL, go-to). PX4's names and meanings; the
+    # defaults are scaled to a 60 g indoor vehicle (PX4's are for outdoor multicopters:
+    # MPC_XY_CRUISE 5 m/s, MPC_ACC_HOR 3 m/s^2, NAV_ACC_RAD 2 m, NAV_MC_ALT_RAD 0.8 m,
+    # RTL_RETURN_ALT 60 m, RTL_DESCEND_ALT 30 m, MPC_VEL_MANUAL 10 m/s, MPC_MAN_Y_MAX 150)
+    OnboardParam("MPC_XY_CRUISE", 1.0, 0.1, 20.0, "m/s",
+                 "horizontal speed of missions, RTL and go-to (DO_CHANGE_SPEED overrides)"),
+    OnboardParam("MPC_ACC_HOR", 1.0, 0.2, 15.0, "m/s^2",
+                 "acceleration of the automatic modes' reference along a leg"),
+    OnboardParam("MPC_JERK_AUTO", 2.0, 1.0, 80.0, "m/s^3",
+                 "jerk limit of the automatic modes' reference (PX4: 4)"),
+    OnboardParam("MPC_Z_V_AUTO_UP", 0.8, 0.1, 8.0, "m/s", "climb speed of the automatic modes"),
+    OnboardParam("MPC_Z_V_AUTO_DN", 0.6, 0.1, 4.0, "m/s",
+                 "descent speed of the automatic modes (above the landing)"),
+    OnboardParam("NAV_ACC_RAD", 0.3, 0.05, 200.0, "m",
+                 "horizontal acceptance radius of a waypoint (an item's param2 overrides)"),
+    OnboardParam("NAV_MC_ALT_RAD", 0.2, 0.05, 200.0, "m", "vertical acceptance of a waypoint"),
+    OnboardParam("RTL_RETURN_ALT", 1.5, 0.3, 150.0, "m",
+                 "RTL: climb to this height above home (if lower) before returning"),
+    OnboardParam("RTL_DESCEND_ALT", 1.0, 0.3, 100.0, "m",
+                 "RTL: height above home to descend to before the landing delay"),
+    OnboardParam("RTL_LAND_DELAY", 0.0, -1.0, 300.0, "s",
+                 "RTL: hover this long above home before landing (-1: hover, never land)"),
+    OnboardParam("MPC_VEL_MANUAL", 1.0, 0.1, 20.0, "m/s",
+                 "POSCTL: horizontal speed at full stick (MANUAL_CONTROL)"),
+    OnboardParam("MPC_MAN_Y_MAX", 90.0, 0.0, 400.0, "deg/s", "POSCTL: yaw rate at full stick"),
+    OnboardParam("MPC_HOLD_DZ", 0.1, 0.0, 1.0, "1",
+                 "POSCTL: stick deadzone; inside it the vehicle holds position or height"),
+    OnboardParam("COM_RC_LOSS_T", 0.5, 0.0, 35.0, "s",
+                 "POSCTL: MANUAL_CONTROL silence after which the sticks count as centred"),
 )
 
 

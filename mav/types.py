@@ -28,20 +28,24 @@ class Setpoint:
     """What the controller should track. NaN in a field means "not commanded".
 
     Horizontal: position (x, y) with optional velocity feed-forward (vx, vy), or velocity only
-    (x, y NaN). Vertical: position z, or velocity vz only (z NaN). Heading: yaw (rad), or
-    yaw_rate (rad/s) when yaw is NaN; both NaN holds the current heading.
+    (x, y NaN); an optional acceleration feed-forward (ax, ay, m/s^2, world) adds the tilt it
+    needs (the automatic modes' trajectories set it). Vertical: position z, or velocity vz
+    only (z NaN). Heading: yaw (rad), or yaw_rate (rad/s) when yaw is NaN; both NaN holds the
+    current heading.
     `armed` False means motors off (u = 0).
     """
 
-    __slots__ = ("x", "y", "z", "vx", "vy", "vz", "yaw", "yaw_rate", "armed")
+    __slots__ = ("x", "y", "z", "vx", "vy", "vz", "yaw", "yaw_rate", "armed", "ax", "ay")
 
     def __init__(self) -> None:
         self.x = self.y = self.z = NAN
         self.vx = self.vy = self.vz = NAN
         self.yaw = self.yaw_rate = NAN
+        self.ax = self.ay = NAN
         self.armed = False
 
     def clear(self) -> None:
         self.x = self.y = self.z = NAN
         self.vx = self.vy = self.vz = NAN
         self.yaw = self.yaw_rate = NAN
+        self.ax = self.ay = NAN

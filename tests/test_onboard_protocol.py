@@ -278,7 +278,8 @@ def test_do_set_mode_and_set_mode_message():
         rig.set_mode(main, sub)
         rig.tick()
         assert rig.ack(176) == M.MAV_RESULT_ACCEPTED and rig.ob.mode == want
-    for main, sub in ((1, 0), (2, 0), (4, 4), (4, 5), (9, 0)):     # MANUAL, ALTCTL, MISSION..
+    # MANUAL, ALTCTL, MISSION with no mission uploaded, an unknown main mode
+    for main, sub in ((1, 0), (2, 0), (4, 4), (9, 0)):
         rig.set_mode(main, sub)
         rig.tick()
         assert rig.ack(176) == M.MAV_RESULT_DENIED and rig.ob.mode == TAKEOFF

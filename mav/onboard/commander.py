@@ -15,11 +15,14 @@ from mav.onboard.defs import (
     LAND,
     LANDING,
     LOITER,
+    MISSION,
     MODE_BY_PX4,
+    MODE_NAMES,
     OFFBOARD,
     ON_GROUND,
     POSCTL,
     PX4_MAIN_AUTO,
+    RTL,
     TAKEOFF,
     TAKING_OFF,
     M,
@@ -34,6 +37,8 @@ class Commander:
         self.out = outbox
         self.navigator = None      # set by the vehicle (mav.onboard.navigator.Navigator)
         self.offboard = None       # set by the vehicle (mav.onboard.offboard.Offboard)
+        self.mission = None        # set by the vehicle (mav.onboard.mission.Mission)
+        self.manual = None         # set by the vehicle (mav.onboard.manual.Manual)
 
     # ------------------------------------------------------------------ state helpers
     def heading(self) -> float:
@@ -59,9 +64,11 @@ class Commander:
         return home[2] - self.vs.state.z if home is not None else 0.0
 
     def motors_idle(self) -> bool:
-        """Armed but on the ground in a mode that does not take off: idle speed."""
+        """Armed but on the ground in a mode that does not take off: idle speed (POSCTL takes
+        off when the throttle stick asks to climb)."""
         vs = self.vs
-        return vs.landed_state == ON_GROUND and vs.mode in (POSCTL, LOITER, LAND)
+        return vs.landed_state == ON_GROUND and (
+            vs.mode in (LOITER, LAND, RTL) or vs.mode == POSCTL and not vs.man_climb)
 
     def set_home(self) -> None:
         s = self.vs.state
@@ -77,22 +84,20 @@ class Commander:
         vs.fs_active = False
         if mode != prev:
             vs.hb_now = True
-        sp = vs.sp
+        self.navigator.leg_active = False
         if mode in (POSCTL, LOITER):
             if prev != mode:
                 self.hold_here()
+                if mode == POSCTL:
+                    self.manual.enter()
             if vs.landed_state in (TAKING_OFF, LANDING):
                 self.set_landed(IN_AIR if self.agl() > AIRBORNE_AGL_M else ON_GROUND)
         elif mode == LAND:
-            self.navigator.enter_land()
-            sp.clear()
-            sp.x, sp.y = vs.state.x, vs.state.y
-            sp.vz = vs.own["MPC_LAND_SPEED"]
-            sp.yaw = self.heading()
-            if vs.landed_state != ON_GROUND:
-                self.set_landed(LANDING)
-            elif vs.armed and vs.ground_since < 0:
-                vs.ground_since = vs.t_us     # already down: disarm after the delay
+            self.navigator.begin_land(vs.state.x, vs.state.y)
+        elif mode == RTL:
+            self.navigator.enter_rtl()
+        elif mode == MISSION:
+            self.mission.enter()
         elif mode == OFFBOARD:
             if vs.armed and vs.landed_state == ON_GROUND:
                 vs.ctrl.reset()
@@ -100,7 +105,7 @@ class Commander:
                 self.set_landed(IN_AIR)
         elif mode == TAKEOFF:
             self.navigator.enter_takeoff()
-        vs.setpoint = vs.of if mode == OFFBOARD else sp
+        vs.setpoint = vs.of if mode == OFFBOARD else vs.sp
 
     def request_mode(self, base_mode: float, main: float, sub: float) -> int:
         """A PX4 custom mode (main, sub) asked by SET_MODE or MAV_CMD_DO_SET_MODE."""
@@ -132,6 +137,8 @@ class Commander:
             return self.navigator.cmd_takeoff(math.nan, math.nan, None)
         if not vs.have_state:
             return M.MAV_RESULT_TEMPORARILY_REJECTED
+        if mode == MISSION and not self.mission.can_start():
+            return M.MAV_RESULT_DENIED
         self.set_mode(mode)
         return M.MAV_RESULT_ACCEPTED
 
@@ -144,8 +151,11 @@ class Commander:
             self.out.statustext("Arming denied: no position estimate yet",
                                 M.MAV_SEVERITY_CRITICAL)
             return M.MAV_RESULT_TEMPORARILY_REJECTED
-        if vs.mode == LAND:
-            self.out.statustext("Arming denied: vehicle is in AUTO.LAND", M.MAV_SEVERITY_CRITICAL)
+        if vs.mode in (LAND, RTL):
+            self.out.statustext(f"Arming denied: vehicle is in {MODE_NAMES[vs.mode]}",
+                                M.MAV_SEVERITY_CRITICAL)
+            return M.MAV_RESULT_DENIED
+        if vs.mode == MISSION and not self.mission.can_start():
             return M.MAV_RESULT_DENIED
         if vs.mode == OFFBOARD and not self.offboard.stream_ok():
             self.out.statustext("Arming denied: no offboard setpoints", M.MAV_SEVERITY_CRITICAL)

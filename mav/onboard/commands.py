@@ -1,6 +1,6 @@
 """Commands and requests: COMMAND_LONG / COMMAND_INT (each answered with COMMAND_ACK),
-SET_MODE, message intervals and legacy data streams, and the small protocol answers (mission
-count 0, TIMESYNC, PING).
+SET_MODE, message intervals and legacy data streams, and the small protocol answers (TIMESYNC,
+PING, FTP). The mission protocol's messages go to `mission.py`.
 
 To add a command: a branch in `Commands.command` returning a MAV_RESULT (and, to send a message
 right after the ACK, its id).
@@ -17,6 +17,7 @@ from mav.onboard.defs import (
     FORCE_DISARM_MAGIC,
     LAND,
     ON_GROUND,
+    RTL,
     STREAMS,
     M,
     hz_to_us,
@@ -36,8 +37,10 @@ FTP_ERR_UNKNOWN_COMMAND, FTP_ERR_FILE_NOT_FOUND = 7, 10
 
 class Commands:
     def __init__(self, vs: VehicleStatus, outbox: Outbox, commander: Commander,
-                 navigator: Navigator, telemetry: Telemetry, sysid: int, compid: int) -> None:
+                 navigator: Navigator, telemetry: Telemetry, sysid: int, compid: int,
+                 mission) -> None:
         self.vs = vs
+        self.mission = mission
         self.out = outbox
         self.cmd = commander
         self.nav = navigator
@@ -90,6 +93,16 @@ class Commands:
         elif cmd == M.MAV_CMD_NAV_LAND:
             self.cmd.set_mode(LAND)
             res = M.MAV_RESULT_ACCEPTED
+        elif cmd == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            res = self.cmd.try_mode(RTL)
+        elif cmd == M.MAV_CMD_DO_REPOSITION:
+            res = self.nav.reposition(p1, p2, p4, p5, p6, p7, frame)
+        elif cmd == M.MAV_CMD_DO_CHANGE_SPEED:
+            res = self.nav.change_speed(p1, p2)
+        elif cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:
+            res = self.mission.set_current(p1)
+        elif cmd == M.MAV_CMD_MISSION_START:
+            res = self.mission.start_command(p1, p2)
         elif cmd == M.MAV_CMD_DO_SET_MODE:
             res = self.cmd.request_mode(p1, p2, p3)
         elif cmd == M.MAV_CMD_REQUEST_MESSAGE:
@@ -165,25 +178,6 @@ class Commands:
         ch.recompute_due()
 
     # ------------------------------------------------------------------ small protocols
-    def on_mission_request_list(self, ch: Chan, msg) -> None:
-        if self.for_us(msg.target_system, msg.target_component):
-            peer = ch.peer or (0, 0)
-            ch.send(wire.send_msg(ch.mav, M.MAVLink_mission_count_message(
-                peer[0], peer[1], 0, msg.mission_type)))
-
-    def on_mission_clear_all(self, ch: Chan, msg) -> None:
-        if self.for_us(msg.target_system, msg.target_component):
-            peer = ch.peer or (0, 0)
-            ch.send(wire.send_msg(ch.mav, M.MAVLink_mission_ack_message(
-                peer[0], peer[1], M.MAV_MISSION_ACCEPTED, msg.mission_type)))
-
-    def on_mission_count(self, ch: Chan, msg) -> None:
-        if self.for_us(msg.target_system, msg.target_component):
-            peer = ch.peer or (0, 0)
-            res = M.MAV_MISSION_ACCEPTED if msg.count == 0 else M.MAV_MISSION_UNSUPPORTED
-            ch.send(wire.send_msg(ch.mav, M.MAVLink_mission_ack_message(
-                peer[0], peer[1], res, msg.mission_type)))
-
     def on_timesync(self, ch: Chan, msg) -> None:
         if msg.tc1 == 0:
             ch.send(wire.send_msg(ch.mav, M.MAVLink_timesync_message(self.vs.t_us * 1000,
@@ -222,7 +216,7 @@ class Commands:
         """HEARTBEAT, COMMAND_ACK, SYSTEM_TIME: the peer is noted, nothing else to do (links do
         not time out in lockstep)."""
 
-    def handlers(self, on_setpoint_msg, params) -> dict[int, object]:
+    def handlers(self, on_setpoint_msg, params, manual) -> dict[int, object]:
         """msgid -> handler(ch, msg) for every message the vehicle understands."""
         return {
             M.MAVLINK_MSG_ID_HEARTBEAT: self.ignore,
@@ -233,9 +227,16 @@ class Commands:
             M.MAVLINK_MSG_ID_PARAM_REQUEST_LIST: params.on_request_list,
             M.MAVLINK_MSG_ID_PARAM_REQUEST_READ: params.on_request_read,
             M.MAVLINK_MSG_ID_PARAM_SET: params.on_set,
-            M.MAVLINK_MSG_ID_MISSION_REQUEST_LIST: self.on_mission_request_list,
-            M.MAVLINK_MSG_ID_MISSION_CLEAR_ALL: self.on_mission_clear_all,
-            M.MAVLINK_MSG_ID_MISSION_COUNT: self.on_mission_count,
+            M.MAVLINK_MSG_ID_MISSION_REQUEST_LIST: self.mission.on_request_list,
+            M.MAVLINK_MSG_ID_MISSION_CLEAR_ALL: self.mission.on_clear_all,
+            M.MAVLINK_MSG_ID_MISSION_COUNT: self.mission.on_count,
+            M.MAVLINK_MSG_ID_MISSION_ITEM_INT: self.mission.on_item_int,
+            M.MAVLINK_MSG_ID_MISSION_ITEM: self.mission.on_item,
+            M.MAVLINK_MSG_ID_MISSION_REQUEST_INT: self.mission.on_request_int,
+            M.MAVLINK_MSG_ID_MISSION_REQUEST: self.mission.on_request,
+            M.MAVLINK_MSG_ID_MISSION_ACK: self.mission.on_ack,
+            M.MAVLINK_MSG_ID_MISSION_SET_CURRENT: self.mission.on_set_current,
+            M.MAVLINK_MSG_ID_MANUAL_CONTROL: manual.on_manual_control,
             M.MAVLINK_MSG_ID_REQUEST_DATA_STREAM: self.on_request_data_stream,
             M.MAVLINK_MSG_ID_TIMESYNC: self.on_timesync,
             M.MAVLINK_MSG_ID_PING: self.on_ping,

@@ -18,13 +18,15 @@ TWO_PI = 2.0 * math.pi
 # ---- PX4 custom modes (px4_custom_mode.h): custom_mode = main << 16 | sub << 24
 PX4_MAIN_MANUAL, PX4_MAIN_ALTCTL, PX4_MAIN_POSCTL, PX4_MAIN_AUTO = 1, 2, 3, 4
 PX4_MAIN_OFFBOARD = 6
-PX4_SUB_TAKEOFF, PX4_SUB_LOITER, PX4_SUB_LAND = 2, 3, 6
+PX4_SUB_TAKEOFF, PX4_SUB_LOITER, PX4_SUB_MISSION, PX4_SUB_RTL, PX4_SUB_LAND = 2, 3, 4, 5, 6
 
 # internal mode numbers
-POSCTL, TAKEOFF, LOITER, LAND, OFFBOARD = 0, 1, 2, 3, 4
-MODE_NAMES = ("POSCTL", "AUTO.TAKEOFF", "AUTO.LOITER", "AUTO.LAND", "OFFBOARD")
+POSCTL, TAKEOFF, LOITER, LAND, OFFBOARD, RTL, MISSION = 0, 1, 2, 3, 4, 5, 6
+MODE_NAMES = ("POSCTL", "AUTO.TAKEOFF", "AUTO.LOITER", "AUTO.LAND", "OFFBOARD", "AUTO.RTL",
+              "AUTO.MISSION")
 MODE_PX4 = ((PX4_MAIN_POSCTL, 0), (PX4_MAIN_AUTO, PX4_SUB_TAKEOFF), (PX4_MAIN_AUTO, PX4_SUB_LOITER),
-            (PX4_MAIN_AUTO, PX4_SUB_LAND), (PX4_MAIN_OFFBOARD, 0))
+            (PX4_MAIN_AUTO, PX4_SUB_LAND), (PX4_MAIN_OFFBOARD, 0), (PX4_MAIN_AUTO, PX4_SUB_RTL),
+            (PX4_MAIN_AUTO, PX4_SUB_MISSION))
 MODE_BY_PX4 = {px4: i for i, px4 in enumerate(MODE_PX4)}
 MODE_BY_PX4[(PX4_MAIN_POSCTL, 1)] = POSCTL            # POSCTL sub modes (orbit, slow)
 MODE_BY_PX4[(PX4_MAIN_POSCTL, 2)] = POSCTL
@@ -70,6 +72,10 @@ TKO_ACCEPT_M = 0.10         # m, takeoff complete within this of the target heig
 TKO_SETTLE_US = 3_000_000   # or this long after the ramp reached the target
 TKO_EASE_S = 0.4            # s, time constant of the takeoff reference near the target
 TKO_SNAP_M = 0.002          # m, the reference snaps to the target from this close
+LEG_SNAP_M = 0.002          # m, a leg's reference snaps to its target from this close
+LEG_ACC_LEAD_S = 0.25       # s, a leg's acceleration feed-forward leads by this (tilt lag)
+LEG_FACE_M = 1.0            # m, a leg at least this long with no yaw given: face along it
+LEG_SETTLE_US = 5_000_000   # us, a leg counts as reached this long after its reference did
 
 FORCE_DISARM_MAGIC = 21196
 REJECT_TEXT_EVERY_US = 1_000_000   # STATUSTEXT about rejected input at most this often per kind
@@ -111,21 +117,24 @@ STREAMS: dict[str, int] = {
     "POSITION_TARGET_LOCAL_NED": M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED,
     "BATTERY_STATUS": M.MAVLINK_MSG_ID_BATTERY_STATUS,
     "VFR_HUD": M.MAVLINK_MSG_ID_VFR_HUD,
+    "MISSION_CURRENT": M.MAVLINK_MSG_ID_MISSION_CURRENT,
 }
 API_RATES_HZ: dict[str, float] = {
     "HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "ATTITUDE": 50.0, "LOCAL_POSITION_NED": 50.0,
     "GLOBAL_POSITION_INT": 10.0, "HOME_POSITION": 0.5, "EXTENDED_SYS_STATE": 5.0,
     "POSITION_TARGET_LOCAL_NED": 10.0, "BATTERY_STATUS": 1.0, "VFR_HUD": 0.0,
+    "MISSION_CURRENT": 1.0,
 }
 GCS_RATES_HZ: dict[str, float] = {
     "HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "ATTITUDE": 20.0, "LOCAL_POSITION_NED": 10.0,
     "GLOBAL_POSITION_INT": 5.0, "HOME_POSITION": 0.5, "EXTENDED_SYS_STATE": 1.0,
     "POSITION_TARGET_LOCAL_NED": 2.0, "BATTERY_STATUS": 0.5, "VFR_HUD": 4.0,
+    "MISSION_CURRENT": 1.0,
 }
 # legacy REQUEST_DATA_STREAM groups (MAV_DATA_STREAM) -> streams
 DATA_STREAM_GROUPS: dict[int, tuple[str, ...]] = {
     M.MAV_DATA_STREAM_EXTENDED_STATUS: ("SYS_STATUS", "EXTENDED_SYS_STATE", "BATTERY_STATUS",
-                                        "POSITION_TARGET_LOCAL_NED"),
+                                        "POSITION_TARGET_LOCAL_NED", "MISSION_CURRENT"),
     M.MAV_DATA_STREAM_POSITION: ("LOCAL_POSITION_NED", "GLOBAL_POSITION_INT"),
     M.MAV_DATA_STREAM_EXTRA1: ("ATTITUDE",),
     M.MAV_DATA_STREAM_EXTRA2: ("VFR_HUD",),

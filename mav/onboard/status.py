@@ -34,6 +34,7 @@ class VehicleStatus:
     sp: Setpoint = field(default_factory=Setpoint)   # what modes other than OFFBOARD fly
     setpoint: Setpoint | None = None       # the one in use (sp or of)
     ground_since: int = -1                 # us, landed after LAND (for COM_DISARM_LAND)
+    man_climb: bool = False                # POSCTL: the throttle stick asks to climb
     # ---- offboard
     of: Setpoint = field(default_factory=Setpoint)   # the last valid offboard setpoint
     of_last_us: int = -(1 << 62)           # when it came
@@ -45,6 +46,7 @@ class VehicleStatus:
     hb_now: bool = False                   # HEARTBEAT (mode or arming changed)
     ext_now: bool = False                  # EXTENDED_SYS_STATE (landed state changed)
     home_now: bool = False                 # HOME_POSITION (home set)
+    mission_now: bool = False              # MISSION_CURRENT (mission item or state changed)
     # ---- parameters of the stack itself (mav.params.ONBOARD_PARAMS) and what derives
     own: dict[str, float] = field(default_factory=dict)
     user_params: dict[str, float] = field(default_factory=dict)   # what the user set

@@ -38,8 +38,8 @@ from mav.onboard.status import VehicleStatus
 
 class Telemetry:
     def __init__(self, vs: VehicleStatus, outbox: Outbox, commander: Commander,
-                 params: Parameters, geo: wire.FlatEarth, sysid: int, origin_alt_m: float
-                 ) -> None:
+                 params: Parameters, geo: wire.FlatEarth, sysid: int, origin_alt_m: float,
+                 mission) -> None:
         self.vs = vs
         self.out = outbox
         self.cmd = commander
@@ -47,6 +47,7 @@ class Telemetry:
         self.geo = geo
         self.sysid = sysid
         self.origin_alt_m = origin_alt_m
+        self.mission = mission
         self.chans = outbox.chans
         self._emitters = self.emitters()
 
@@ -64,6 +65,7 @@ class Telemetry:
             M.MAVLINK_MSG_ID_BATTERY_STATUS: self.emit_battery_status,
             M.MAVLINK_MSG_ID_VFR_HUD: self.emit_vfr_hud,
             M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.emit_autopilot_version,
+            M.MAVLINK_MSG_ID_MISSION_CURRENT: self.mission.emit_current,
         }
 
     def emitter(self, msgid: int) -> Callable[[Chan], None] | None:
@@ -84,7 +86,8 @@ class Telemetry:
         vs = self.vs
         api, gcs = self.chans
         if (t < api.next_due and t < gcs.next_due and not api.param_queue
-                and not gcs.param_queue and not (vs.hb_now or vs.ext_now or vs.home_now)):
+                and not gcs.param_queue
+                and not (vs.hb_now or vs.ext_now or vs.home_now or vs.mission_now)):
             return
         for ch in self.chans:
             if ch.signed:
@@ -95,6 +98,8 @@ class Telemetry:
                 self.emit_extended_sys_state(ch)
             if vs.home_now:
                 self.emit_home_position(ch)
+            if vs.mission_now:
+                self.mission.emit_current(ch)
             if t >= ch.next_due:
                 due = 1 << 62
                 for s in ch.streams:
@@ -117,7 +122,7 @@ class Telemetry:
                     if idx < n:
                         self.params.send_value(ch, idx)
                 del q[:PARAM_BURST]
-        vs.hb_now = vs.ext_now = vs.home_now = False
+        vs.hb_now = vs.ext_now = vs.home_now = vs.mission_now = False
 
     # ------------------------------------------------------------------ the messages
     def _time_boot_ms(self) -> int:

@@ -37,8 +37,11 @@ from mav.onboard.defs import (
     HIL_MODE_DISARMED,
     LAND,
     LOITER,
+    MISSION,
     MODE_NAMES,
     OFFBOARD,
+    POSCTL,
+    RTL,
     STREAMS,
     TAKEOFF,
     hz_to_us,
@@ -46,6 +49,8 @@ from mav.onboard.defs import (
 )
 from mav.onboard.failsafe import Failsafe
 from mav.onboard.links import Chan, LinkInput, Outbox, Stream
+from mav.onboard.manual import Manual
+from mav.onboard.mission import Mission
 from mav.onboard.navigator import Navigator
 from mav.onboard.offboard import Offboard
 from mav.onboard.parameters import Parameters
@@ -99,18 +104,20 @@ class Onboard:
         self._chans = chans
 
         # ---- the parts
-        self.commander = cmd = Commander(vs, out)
-        self.navigator = nav = Navigator(vs, out, cmd, cfg.control_dt_s, cfg.origin_alt_m)
-        self.offboard = ofb = Offboard(vs, out, cmd, cfg.sysid, cfg.compid)
-        cmd.navigator, cmd.offboard = nav, ofb
-        self.parameters = prm = Parameters(vs, out, chans, lambda s, c: self.commands.for_us(s, c))
-        self.failsafe = Failsafe(vs, out, cmd, prm.apply)
         self.geo = wire.FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
         self.origin = (0.0, 0.0)   # m, simulator NED of the local origin (set by the 1st ODOMETRY)
+        self.commander = cmd = Commander(vs, out)
+        self.navigator = nav = Navigator(vs, out, cmd, cfg.control_dt_s, self.geo)
+        self.offboard = ofb = Offboard(vs, out, cmd, cfg.sysid, cfg.compid)
+        self.mission = mis = Mission(vs, out, cmd, nav, cfg.sysid, cfg.compid)
+        self.manual = man = Manual(vs, cmd, nav, cfg.sysid)
+        cmd.navigator, cmd.offboard, cmd.mission, cmd.manual = nav, ofb, mis, man
+        self.parameters = prm = Parameters(vs, out, chans, lambda s, c: self.commands.for_us(s, c))
+        self.failsafe = Failsafe(vs, out, cmd, prm.apply)
         self.telemetry = tel = Telemetry(vs, out, cmd, prm, self.geo, cfg.sysid,
-                                         cfg.origin_alt_m)
-        self.commands = Commands(vs, out, cmd, nav, tel, cfg.sysid, cfg.compid)
-        self.input = LinkInput(vs, out, self.commands.handlers(ofb.on_setpoint_msg, prm),
+                                         cfg.origin_alt_m, mis)
+        self.commands = Commands(vs, out, cmd, nav, tel, cfg.sysid, cfg.compid, mis)
+        self.input = LinkInput(vs, out, self.commands.handlers(ofb.on_setpoint_msg, prm, man),
                                ofb.on_setpoint)
         for ch, rates in zip(chans, (cfg.api_rates_hz, cfg.gcs_rates_hz), strict=True):
             for sname, msgid in STREAMS.items():
@@ -288,6 +295,16 @@ class Onboard:
         elif mode == LAND:
             if vs.armed:
                 self.navigator.step_land(t)
+        elif vs.armed:
+            if mode == LOITER:
+                self.navigator.step_loiter(t)
+            elif mode == POSCTL:
+                self.manual.step(t)
+            elif mode == RTL:
+                self.navigator.step_rtl(t)
+            elif mode == MISSION:
+                self.mission.step(t)
+        self.mission.tick(t)
         if vs.fs_active and mode == LOITER and t - vs.fs_t0 > vs.fail_act_us:
             self.failsafe.hold_expired()
         self.navigator.detect_air_and_ground(t)
