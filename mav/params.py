@@ -57,6 +57,22 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
                  "battery internal resistance (-1: the vehicle preset's)"),
     OnboardParam("BAT_LOW_THR", 0.15, 0.05, 0.5, "1", "remaining charge that warns"),
     OnboardParam("BAT_CRIT_THR", 0.07, 0.01, 0.5, "1", "remaining charge that warns critically"),
+    OnboardParam("BAT_EMERGEN_THR", 0.05, 0.0, 0.5, "1",
+                 "remaining charge of the emergency level (PX4's default)"),
+    OnboardParam("COM_LOW_BAT_ACT", 0.0, 0.0, 3.0, "",
+                 "battery failsafe: 0 warn, 2 land at critical, 3 return at critical and land "
+                 "at emergency (PX4)"),
+    OnboardParam("NAV_DLL_ACT", 0.0, 0.0, 3.0, "",
+                 "GCS link loss failsafe: 0 off, 1 hold, 2 return, 3 land (PX4)"),
+    OnboardParam("COM_DL_LOSS_T", 10.0, 5.0, 300.0, "s",
+                 "GCS heartbeat silence that counts as a lost link (PX4)"),
+    OnboardParam("GF_ACTION", 2.0, 0.0, 5.0, "",
+                 "geofence breach: 0 none, 1 warn, 2 hold, 3 return, 5 land (PX4; 4, terminate, "
+                 "holds instead)"),
+    OnboardParam("GF_MAX_HOR_DIST", 0.0, 0.0, 10000.0, "m",
+                 "geofence radius about home (0: no horizontal limit)"),
+    OnboardParam("GF_MAX_VER_DIST", 0.0, 0.0, 10000.0, "m",
+                 "geofence height above home (0: no vertical limit)"),
     # automatic flight to a point (missions, RTL, go-to). PX4's names and meanings; the
     # defaults are scaled to a 60 g indoor vehicle (PX4's are for outdoor multicopters:
     # MPC_XY_CRUISE 5 m/s, MPC_ACC_HOR 3 m/s^2, NAV_ACC_RAD 2 m, NAV_MC_ALT_RAD 0.8 m,

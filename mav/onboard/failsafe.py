@@ -1,11 +1,22 @@
-"""Failsafes: lost offboard setpoints (hold, then land, as PX4's COM_OF_LOSS_T /
-COM_FAIL_ACT_T), and battery warnings (BAT_LOW_THR, BAT_CRIT_THR). GCS-link loss, battery
-actions and the geofence go here too."""
+"""Failsafes, each with its PX4 parameter and a STATUSTEXT:
+
+- offboard setpoints lost: hold, then land (COM_OF_LOSS_T, COM_FAIL_ACT_T);
+- ground-station link lost: no HEARTBEAT from a MAV_TYPE_GCS component for COM_DL_LOSS_T,
+  once one has been heard, while flying: NAV_DLL_ACT (0 off, 1 hold, 2 return, 3 land);
+- battery: warnings at BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR remaining; COM_LOW_BAT_ACT
+  (0 warn only, 2 land at critical, 3 return at critical and land at emergency);
+- geofence: a cylinder about home, GF_MAX_HOR_DIST radius and GF_MAX_VER_DIST height (0: no
+  limit), checked while flying: GF_ACTION (0 none, 1 warn, 2 hold, 3 return, 5 land).
+
+An action fires once per event (the link lost, a battery level crossed, the fence breached);
+the user can take over with a new mode at once, as on PX4. Nothing fires on the ground."""
 
 from __future__ import annotations
 
+import math
+
 from mav.onboard.commander import Commander
-from mav.onboard.defs import LAND, LOITER, ON_GROUND, M
+from mav.onboard.defs import LAND, LOITER, ON_GROUND, RTL, M
 from mav.onboard.links import Outbox
 from mav.onboard.status import VehicleStatus
 
@@ -33,11 +44,79 @@ class Failsafe:
             self.out.statustext("Failsafe: offboard not back, landing", M.MAV_SEVERITY_CRITICAL)
             self.cmd.set_mode(LAND)
 
+    def act(self, action: int, why: str) -> None:
+        """PX4's failsafe actions by NAV_DLL_ACT / GF_ACTION number: 1 hold, 2 return, 3 land
+        (0 and other numbers: the message alone)."""
+        vs = self.vs
+        flying = vs.armed and vs.landed_state != ON_GROUND
+        mode = {1: LOITER, 2: RTL, 3: LAND}.get(action) if flying else None
+        if mode is None:
+            self.out.statustext(why[0].upper() + why[1:], M.MAV_SEVERITY_WARNING)
+            return
+        what = {LOITER: "holding", RTL: "returning", LAND: "landing"}[mode]
+        self.out.statustext(f"Failsafe: {why}, {what}", M.MAV_SEVERITY_CRITICAL)
+        if mode == LOITER:         # hold here, also ending a go-to in AUTO.LOITER
+            self.cmd.set_mode(LOITER)
+            self.cmd.hold_here()
+        elif mode is not None and vs.mode != mode:
+            self.cmd.set_mode(mode)
+
+    # ------------------------------------------------------------------ GCS link
+    def on_heartbeat(self, ch, msg) -> None:
+        if msg.type == M.MAV_TYPE_GCS:
+            vs = self.vs
+            if vs.gcs_lost:
+                vs.gcs_lost = False
+                self.out.statustext("GCS connection regained", M.MAV_SEVERITY_INFO)
+            vs.gcs_last_us = vs.t_us
+
+    def check_gcs(self, t: int) -> None:
+        vs = self.vs
+        if vs.gcs_last_us < 0 or vs.gcs_lost:
+            return
+        if t - vs.gcs_last_us > int(vs.own["COM_DL_LOSS_T"] * 1e6):
+            vs.gcs_lost = True
+            act = int(vs.own["NAV_DLL_ACT"])
+            if vs.armed and vs.landed_state != ON_GROUND:
+                self.act(act, "GCS connection lost")
+            else:
+                self.out.statustext("GCS connection lost", M.MAV_SEVERITY_WARNING)
+
+    # ------------------------------------------------------------------ geofence
+    def check_geofence(self) -> None:
+        vs = self.vs
+        own = vs.own
+        r_max, h_max = own["GF_MAX_HOR_DIST"], own["GF_MAX_VER_DIST"]
+        if (r_max <= 0.0 and h_max <= 0.0) or vs.home is None or not vs.armed \
+                or vs.landed_state == ON_GROUND:
+            return
+        s, (hx, hy, hz) = vs.state, vs.home
+        out = (r_max > 0.0 and math.hypot(s.x - hx, s.y - hy) > r_max) or (
+            h_max > 0.0 and hz - s.z > h_max)
+        if out and not vs.fence_breached:
+            vs.fence_breached = True
+            act = int(own["GF_ACTION"])
+            if act > 0:
+                self.act({2: 1, 3: 2, 4: 1, 5: 3}.get(act, 0), "geofence breached")
+        elif not out and vs.fence_breached:
+            vs.fence_breached = False
+
+    # ------------------------------------------------------------------ battery
     def battery_warning(self) -> None:
         vs = self.vs
         vs.bat_warned += 1
-        low = vs.bat_warned == 1
-        self.out.statustext(f"Battery {'low' if low else 'critical'}: "
-                            f"{100.0 * vs.battery.remaining:.0f}% remaining",
-                            M.MAV_SEVERITY_WARNING if low else M.MAV_SEVERITY_CRITICAL)
+        level = ("low", "critical", "emergency")[min(vs.bat_warned, 3) - 1]
+        text = f"Battery {level}: {100.0 * vs.battery.remaining:.0f}% remaining"
+        act = int(vs.own["COM_LOW_BAT_ACT"])
         self.apply_params()
+        # PX4 COM_LOW_BAT_ACT: 2 land at critical; 3 return at critical, land at emergency
+        action = 0
+        if vs.bat_warned == 2 and act in (2, 3):
+            action = 3 if act == 2 else 2
+        elif vs.bat_warned >= 3 and act in (2, 3):
+            action = 3
+        if action and vs.armed and vs.landed_state != ON_GROUND:
+            self.act(action, f"battery {level}")
+        else:
+            self.out.statustext(text, M.MAV_SEVERITY_WARNING if vs.bat_warned == 1
+                                else M.MAV_SEVERITY_CRITICAL)

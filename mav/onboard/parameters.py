@@ -60,8 +60,11 @@ class Parameters:
         vs.fail_act_us = int(round(own["COM_FAIL_ACT_T"] * 1e6))
         vs.battery.configure(own["BAT1_CAPACITY"], own["BAT1_R_INTERNAL"])
         cap = vs.battery.capacity_mah
-        thr = own["BAT_LOW_THR"] if vs.bat_warned == 0 else own["BAT_CRIT_THR"]
-        vs.bat_warn_mah = (1.0 - thr) * cap if vs.bat_warned < 2 else math.inf
+        if vs.bat_warned < 3:
+            thr = own[("BAT_LOW_THR", "BAT_CRIT_THR", "BAT_EMERGEN_THR")[vs.bat_warned]]
+            vs.bat_warn_mah = (1.0 - thr) * cap
+        else:
+            vs.bat_warn_mah = math.inf
 
     def load_file(self, path: str) -> None:
         """Apply a parameter file; unknown names are noted in `warnings`, bad values raise."""

@@ -41,7 +41,10 @@ class VehicleStatus:
     # ---- failsafe
     fs_active: bool = False                # holding after an offboard loss
     fs_t0: int = 0
-    bat_warned: int = 0                    # 0 none, 1 low, 2 critical
+    bat_warned: int = 0                    # 0 none, 1 low, 2 critical, 3 emergency
+    gcs_last_us: int = -1                  # last HEARTBEAT from a GCS (-1: none heard yet)
+    gcs_lost: bool = False
+    fence_breached: bool = False
     # ---- telemetry requests raised by the parts for the end of this tick
     hb_now: bool = False                   # HEARTBEAT (mode or arming changed)
     ext_now: bool = False                  # EXTENDED_SYS_STATE (landed state changed)

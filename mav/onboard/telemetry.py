@@ -206,9 +206,9 @@ class Telemetry:
             wire.clamp_int(b.energy_j / 100.0, 0, (1 << 31) - 1),
             wire.clamp_int(100.0 * b.remaining, 0, 100),
             wire.clamp_int(b.time_remaining_s(), 0, (1 << 31) - 1),
-            M.MAV_BATTERY_CHARGE_STATE_OK if vs.bat_warned == 0 else (
-                M.MAV_BATTERY_CHARGE_STATE_LOW if vs.bat_warned == 1
-                else M.MAV_BATTERY_CHARGE_STATE_CRITICAL),
+            (M.MAV_BATTERY_CHARGE_STATE_OK, M.MAV_BATTERY_CHARGE_STATE_LOW,
+             M.MAV_BATTERY_CHARGE_STATE_CRITICAL,
+             M.MAV_BATTERY_CHARGE_STATE_EMERGENCY)[min(vs.bat_warned, 3)],
             [0, 0, 0, 0], 0, 0)))
 
     def emit_vfr_hud(self, ch: Chan) -> None:

@@ -117,8 +117,9 @@ class Onboard:
         self.telemetry = tel = Telemetry(vs, out, cmd, prm, self.geo, cfg.sysid,
                                          cfg.origin_alt_m, mis)
         self.commands = Commands(vs, out, cmd, nav, tel, cfg.sysid, cfg.compid, mis)
-        self.input = LinkInput(vs, out, self.commands.handlers(ofb.on_setpoint_msg, prm, man),
-                               ofb.on_setpoint)
+        handlers = self.commands.handlers(ofb.on_setpoint_msg, prm, man)
+        handlers[M.MAVLINK_MSG_ID_HEARTBEAT] = self.failsafe.on_heartbeat
+        self.input = LinkInput(vs, out, handlers, ofb.on_setpoint)
         for ch, rates in zip(chans, (cfg.api_rates_hz, cfg.gcs_rates_hz), strict=True):
             for sname, msgid in STREAMS.items():
                 st = Stream(msgid, hz_to_us(rates.get(sname, 0.0)), tel.emitter(msgid))
@@ -305,6 +306,9 @@ class Onboard:
             elif mode == MISSION:
                 self.mission.step(t)
         self.mission.tick(t)
+        fs = self.failsafe
+        fs.check_gcs(t)
+        fs.check_geofence()
         if vs.fs_active and mode == LOITER and t - vs.fs_t0 > vs.fail_act_us:
             self.failsafe.hold_expired()
         self.navigator.detect_air_and_ground(t)
