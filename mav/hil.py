@@ -25,6 +25,7 @@ _ODO_HEAD = struct.Struct("<Q13f")
 _ODO_TAIL = wire.ODOMETRY.st.pack(0, *(0.0,) * 13, math.nan, *(0.0,) * 20, math.nan,
                                   *(0.0,) * 20, mavlink2.MAV_FRAME_LOCAL_NED,
                                   mavlink2.MAV_FRAME_LOCAL_NED, 0, 1, 100)[_ODO_HEAD.size:]
+_ODO_TAIL_LOST = _ODO_TAIL[:-1] + struct.pack("<b", -1)     # quality -1: the estimate failed
 
 
 class HilSimulatorCodec:
@@ -36,6 +37,11 @@ class HilSimulatorCodec:
         `wire.encode_odometry(mav, t_us, *m, estimator_type=1, quality=100)`, with the
         constant tail of the payload packed once."""
         return wire.frame(self.mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL)
+
+    def encode_odometry_lost(self, t_us: int, m: tuple[float, ...]) -> bytes:
+        """The same with quality -1 (MAVLink: odometry has failed): the position and velocity
+        in `m` are stale, attitude and rates live (a fault: cosim.sim.faults)."""
+        return wire.frame(self.mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL_LOST)
 
     def decode_actuators(self, data: bytes) -> tuple[int, float, float, float, float]:
         f = wire.decode_hil_actuator_controls(data)

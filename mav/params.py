@@ -66,6 +66,8 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
                  "GCS link loss failsafe: 0 off, 1 hold, 2 return, 3 land (PX4)"),
     OnboardParam("COM_DL_LOSS_T", 10.0, 5.0, 300.0, "s",
                  "GCS heartbeat silence that counts as a lost link (PX4)"),
+    OnboardParam("COM_POS_FS_DELAY", 1.0, 1.0, 100.0, "s",
+                 "position estimate lost this long while flying: land (PX4)"),
     OnboardParam("GF_ACTION", 2.0, 0.0, 5.0, "",
                  "geofence breach: 0 none, 1 warn, 2 hold, 3 return, 5 land (PX4; 4, terminate, "
                  "holds instead)"),

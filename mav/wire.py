@@ -273,9 +273,10 @@ def _one_frame_decoder(m: FastMsg, used: struct.Struct):
 
 
 # ODOMETRY -> (time_usec, x, y, z, qw, qx, qy, qz, vx, vy, vz, rollspeed, pitchspeed, yawspeed,
-# frame_id, child_frame_id): the covariances and trailing fields the onboard stack does not use
-# are skipped (the onboard stack's per-tick HIL input).
-decode_odometry = _one_frame_decoder(ODOMETRY, struct.Struct("<Q13f168xBB"))
+# frame_id, child_frame_id, quality): the covariances, reset counter and estimator type, which
+# the onboard stack does not use, are skipped (the onboard stack's per-tick HIL input).
+# quality (int8): -1 the estimate has failed, 0 unknown, 1..100 worst..best (MAVLink).
+decode_odometry = _one_frame_decoder(ODOMETRY, struct.Struct("<Q13f168xBB2xb"))
 
 # HIL_ACTUATOR_CONTROLS -> (time_usec, controls[0..3]): the four motors the simulator applies
 # (the simulator's per-tick HIL input).

@@ -152,8 +152,8 @@ def test_decode_odometry_matches_pymavlink():
         r = a.decode(bytearray(data))
         got = wire.decode_odometry(data)
         want = (r.time_usec, r.x, r.y, r.z, *r.q, r.vx, r.vy, r.vz, r.rollspeed, r.pitchspeed,
-                r.yawspeed, r.frame_id, r.child_frame_id)
-        assert struct.pack("<Q13dBB", *got) == struct.pack("<Q13dBB", *want)
+                r.yawspeed, r.frame_id, r.child_frame_id, r.quality)
+        assert struct.pack("<Q13dBBb", *got) == struct.pack("<Q13dBBb", *want)
 
 
 def test_decoders_refuse_bad_frames():

@@ -55,6 +55,7 @@ def summarize(res: RunResult) -> dict[str, Any]:
         "passed": all(c["passed"] for c in crit.values())
         and res.exit_reason.value not in FAILED_EXITS,
         "events": [[t, name] for t, name in res.events],
+        "faults": [[t, what] for t, what in res.faults],   # [faults]: when each took effect
         "onboard_stats": res.onboard_stats,
         "versions": versions(),
         "platform": f"{platform.system()} {platform.machine()}, {sys.implementation.name}",

@@ -21,6 +21,7 @@ from cosim.plant.vehicles import PRESETS, get_vehicle
 from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
 from cosim.sensors.camera import parse_camera
+from cosim.sim.faults import parse_faults
 from cosim.world.floor import World
 from cosim.world.wind import parse_wind
 
@@ -136,9 +137,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     )
     wind_spec = parse_wind(table(raw, "wind", ""))
     wind = wind_spec.mean
-    faults = table(raw, "faults", "")
-    if faults:
-        raise ScenarioError("faults", faults, "an empty table (fault injection is reserved)")
+    faults = parse_faults(table(raw, "faults", ""))
 
     # criteria
     c = table(raw, "criteria", "")
@@ -179,6 +178,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         timing=timing, world=world, camera=camera, app=app, noise=noise,
         wind_ned_mps=wind, criteria=criteria, source=source, raw=raw, world_table=world_table,
         wind=wind_spec,
+        faults=faults,
     )
 
 

@@ -82,3 +82,4 @@ class Scenario:
     raw: dict[str, Any] = field(default_factory=dict, repr=False)  # the TOML, for re-parsing
     world_table: dict[str, Any] = field(default_factory=dict, repr=False)  # [world], file merged
     wind: Any = None                          # cosim.world.wind.WindSpec (mean = wind_ned_mps)
+    faults: Any = None                        # cosim.sim.faults.FaultSpec ([faults]; falsy: none)

@@ -15,13 +15,15 @@ import numpy as np
 
 
 class Hooks(Protocol):
+    odometry_lost: bool   # after on_odometry: send this tick's ODOMETRY with quality -1
+
     def wrap_link(self, name: str, link):
         """`name` in ('api', 'gcs', 'hil'): return the link to use (the same, or a wrapper)."""
         ...
 
     def on_odometry(self, t_us: int, meas: tuple[float, ...]) -> tuple[float, ...]:
-        """The measurement sent at t_us (a dropout repeats an old one: the HIL lockstep needs
-        one ODOMETRY per tick)."""
+        """The measurement sent at t_us (a dropout sets `odometry_lost` and repeats the old
+        position: the HIL lockstep needs one ODOMETRY per tick)."""
         ...
 
     def on_frame(self, t_us: int, img: np.ndarray) -> np.ndarray | None:

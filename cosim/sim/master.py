@@ -178,6 +178,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
 
         gusty = WindField(sc.wind, h, sc.seed).at
     hooks = opts.hooks
+    if hooks is None and sc.faults:
+        from cosim.sim.faults import FaultHooks
+
+        hooks = FaultHooks(sc.faults, sc.seed)
     fps = 1.0 / (cam_every * h)
     video = VideoSink(run_dir / "camera.mp4", fps) if opts.video else None
     pngs = PngSink(run_dir / "frames") if opts.png_every else None
@@ -197,7 +201,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     try:
         plant = build_plant(sc)
         camera = build_camera(sc)
-        vehicle = OnboardHandle(sc, opts, tlog, run_dir)
+        vehicle = OnboardHandle(sc, opts, tlog, run_dir, hooks)
         app = build_app(sc, opts)
         if app is not None:
             start_app(app, sc, vehicle, camera, run_dir)
@@ -208,6 +212,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         y = plant.y
         # the per-tick calls as locals (one lookup each per run, not per tick)
         measure, encode_odometry = sensor.measure, codec.encode_odometry
+        encode_valid, encode_lost = codec.encode_odometry, codec.encode_odometry_lost
         exchange, decode_actuators = vehicle.exchange, codec.decode_actuators
         drain_gcs, plant_step, record = vehicle.drain_gcs, plant.step, spool.append
         check_exit = monitor.check
@@ -226,6 +231,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                 meas = measure(y)
                 if hooks is not None:
                     meas = hooks.on_odometry(t_us, meas)
+                    encode_odometry = encode_lost if hooks.odometry_lost else encode_valid
                 # 3-4. the camera on its ticks, then the app's tick
                 if app is not None:
                     if camera is not None and k % cam_every == 0:

@@ -19,7 +19,8 @@ from mav.links import MemoryLink, UdpLink
 class OnboardHandle:
     """The onboard stack seen from the master: MIL in-process or SIL subprocess."""
 
-    def __init__(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path) -> None:
+    def __init__(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path,
+                 hooks=None) -> None:
         self.mode = opts.mode
         self.proc = None
         self._own: tuple = ()
@@ -53,9 +54,9 @@ class OnboardHandle:
             except BaseException:
                 self.close_partial()
                 raise
-        if opts.hooks is not None:  # faults between the app / GCS and the vehicle
-            self.api.inner = opts.hooks.wrap_link("api", self.api.inner)
-            self.gcs.inner = opts.hooks.wrap_link("gcs", self.gcs.inner)
+        if hooks is not None:  # faults between the app / GCS and the vehicle
+            self.api.inner = hooks.wrap_link("api", self.api.inner)
+            self.gcs.inner = hooks.wrap_link("gcs", self.gcs.inner)
 
     def close_partial(self) -> None:
         """After a failed SIL start: close what was opened (process, sockets)."""

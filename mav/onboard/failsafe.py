@@ -5,6 +5,8 @@
   once one has been heard, while flying: NAV_DLL_ACT (0 off, 1 hold, 2 return, 3 land);
 - battery: warnings at BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR remaining; COM_LOW_BAT_ACT
   (0 warn only, 2 land at critical, 3 return at critical and land at emergency);
+- position estimate lost (ODOMETRY quality -1): held level at hover thrust; after
+  COM_POS_FS_DELAY while flying, land;
 - geofence: a cylinder about home, GF_MAX_HOR_DIST radius and GF_MAX_VER_DIST height (0: no
   limit), checked while flying: GF_ACTION (0 none, 1 warn, 2 hold, 3 return, 5 land).
 
@@ -81,6 +83,26 @@ class Failsafe:
                 self.act(act, "GCS connection lost")
             else:
                 self.out.statustext("GCS connection lost", M.MAV_SEVERITY_WARNING)
+
+    # ------------------------------------------------------------------ position estimate
+    def position_lost(self, t: int) -> None:
+        vs = self.vs
+        vs.pos_lost_us, vs.pos_fs_done = t, False
+        self.out.statustext("Position estimate lost, holding level", M.MAV_SEVERITY_CRITICAL)
+
+    def position_regained(self) -> None:
+        self.vs.pos_lost_us = -1
+        self.out.statustext("Position estimate regained", M.MAV_SEVERITY_INFO)
+
+    def check_position(self, t: int) -> None:
+        """No estimate for COM_POS_FS_DELAY while flying: land (it descends once an estimate
+        is back; a blind descent is not modelled)."""
+        vs = self.vs
+        vs.stats["odometry_lost"] += 1
+        if (not vs.pos_fs_done and vs.armed and vs.landed_state != ON_GROUND
+                and t - vs.pos_lost_us > int(vs.own["COM_POS_FS_DELAY"] * 1e6)):
+            vs.pos_fs_done = True
+            self.act(3, "no position estimate")
 
     # ------------------------------------------------------------------ geofence
     def check_geofence(self) -> None:

@@ -45,6 +45,8 @@ class VehicleStatus:
     gcs_last_us: int = -1                  # last HEARTBEAT from a GCS (-1: none heard yet)
     gcs_lost: bool = False
     fence_breached: bool = False
+    pos_lost_us: int = -1                  # when the position estimate was lost (-1: valid)
+    pos_fs_done: bool = False
     # ---- telemetry requests raised by the parts for the end of this tick
     hb_now: bool = False                   # HEARTBEAT (mode or arming changed)
     ext_now: bool = False                  # EXTENDED_SYS_STATE (landed state changed)

@@ -56,6 +56,7 @@ from mav.onboard.offboard import Offboard
 from mav.onboard.parameters import Parameters
 from mav.onboard.status import VehicleStatus
 from mav.onboard.telemetry import Telemetry
+from mav.types import VehicleState
 
 M = mavlink2
 
@@ -63,7 +64,7 @@ STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
          "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "hil_ignored", "hil_bad_values",
          "unknown_msgs", "unhandled_msgs", "not_for_us", "unsigned_rejected", "badsig_rejected",
          "setpoints", "rejected_setpoints", "commands", "commands_unsupported", "param_sets",
-         "param_rejected", "drain_deferred", "handler_errors")
+         "param_rejected", "drain_deferred", "handler_errors", "odometry_lost")
 
 
 class Onboard:
@@ -106,6 +107,7 @@ class Onboard:
         # ---- the parts
         self.geo = wire.FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
         self.origin = (0.0, 0.0)   # m, simulator NED of the local origin (set by the 1st ODOMETRY)
+        self._blind_state = VehicleState()   # what the controller sees without an estimate
         self.commander = cmd = Commander(vs, out)
         self.navigator = nav = Navigator(vs, out, cmd, cfg.control_dt_s, self.geo)
         self.offboard = ofb = Offboard(vs, out, cmd, cfg.sysid, cfg.compid)
@@ -227,7 +229,7 @@ class Onboard:
         if od is None:
             self._hil_not_odometry(data)
             return False
-        (t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r, frame_id, child) = od
+        (t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r, frame_id, child, quality) = od
         chk = x + y + z + qw + qx + qy + qz + vx + vy + vz + p + q + r
         if chk - chk != 0.0 or frame_id != FRAME_LOCAL_NED or (
                 child != FRAME_LOCAL_NED and child != FRAME_BODY_FRD):
@@ -247,14 +249,20 @@ class Onboard:
         vs.t_us = t_us
         s = vs.state
         s.t = t_us * 1e-6
-        ox, oy = self.origin
-        s.x, s.y, s.z = x - ox, y - oy, z
         s.qw, s.qx, s.qy, s.qz = qw, qx, qy, qz
-        if child == FRAME_LOCAL_NED:
-            s.vx, s.vy, s.vz = vx, vy, vz
-        else:   # body FRD velocity -> world NED
-            s.vx, s.vy, s.vz = rotate_body_to_world(qw, qx, qy, qz, vx, vy, vz)
         s.p, s.q, s.r = p, q, r
+        lost = quality < 0 and vs.have_state    # ODOMETRY.quality -1: the estimate failed
+        if not lost:
+            ox, oy = self.origin
+            s.x, s.y, s.z = x - ox, y - oy, z
+            if child == FRAME_LOCAL_NED:
+                s.vx, s.vy, s.vz = vx, vy, vz
+            else:   # body FRD velocity -> world NED
+                s.vx, s.vy, s.vz = rotate_body_to_world(qw, qx, qy, qz, vx, vy, vz)
+            if vs.pos_lost_us >= 0:
+                self.failsafe.position_regained()
+        elif vs.pos_lost_us < 0:
+            self.failsafe.position_lost(t_us)
         if not vs.have_state:
             vs.have_state = True
             self.commander.set_home()
@@ -269,7 +277,7 @@ class Onboard:
             else:
                 sp = vs.setpoint
                 sp.armed = True
-                vs.ctrl.update(s, sp, u)
+                vs.ctrl.update(self._blind(s, sp) if lost else s, sp, u)
         else:
             u[0] = u[1] = u[2] = u[3] = 0.0
         if dt_us > 0:
@@ -281,6 +289,20 @@ class Onboard:
             HIL_MODE_ARMED if vs.armed else HIL_MODE_DISARMED))
         st["ticks"] += 1
         return True
+
+    def _blind(self, s, sp):
+        """Without a position estimate: the controller sees the attitude and rates (the IMU
+        still works) and no position or velocity error, so it holds level at hover thrust and
+        the heading; the vehicle drifts with its momentum, braked by drag."""
+        b = self._blind_state
+        b.t, b.qw, b.qx, b.qy, b.qz, b.p, b.q, b.r = s.t, s.qw, s.qx, s.qy, s.qz, s.p, s.q, s.r
+        b.x = sp.x if sp.x == sp.x else s.x
+        b.y = sp.y if sp.y == sp.y else s.y
+        b.z = sp.z if sp.z == sp.z else s.z
+        b.vx = sp.vx if sp.vx == sp.vx else 0.0
+        b.vy = sp.vy if sp.vy == sp.vy else 0.0
+        b.vz = sp.vz if sp.vz == sp.vz else 0.0
+        return b
 
     def _step_modes(self, t: int) -> None:
         """The modes' work for this tick, failsafes first (in PX4's order of precedence)."""
@@ -309,6 +331,8 @@ class Onboard:
         fs = self.failsafe
         fs.check_gcs(t)
         fs.check_geofence()
+        if vs.pos_lost_us >= 0:
+            fs.check_position(t)
         if vs.fs_active and mode == LOITER and t - vs.fs_t0 > vs.fail_act_us:
             self.failsafe.hold_expired()
         self.navigator.detect_air_and_ground(t)
