@@ -32,7 +32,19 @@ study options (--executor dask, --scheduler, --resume, --keep-runs, --retry-fail
     "sitl": """examples:
   cosim sitl                                  then connect QGroundControl (UDP 14550)
   cosim sitl --vehicle bebop2 --world turns   MAVSDK / scripts on UDP 14540
-  cosim sitl --gcs-remote 127.0.0.1:14551 --gcs-bind 127.0.0.1:18571""",
+  cosim sitl -i 1                             a second vehicle (own process, own world):
+                                              sysid 2, API to 14541, GCS bound on 18571
+  cosim sitl -n 3                             three vehicles in one world: sysid 1, 2, 3
+  cosim sitl --gcs-remote 127.0.0.1:14551 --gcs-bind 127.0.0.1:18571
+ports of instance N, as PX4 SITL (sysid N+1):
+  API link  sends to 14540+N from 14580+N   (MAVSDK: udpin://0.0.0.0:14540+N)
+  GCS link  sends to 14550   from 18570+N   (QGroundControl sees every vehicle on 14550)
+  --api-remote/--api-bind/--gcs-remote/--gcs-bind set the first vehicle's; with -n, vehicle
+  k adds k to each port (0 = any free port stays 0) but the GCS remote, which all share.
+-n: vehicle k (0..n-1) starts k x --spacing m east of the world's start, same heading.
+A crash (hard touchdown, flipped, a collision) respawns that vehicle at its start, on the
+ground, disarmed (links and sysid unchanged). Ctrl-C, SIGTERM or --duration: a normal stop,
+exit 0; a part failing (the FMU, the flight stack): exit 1. Outputs: DIR/N/ per vehicle.""",
     "render": """examples:
   cosim render scenarios/bebop2_room_e1.toml --at 0,0,-1,0 --out view.png
   cosim render scenarios/bebop2_room_e2.toml --at 1,0.3,-1.2,20 --depth depth.png
@@ -111,19 +123,28 @@ def _parser() -> argparse.ArgumentParser:
                    help="through the study engine: continue the study in --out")
     add_montecarlo(add)
 
-    t = add("sitl", help="a vehicle in a world, real time, for ground stations")
+    t = add("sitl", help="vehicles in a world, real time, for ground stations")
     t.add_argument("--vehicle", choices=("mambo", "bebop2"), default="mambo")
     t.add_argument("--world", default="seed", help="a world file or built-in name (seed, ...)")
+    t.add_argument("-i", "--instance", type=int, default=0, metavar="N",
+                   help="PX4 SITL instance of the (first) vehicle: sysid N+1, ports + N")
+    t.add_argument("-n", "--count", type=int, default=1, metavar="COUNT",
+                   help="vehicles in one world, one process: instances N .. N+COUNT-1")
+    t.add_argument("--spacing", type=float, default=1.0, metavar="M",
+                   help="m east between neighbouring vehicles' starts (default 1)")
     t.add_argument("--speed", type=float, default=1.0)
-    t.add_argument("--duration", type=float, default=86_400.0, help="s of simulated time")
+    t.add_argument("--duration", type=float, default=86_400.0,
+                   help="s of simulated time (default 86400)")
+    t.add_argument("--out", type=Path, help="folder (default runs/sitl-<vehicle>); "
+                   "instance N writes DIR/N/")
     t.add_argument("--mcap", action="store_true", help="also write run.mcap at the end")
     t.add_argument("--signing-key", type=Path, metavar="FILE",
                    help="MAVLink 2 signing key file (32 bytes, or 64 hex digits): the vehicle "
                         "signs what it sends and rejects unsigned messages on both links")
-    t.add_argument("--gcs-remote", default="127.0.0.1:14550")
-    t.add_argument("--gcs-bind", default="127.0.0.1:18570")
-    t.add_argument("--api-remote", default="127.0.0.1:14540")
-    t.add_argument("--api-bind", default="127.0.0.1:14580")
+    t.add_argument("--gcs-remote", metavar="HOST:PORT", help="default 127.0.0.1:14550")
+    t.add_argument("--gcs-bind", metavar="HOST:PORT", help="default 127.0.0.1:18570+N")
+    t.add_argument("--api-remote", metavar="HOST:PORT", help="default 127.0.0.1:14540+N")
+    t.add_argument("--api-bind", metavar="HOST:PORT", help="default 127.0.0.1:14580+N")
 
     sub.add_parser("onboard", help="the onboard flight stack process (see --help)",
                    add_help=False)
@@ -315,41 +336,88 @@ def _sweep(args) -> int:
 
 def _sitl(args) -> int:
     from cosim.outputs.folder import claim_run_folder
-    from cosim.outputs.report import one_screen, write_run
     from cosim.scenario.parse import parse_scenario
-    from cosim.sim.master import ExitReason, RunOptions, run_scenario
+    from cosim.sim.fleet import (
+        MAX_INSTANCE,
+        SitlOptions,
+        instance_links,
+        run_fleet,
+        stop_on_signals,
+        write_fleet,
+    )
+    from cosim.sim.master import ExitReason
 
-    def hp(s: str, name: str) -> tuple[str, int]:
+    def hp(s: str | None, name: str) -> tuple[str, int] | None:
+        if s is None:
+            return None
         host, _, port = s.rpartition(":")
         if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
             raise ScenarioError(name, s, "HOST:PORT with a port in 0..65535")
         return host, int(port)
 
     _check_speed(args.speed)
+    if not 0 <= args.instance <= MAX_INSTANCE:
+        raise ScenarioError("--instance", args.instance, f"0..{MAX_INSTANCE} (sysid N+1)")
+    if not 1 <= args.count <= MAX_INSTANCE + 1 - args.instance:
+        raise ScenarioError("--count", args.count, f"1..{MAX_INSTANCE + 1 - args.instance} "
+                            f"(the last sysid is at most {MAX_INSTANCE + 1})")
+    if not (args.spacing >= 0 and args.spacing < 1e3):
+        raise ScenarioError("--spacing", args.spacing, "m in [0, 1000)")
+    given = {f: hp(getattr(args, f), "--" + f.replace("_", "-"))
+             for f in ("api_bind", "api_remote", "gcs_bind", "gcs_remote")}
+    links = tuple(instance_links(args.instance + k, k, **given) for k in range(args.count))
+    for name, (bind, remote) in links[-1].items():   # an explicit port + k still a port
+        for what, (_, port) in (("bind", bind), ("remote", remote)):
+            if port > 65535:
+                raise ScenarioError(f"--{name}-{what}", port - args.count + 1,
+                                    f"a port that leaves room for {args.count} vehicles")
     key = read_signing_key(args.signing_key, "--signing-key") if args.signing_key else None
-    world = _world_table(args.world)
     sc = parse_scenario({
         "name": f"sitl-{args.vehicle}",
         "vehicle": {"preset": args.vehicle},
-        "world": world,
+        "world": _world_table(args.world),
         "timing": {"t_final_s": args.duration},
         "criteria": {"must_complete": False},
     }, source=str(Path.cwd() / "sitl.toml"))
-    links = {"gcs": (hp(args.gcs_bind, "--gcs-bind"), hp(args.gcs_remote, "--gcs-remote")),
-             "api": (hp(args.api_bind, "--api-bind"), hp(args.api_remote, "--api-remote"))}
-    out = Path("runs") / sc.name
-    print(f"cosim sitl: {args.vehicle} in world {args.world}; GCS link -> {args.gcs_remote}, "
-          f"API link -> {args.api_remote}; Ctrl-C to stop", file=sys.stderr, flush=True)
-    with claim_run_folder(out):
-        res = run_scenario(sc, RunOptions(mode="mil", realtime=True, speed=args.speed,
-                                          out_dir=out, external_links=links, sitl=True,
-                                          mcap=args.mcap, signing_key=key))
-        summary = write_run(res, out, plots=False)
-    print(one_screen(summary, out))
-    if res.exit_reason is ExitReason.COMPONENT_ERROR:
-        print(f"cosim: sitl failed: {res.message}", file=sys.stderr)
+    out = args.out or Path("runs") / sc.name
+    _check_out_dir(out, "--out")
+    so = SitlOptions(out_dir=out, instance=args.instance, count=args.count,
+                     spacing_m=args.spacing, speed=args.speed, links=links, signing_key=key)
+    _check_spawns(sc, so)
+    print(f"cosim sitl: {args.count} x {args.vehicle} in world {args.world}; Ctrl-C to stop",
+          file=sys.stderr, flush=True)
+    folders = [out / str(args.instance + k) for k in range(args.count)]
+    with contextlib.ExitStack() as held, stop_on_signals() as stop:
+        for f in folders:
+            held.enter_context(claim_run_folder(f))
+        fr = run_fleet(sc, so, stop)
+        lines = write_fleet(fr, mcap=args.mcap)
+    print("\n".join(lines))
+    if fr.exit_reason is ExitReason.COMPONENT_ERROR:
+        print(f"cosim sitl: failed: {fr.message}", file=sys.stderr)
         return 1
+    if fr.exit_reason is ExitReason.STOPPED:
+        names = "/".join(signal.Signals(s).name for s in stop.signals[:1])
+        print(f"cosim sitl: {fr.message}" + (f" ({names})" if names else ""))
+    else:
+        print(f"cosim sitl: {fr.message}")
     return 0
+
+
+def _check_spawns(sc, so) -> None:
+    """Every vehicle's start clear of walls, boxes and columns (3D worlds)."""
+    from cosim.sim.fleet import start_offset
+
+    scene = sc.world.scene
+    if scene is None or scene.empty:
+        return
+    for k in range(so.count):
+        e = sc.start.e + start_offset(k, so.spacing_m)
+        gap, what = scene.clearance(sc.start.n, e, 0.0, sc.vehicle.body_radius)
+        if gap < 0.0:
+            raise ScenarioError("--count" if k else "--world", so.count if k else sc.name,
+                                f"vehicles whose starts are clear: vehicle {k} would start at "
+                                f"N {sc.start.n:.2f} E {e:.2f} m, in the {what}")
 
 
 def read_signing_key(path: Path, flag: str) -> bytes:

@@ -31,6 +31,12 @@ SQ = str(ROOT / "scenarios" / "scripted_square.toml")
     (["sitl", "--gcs-bind", "127.0.0.1:99999"], "--gcs-bind"),
     (["sitl", "--api-remote", "nohost"], "--api-remote"),
     (["sitl", "--world", "atlantis"], "--world"),
+    (["sitl", "-i", "255"], "--instance"),
+    (["sitl", "-n", "0"], "--count"),
+    (["sitl", "-i", "250", "-n", "6"], "--count"),
+    (["sitl", "--spacing", "-1"], "--spacing"),
+    (["sitl", "-n", "2", "--api-remote", "127.0.0.1:65535"], "--api-remote"),
+    (["sitl", "--world", "room_e1", "-n", "3"], "--count"),     # the third in the east wall
     (["validate", str(ROOT)], "scenario"),
 ])
 def test_bad_input_exits_2_naming_it(argv, field, capsys, tmp_path, monkeypatch):

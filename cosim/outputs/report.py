@@ -65,17 +65,20 @@ def summarize(res: RunResult) -> dict[str, Any]:
 LINE_FRAME_COLUMNS = ("t", "flag_track", "flag_marker", "e_x_px", "e_y_px")
 
 
-def write_run(res: RunResult, out: Path, *, plots: bool = True) -> dict[str, Any]:
+def write_run(res: RunResult, out: Path, *, plots: bool = True,
+              extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write everything the run recorded into `out`; returns the summary dict.
 
     The run streamed its tlog, video and PNG frames into `res.run_dir`; they are copied when
-    `out` is another folder.
+    `out` is another folder. `extra`: more summary fields from the caller (`cosim sitl`: the
+    vehicle's instance, links and respawns).
     """
     out.mkdir(parents=True, exist_ok=True)
     same = out.resolve() == res.run_dir.resolve()
     if not same:
         clean_run_folder(out)
     summary = summarize(res)
+    summary.update(extra or {})
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
     write_series(res, out / "timeseries.csv")
     if res.frame_log:

@@ -23,6 +23,7 @@ class ExitReason(enum.Enum):
     TIME_LIMIT = "time_limit"               # timing.t_final_s reached
     COMPONENT_ERROR = "component_error"     # a part failed (plant, onboard, app, camera)
     INTERRUPTED = "interrupted"             # Ctrl-C
+    STOPPED = "stopped"                     # cosim sitl: Ctrl-C or SIGTERM, a normal stop
 
 
 CEILING_M = 5.0            # m above the floor: higher is "left the arena"
@@ -58,9 +59,10 @@ def left_arena(arena, n: float, e: float, d: float) -> Exit | None:
 class ExitMonitor:
     """The exit conditions and the touchdown bookkeeping they need.
 
-    `sitl`: only crashes end the run (a vehicle for outside clients has no mission and no
-    arena). `app`: the app object or None; a landed, disarmed vehicle whose app is done (or
-    that has no app) completes the mission.
+    `sitl`: only crashes (hard touchdown, flipped, a collision) are reported (a vehicle for
+    outside clients has no mission and no arena; `cosim sitl` respawns it). `app`: the app
+    object or None; a landed, disarmed vehicle whose app is done (or that has no app)
+    completes the mission.
     """
 
     def __init__(self, arena, tick_s: float, app, *, sitl: bool = False, scene=None,

@@ -105,6 +105,30 @@ def part(name: str):
         raise ComponentError(name, f"{type(exc).__name__}: {exc}") from exc
 
 
+class Pacer:
+    """Real time: `wait(t)` sleeps until simulated time t (s) is due on the wall clock, at
+    `speed` x real time from `wall0` (a perf_counter reading). Further behind than STALL_S is
+    a host stall: skipped (the clock is moved on), counted in `stalls` and `lost_s`, not
+    replayed as fast ticks."""
+
+    __slots__ = ("speed", "wall0", "stalls", "lost_s")
+
+    def __init__(self, speed: float, wall0: float) -> None:
+        self.speed = speed
+        self.wall0 = wall0
+        self.stalls = 0
+        self.lost_s = 0.0          # s of wall time lost to host stalls
+
+    def wait(self, t: float) -> None:
+        late = (time.perf_counter() - self.wall0) - t / self.speed
+        if late < 0.0:
+            time.sleep(-late)
+        elif late > STALL_S:   # the host stalled: not replayed as fast ticks
+            self.wall0 += late
+            self.lost_s += late
+            self.stalls += 1
+
+
 # ------------------------------------------------------------------ the parts, built once
 def build_plant(sc: Scenario) -> Plant:
     with part("plant"):
@@ -195,7 +219,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     phase_idx: dict[str, int] = {}
     exit_reason, message = ExitReason.TIME_LIMIT, "time limit reached"
     plant = vehicle = app = monitor = None
-    lost_s, stalls = 0.0, 0      # real-time mode: wall time lost to host stalls, not replayed
+    pacer = None                 # real-time mode: the wall-clock pacing and its host stalls
     wall0 = time.perf_counter()
     loop0 = None
     try:
@@ -218,8 +242,9 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         check_exit = monitor.check
         on_tick = app.on_tick if app is not None else None
         realtime, progress, png_every = opts.realtime, opts.progress, opts.png_every
-        speed = opts.speed
-        loop0 = pace0 = time.perf_counter()
+        loop0 = time.perf_counter()
+        pacer = Pacer(opts.speed, loop0)
+        pace = pacer.wait
         stage = "sensor"   # the part running now: a failure is reported as this part's
         try:
             for k in range(n_ticks):
@@ -285,13 +310,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                     exit_reason, message = ended
                     break
                 if realtime:
-                    late = (time.perf_counter() - pace0) - (t + h) / speed
-                    if late < 0.0:
-                        time.sleep(-late)
-                    elif late > STALL_S:   # the host stalled: not replayed as fast ticks
-                        pace0 += late
-                        lost_s += late
-                        stalls += 1
+                    pace(t + h)
                 if progress and k % 2000 == 0:
                     el = time.perf_counter() - wall0
                     print(f"\r  t = {t:7.1f} s  phase = {phases[pi]:<12s} "
@@ -328,7 +347,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         png_count=pngs.count if pngs is not None else 0, onboard_stats=stats,
         loop_wall_s=wall_end - loop0 if loop0 is not None else 0.0,
         faults=hooks.fired() if hooks is not None else [],
-        realtime_stalls=stalls, realtime_lost_s=lost_s,
+        realtime_stalls=pacer.stalls if pacer else 0,
+        realtime_lost_s=pacer.lost_s if pacer else 0.0,
         min_clearance=monitor.min_clearance if monitor else None,
         frame_columns=getattr(app, "frame_columns", None),
         reference_poses=list(getattr(app, "reference_poses", None) or []) or None,

@@ -1,6 +1,6 @@
 """The onboard flight stack seen from the master: in this process (MIL) or as its own OS
 process (SIL), behind one interface: `exchange` one HIL datagram for the answer, the API and
-GCS links (tapped into the run's tlog), `stats`, `close`."""
+GCS links (tapped into the run's tlog), `stats`, `close`; for `cosim sitl`, `respawn`."""
 
 from __future__ import annotations
 
@@ -20,10 +20,16 @@ class OnboardHandle:
     """The onboard stack seen from the master: MIL in-process or SIL subprocess."""
 
     def __init__(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path,
-                 hooks=None) -> None:
+                 hooks=None, *, sysid: int = 1,
+                 origin: tuple[float, float, float] | None = None) -> None:
+        """`hooks`: fault injection on the links (cosim.sim.hooks); `sysid`: the vehicle's
+        MAVLink system id; `origin`: the geodetic origin of its local frame (lat deg, lon deg,
+        alt m AMSL; None: the flight stack's default)."""
         self.mode = opts.mode
         self.proc = None
         self._own: tuple = ()
+        self.bound: dict[str, tuple[str, int]] = {}   # external links: their local addresses
+        self._stats0: dict[str, int] = {}             # counters of the stacks before a respawn
         vname = sc.vehicle.name
         if opts.mode == "mil":
             from mav.onboard import Onboard, OnboardConfig
@@ -31,18 +37,28 @@ class OnboardHandle:
             hil_m, hil_v = MemoryLink.pair()
             if opts.external_links:
                 api_app = gcs_m = MemoryLink()  # nothing of the master's on these links
+                udp = []
                 try:
-                    api_v = UdpLink(*opts.external_links["api"])
-                    gcs_v = UdpLink(*opts.external_links["gcs"])
+                    for name in ("api", "gcs"):
+                        udp.append(UdpLink(*opts.external_links[name]))
                 except OSError as exc:
+                    for link in udp:
+                        link.close()
                     raise ComponentError("onboard", f"cannot bind the API/GCS links: {exc}"
                                          ) from None
+                self.bound = {"api": udp[0].local_address, "gcs": udp[1].local_address}
+                # the outside clients' traffic goes straight to the vehicle: tapped there
+                api_v, gcs_v = TapLink(udp[0], tlog), TapLink(udp[1], tlog)
             else:
                 api_app, api_v = MemoryLink.pair()
                 gcs_m, gcs_v = MemoryLink.pair()
-            self.onboard = Onboard(OnboardConfig(vehicle=vname, signing_key=opts.signing_key),
+            geo = {} if origin is None else dict(
+                zip(("origin_lat_deg", "origin_lon_deg", "origin_alt_m"), origin, strict=True))
+            self.onboard = Onboard(OnboardConfig(vehicle=vname, sysid=sysid,
+                                                 signing_key=opts.signing_key, **geo),
                                    hil_v, api_v, gcs_v)
-            self._own = (api_v, gcs_v) if opts.external_links else ()
+            if opts.external_links:
+                self._own = (api_v, gcs_v)
             if sc.vehicle != get_vehicle(vname):   # the flight stack flies the changed plant
                 self.onboard.set_airframe(Airframe(name=vname, **sc.vehicle.fmu_parameters()))
             self.hil = hil_m
@@ -50,7 +66,7 @@ class OnboardHandle:
             self.gcs = TapLink(gcs_m, tlog)
         else:
             try:
-                self._start_sil(sc, opts, tlog, log_dir)
+                self._start_sil(sc, opts, tlog, log_dir, sysid, origin)
             except BaseException:
                 self.close_partial()
                 raise
@@ -65,7 +81,8 @@ class OnboardHandle:
         if self.proc is not None:
             self.proc.close()
 
-    def _start_sil(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path) -> None:
+    def _start_sil(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path,
+                   sysid: int, origin: tuple[float, float, float] | None) -> None:
         from cosim.sim.sil import OnboardProcess
 
         vname = sc.vehicle.name
@@ -80,6 +97,10 @@ class OnboardHandle:
         )
         if opts.signing_key is not None:
             overrides += (f"--signing-key={opts.signing_key.hex()}",)
+        if sysid != 1:
+            overrides += (f"--sysid={sysid}",)
+        if origin is not None:
+            overrides += ("--origin=" + ",".join(repr(float(v)) for v in origin),)
         self.proc = OnboardProcess(
             vname, api.local_address, gcs.local_address, log_dir / "onboard.log",
             hil_timeout_s=max(10.0, 5 * opts.hil_timeout_s), extra_args=overrides,
@@ -113,6 +134,15 @@ class OnboardHandle:
             what = self.proc.failure_text()
             raise ComponentError("onboard", f"stopped answering HIL ({what})") from None
 
+    def respawn(self) -> None:
+        """MIL: the flight stack rebooted on the same links and sysid (`Onboard.rebooted`):
+        disarmed, on the ground, home and local origin from the next ODOMETRY."""
+        if self.proc is not None:
+            raise RuntimeError("respawn: the onboard stack runs in this process only (MIL)")
+        for k, v in self.onboard.stats.items():
+            self._stats0[k] = self._stats0.get(k, 0) + v
+        self.onboard = self.onboard.rebooted()
+
     def drain_gcs(self) -> None:
         while self.gcs.recv() is not None:
             pass
@@ -120,7 +150,10 @@ class OnboardHandle:
     def stats(self) -> dict[str, Any]:
         """The onboard stack's counters (SIL: as the process reported them at exit)."""
         if self.proc is None:
-            return dict(getattr(self.onboard, "stats", {}))
+            st = dict(self._stats0)
+            for k, v in getattr(self.onboard, "stats", {}).items():
+                st[k] = st.get(k, 0) + v
+            return st
         return dict(self.proc.stats)
 
     def close(self) -> None:

@@ -208,6 +208,25 @@ class Onboard:
         vs.battery = Battery(vs.battery.p, vehicle.u_hover)
         self.parameters.rebuild_keeping_user_values()
 
+    def rebooted(self) -> Onboard:
+        """A fresh vehicle on the same links and configuration, as after a reboot (a simulator
+        respawns a crashed vehicle with it): disarmed, on the ground, its clock, local origin
+        and home taken from the next ODOMETRY. Kept, as a reboot keeps them: the airframe in
+        use, the parameters the user set, and the signing replay table (a packet captured
+        before the reboot is still old news)."""
+        ctrl = None if self._ctrl_factory is not None else self.status.ctrl
+        if ctrl is not None:
+            ctrl.reset()
+        new = Onboard(self.cfg, self._hil, self._api.link, self._gcs.link, controller=ctrl)
+        if new.vehicle != self.vehicle:
+            new.set_airframe(self.vehicle)
+        new.status.user_params.update(self.status.user_params)
+        new.parameters.rebuild_keeping_user_values()
+        seen = self._api.mav.signing.stream_timestamps
+        for ch in new._chans:
+            ch.mav.signing.stream_timestamps = seen
+        return new
+
     def load_params(self, path: str) -> None:
         """Apply a parameter file; unknown names are noted in `warnings`, bad values raise."""
         self.parameters.load_file(path)
