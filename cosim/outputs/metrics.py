@@ -11,6 +11,8 @@ Definitions (also in the README):
 - landing_error_m: horizontal distance from the touchdown point to the end-marker centre.
 - line_in_view_s: camera frames in which the app saw the line, times the frame period.
 - speed_mean_mps / speed_max_mps: horizontal speed over the following span.
+- fault_displacement_m ([faults]): horizontal distance from where the vehicle was when the
+  first fault took effect to its final touchdown (a vehicle that holds and lands: small).
 - min_clearance_m (3D worlds): the smallest distance between the vehicle's body sphere
   (``body_radius`` of the airframe) and a wall, the ceiling, a box or a column over the run,
   with its time (min_clearance_t_s) and what it was (min_clearance_to); negative ends the run
@@ -74,6 +76,11 @@ def compute_metrics(res: RunResult, world) -> dict[str, Any]:
     if res.frame_log and res.frame_columns is None:    # the line follower's frame records
         period = res.scenario.timing.camera_every * res.scenario.timing.tick_s
         m["line_in_view_s"] = sum(1 for r in res.frame_log if r[1]) * period
+    if res.faults and res.touchdown is not None and res.ticks:
+        t0 = min(t for t, _ in res.faults)
+        t, x, y = res.recorded.columns("t", "x", "y")
+        k = min(int(np.searchsorted(t, t0)), len(t) - 1)
+        m["fault_displacement_m"] = math.hypot(res.touchdown[1] - x[k], res.touchdown[2] - y[k])
     if res.min_clearance is not None:     # 3D worlds: body sphere to walls, boxes, columns
         gap, t, what = res.min_clearance
         m["min_clearance_m"] = gap
@@ -102,6 +109,9 @@ def evaluate(criteria: Criteria, metrics: dict[str, Any], exit_reason: ExitReaso
             "passed": exit_reason is ExitReason.MISSION_COMPLETE
             and metrics.get("goal_reached", True) is True,
         }
+    if criteria.expect_exit is not None:
+        out["expect_exit"] = {"value": exit_reason.value, "limit": criteria.expect_exit,
+                              "passed": exit_reason.value == criteria.expect_exit}
     limits = {
         "landing_error_max_m": "landing_error_m",
         "path_rms_max_m": "path_error_rms_m",
@@ -110,6 +120,7 @@ def evaluate(criteria: Criteria, metrics: dict[str, Any], exit_reason: ExitReaso
         "position_error_max_m": "position_error_max_m",
         "final_pose_error_max_m": "final_pose_error_m",
         "final_yaw_error_max_deg": "final_yaw_error_deg",
+        "fault_displacement_max_m": "fault_displacement_m",
     }
     for crit, metric in limits.items():
         limit = getattr(criteria, crit)

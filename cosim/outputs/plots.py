@@ -132,14 +132,16 @@ def _shade_phases(axs, res, s, t) -> None:
         for ax in axs:
             ax.axvspan(g.start_s, g.start_s + g.duration_s, facecolor="none", hatch="//",
                        edgecolor="grey", lw=0)
-    for i, (tf, what) in enumerate(res.faults):   # [faults]: when each took effect
-        if "->" in what:
-            continue                              # the end-of-run tallies
+    last = -1e9
+    for tf, what in res.faults:                   # [faults]: when each took effect
+        if "->" in what or tf - last < 0.5:       # end-of-run tallies; one mark per moment
+            continue
         for ax in axs:
             ax.axvline(tf, color="tab:red", ls="--", lw=1,
-                       label="fault" if ax is axs[0] and i == 0 else None)
+                       label="fault" if ax is axs[0] and last < 0 else None)
         axs[0].annotate(what.split(" (fault")[0], (tf, 1.0), xycoords=("data", "axes fraction"),
                         fontsize=6, color="tab:red", rotation=90, va="top", ha="right")
+        last = tf
 
 
 def _draw_scene(ax, scene) -> None:

@@ -21,6 +21,7 @@ from cosim.plant.vehicles import PRESETS, get_vehicle
 from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
 from cosim.sensors.camera import parse_camera
+from cosim.sim.exits import ExitReason
 from cosim.sim.faults import parse_faults
 from cosim.world.floor import World
 from cosim.world.wind import parse_wind
@@ -143,7 +144,8 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     c = table(raw, "criteria", "")
     known = {"must_complete", "landing_error_max_m", "path_rms_max_m", "path_max_m",
              "mission_time_max_s", "position_error_max_m", "final_pose_error_max_m",
-             "final_yaw_error_max_deg", "min_clearance_min_m", "coverage_min"}
+             "final_yaw_error_max_deg", "min_clearance_min_m", "coverage_min", "expect_exit",
+             "fault_displacement_max_m"}
     no_unknown(c, known, "criteria")
 
     def opt(key: str) -> float | None:
@@ -161,6 +163,9 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         min_clearance_min_m=opt("min_clearance_min_m"),
         coverage_min=number(c, "coverage_min", "criteria", lo=0.0, hi=1.0)
         if "coverage_min" in c else None,
+        expect_exit=string(c, "expect_exit", "criteria", None,
+                           tuple(r.value for r in ExitReason)),
+        fault_displacement_max_m=opt("fault_displacement_max_m"),
     )
 
     # the parts owned by other modules, parsed here once into their records

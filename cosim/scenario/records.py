@@ -56,6 +56,9 @@ class Criteria:
     final_yaw_error_max_deg: float | None = None  # taught paths: at the last key (deg)
     min_clearance_min_m: float | None = None      # 3D worlds: the body sphere's least gap
     coverage_min: float | None = None             # tracks: fraction flown in order (0-1)
+    expect_exit: str | None = None                # the exit reason the run must end with
+    fault_displacement_max_m: float | None = None  # [faults]: touchdown to where the first
+                                                   # fault found the vehicle (m)
 
 
 @dataclass(frozen=True)

@@ -194,14 +194,12 @@ class _Direction:
         self.held: bytes | None = None          # reorder: waits behind the next datagram
         self.counts = dict.fromkeys(("dropped", "duplicated", "delayed", "reordered"), 0)
 
-    def active(self, t: float) -> bool:
-        return self.f.start_s <= t < self.f.end_s
-
-    def fate(self, t: float, data: bytes) -> list[tuple[float, bytes]]:
-        """[(deliver at t s, datagram)] for one datagram sent at t (empty: dropped)."""
+    def fate(self, t_us: int, data: bytes) -> list[tuple[int, bytes]]:
+        """[(deliver at us, datagram)] for one datagram sent at t_us (empty: dropped)."""
         f, rng = self.f, self.rng
-        if not self.active(t):
-            return self._with_held(t, [(t, data)])
+        t = t_us * 1e-6
+        if not f.start_s <= t < f.end_s:
+            return self._with_held(t_us, [(t_us, data)])
         self.log(t, self.label)
         if f.outage:
             self.counts["dropped"] += 1
@@ -215,26 +213,27 @@ class _Direction:
         delay = (f.latency_ms + (rng.random() * f.jitter_ms if f.jitter_ms else 0.0)) * 1e-3
         if delay > 0.0:
             self.counts["delayed"] += 1
-        out = [(t + delay, data)]
+        due = t_us + int(round(delay * 1e6))
+        out = [(due, data)]
         if f.duplicate > 0.0 and rng.random() < f.duplicate:
             self.counts["duplicated"] += 1
-            out.append((t + delay, data))
+            out.append((due, data))
         if f.reorder > 0.0 and self.held is None and rng.random() < f.reorder:
             self.counts["reordered"] += 1
             self.held = data
             return []
-        return self._with_held(t, out)
+        return self._with_held(t_us, out)
 
-    def _with_held(self, t: float, out: list) -> list:
+    def _with_held(self, t_us: int, out: list) -> list:
         if self.held is not None:
-            out.append((out[-1][0] if out else t, self.held))
+            out.append((out[-1][0] if out else t_us, self.held))
             self.held = None
         return out
 
 
 class FaultyLink:
     """A link wrapper on the app's / GCS's end: to_vehicle faults on send, from_vehicle
-    faults on recv, with delayed datagrams released on simulated time."""
+    faults on recv, with delayed datagrams released on simulated time (integer us)."""
 
     def __init__(self, inner, clock, to_v: list[_Direction], from_v: list[_Direction]) -> None:
         self.inner = inner
@@ -262,8 +261,8 @@ class FaultyLink:
         for b in self._route(self._to, data, self._out):
             self.inner.send(b)
 
-    def release(self, t: float) -> None:
-        """Send the delayed datagrams to the vehicle that are due at t (start of a tick)."""
+    def release(self, t: int) -> None:
+        """Send the delayed datagrams to the vehicle due at t us (the start of a tick)."""
         out = self._out
         while out and out[0][0] <= t:
             self.inner.send(heapq.heappop(out)[2])
@@ -291,6 +290,7 @@ class FaultHooks:
     def __init__(self, spec: FaultSpec, seed: int) -> None:
         self.spec = spec
         self.t = 0.0
+        self.t_us = 0
         self._fired: list[tuple[float, str]] = []
         self._seen: set[str] = set()
         rng = iter(np.random.default_rng([seed, 9, i]) for i in range(1 << 20))
@@ -324,14 +324,15 @@ class FaultHooks:
         from_v = self._dirs.get((name, "from_vehicle"), [])
         if not (to_v or from_v):
             return link
-        fl = FaultyLink(link, lambda: self.t, to_v, from_v)
+        fl = FaultyLink(link, lambda: self.t_us, to_v, from_v)
         self._links.append(fl)
         return fl
 
     def on_odometry(self, t_us: int, meas: tuple) -> tuple:
+        self.t_us = t_us
         t = self.t = t_us * 1e-6
         for fl in self._links:
-            fl.release(t)
+            fl.release(t_us)
         out = meas
         self.odometry_lost = False
         for i, f in enumerate(self.spec.odometry):
