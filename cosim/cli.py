@@ -9,7 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
-from cosim.errors import ScenarioError
+from cosim.errors import OutputError, ScenarioError
 
 EXAMPLES = {
     "run": """examples:
@@ -199,6 +199,9 @@ def main(argv: list[str] | None = None) -> int:
         except ScenarioError as exc:
             print(f"cosim: bad input: {exc}", file=sys.stderr)
             return 2
+        except OutputError as exc:      # disk full, read-only, ...: what was written stays
+            print(f"cosim: {exc}", file=sys.stderr)
+            return 1
         except KeyboardInterrupt:   # outside a run's loop (a run itself ends 'interrupted')
             print("cosim: interrupted", file=sys.stderr)
             rc = 130

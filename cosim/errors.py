@@ -17,3 +17,7 @@ class ComponentError(RuntimeError):
     def __init__(self, part: str, message: str) -> None:
         self.part = part
         super().__init__(f"{part}: {message}")
+
+
+class OutputError(OSError):
+    """A run's outputs could not be written (disk full, read-only, ...); names the folder."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -122,3 +123,51 @@ def test_sigterm_writes_what_was_recorded_and_leaves_no_onboard_process(tmp_path
     for pid in kids:                                  # no orphan onboard process
         assert not os.path.exists(f"/proc/{pid}") or \
             Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
+
+
+def _short_run():
+    from cosim.scenario.parse import load_scenario
+    from cosim.sim.master import RunOptions, run_scenario
+
+    sc = load_scenario(ROOT / "scenarios" / "mambo_hover.toml")
+    sc = replace(sc, timing=replace(sc.timing, t_final_s=1.0))
+    return run_scenario(sc, RunOptions())
+
+
+def test_disk_full_leaves_no_truncated_file_and_no_summary_claiming_success(tmp_path,
+                                                                           monkeypatch):
+    """Issue 14 item 7: disk full gave a traceback, a truncated CSV and a summary.json saying
+    mission_complete. Now each file is written whole or not at all, the summary lists what
+    failed and does not pass; if even the summary cannot be written, a clear OutputError."""
+    import errno
+    import json
+
+    from cosim.errors import OutputError
+    from cosim.outputs import report
+
+    res = _short_run()
+    real = report.write_series
+
+    def full(r, path):                           # ENOSPC after part of the file
+        real(r, path)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(report, "write_series", full)
+    out = tmp_path / "o"
+    summary = report.write_run(res, out, plots=False)
+    assert not (out / "timeseries.csv").exists() and not list(out.glob("*.part"))
+    saved = json.loads((out / "summary.json").read_text())
+    assert saved["passed"] is False and summary["passed"] is False
+    assert saved["output_errors"] == ["timeseries.csv: No space left on device"]
+    assert "output not written: timeseries.csv" in report.one_screen(saved)
+    real_replace = report.os.replace
+
+    def no_summary(src, dst):
+        if str(dst).endswith("summary.json"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(report.os, "replace", no_summary)
+    with pytest.raises(OutputError, match="cannot write the run's outputs to .*summary.json"):
+        report.write_run(res, tmp_path / "o2", plots=False)
+    assert not (tmp_path / "o2" / "summary.json").exists()

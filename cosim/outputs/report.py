@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import platform
 import shutil
 import sys
@@ -12,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from cosim.errors import OutputError
 from cosim.outputs.folder import clean_run_folder
 from cosim.outputs.metrics import COL, compute_metrics, evaluate
 from cosim.sim.master import RunResult
@@ -72,6 +75,11 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True,
     The run streamed its tlog, video and PNG frames into `res.run_dir`; they are copied when
     `out` is another folder. `extra`: more summary fields from the caller (`cosim sitl`: the
     vehicle's instance, links and respawns).
+
+    Every file is written to `NAME.part` and renamed when complete, so no truncated file is
+    left under its real name; `summary.json` comes last. A file that cannot be written (disk
+    full, ...) is listed in the summary's `output_errors` and the run does not pass; if the
+    summary itself cannot be written, OutputError says so.
     """
     out.mkdir(parents=True, exist_ok=True)
     same = out.resolve() == res.run_dir.resolve()
@@ -79,26 +87,55 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True,
         clean_run_folder(out)
     summary = summarize(res)
     summary.update(extra or {})
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
-    write_series(res, out / "timeseries.csv")
+    errors: list[str] = []
+
+    def put(name: str, write) -> None:
+        path = out / name
+        part = out / (name + ".part")
+        try:
+            write(part)
+            os.replace(part, path)
+        except OSError as exc:
+            errors.append(f"{name}: {exc.strerror or exc}")
+            with contextlib.suppress(OSError):
+                part.unlink()
+
+    put("timeseries.csv", lambda p: write_series(res, p))
     if res.frame_log:
-        with open(out / "frames.csv", "w") as f:
-            f.write(",".join(res.frame_columns or LINE_FRAME_COLUMNS) + "\n")
-            for r in res.frame_log:
-                f.write(",".join(repr(float(v)) for v in r) + "\n")
-    res.tlog.write(out / "flight.tlog")
+        put("frames.csv", lambda p: _write_frames(res, p))
+    if not (same and (out / "flight.tlog").resolve() == res.tlog.path.resolve()):
+        put("flight.tlog", res.tlog.write)
     if plots and res.ticks > 1:
         from cosim.outputs.plots import plot_run
 
-        plot_run(res, res.scenario.world, out)
+        try:
+            plot_run(res, res.scenario.world, out)
+        except OSError as exc:
+            errors.append(f"plots: {exc.strerror or exc}")
     if not same:
-        if res.video is not None:
-            shutil.copyfile(res.video, out / res.video.name)
-        if res.mcap is not None:
-            shutil.copyfile(res.mcap, out / res.mcap.name)
+        for src in (res.video, res.mcap):
+            if src is not None:
+                put(src.name, lambda p, src=src: shutil.copyfile(src, p))
         if res.png_count:
-            shutil.copytree(res.run_dir / "frames", out / "frames", dirs_exist_ok=True)
+            try:
+                shutil.copytree(res.run_dir / "frames", out / "frames", dirs_exist_ok=True)
+            except OSError as exc:
+                errors.append(f"frames: {exc.strerror or exc}")
+    if errors:
+        summary["output_errors"] = errors
+        summary["passed"] = False
+    text = json.dumps(summary, indent=2, default=_json_default)
+    put("summary.json", lambda p: p.write_text(text))
+    if any(e.startswith("summary.json") for e in errors):
+        raise OutputError(f"cannot write the run's outputs to {out}: " + "; ".join(errors))
     return summary
+
+
+def _write_frames(res: RunResult, path: Path) -> None:
+    with open(path, "w") as f:
+        f.write(",".join(res.frame_columns or LINE_FRAME_COLUMNS) + "\n")
+        for r in res.frame_log:
+            f.write(",".join(repr(float(v)) for v in r) + "\n")
 
 
 def write_series(res: RunResult, path: Path) -> None:
@@ -149,6 +186,8 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
         v = c["value"]
         vs = f"{v:.3f}" if isinstance(v, float) else str(v)
         lines.append(f"  [{'PASS' if c['passed'] else 'FAIL'}] {name}: {vs} (limit {c['limit']})")
+    for e in summary.get("output_errors", ()):
+        lines.append(f"  [FAIL] output not written: {e}")
     lines.append(f"result    {'PASSED' if summary['passed'] else 'FAILED'}"
                  + (f"   outputs in {out}" if out else ""))
     return "\n".join(lines)
