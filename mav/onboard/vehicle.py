@@ -108,7 +108,7 @@ class Onboard:
         self.geo = wire.FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
         self.origin = (0.0, 0.0)   # m, simulator NED of the local origin (set by the 1st ODOMETRY)
         self.telemetry = tel = Telemetry(vs, out, cmd, prm, self.geo, cfg.sysid,
-                                         cfg.origin_alt_m)
+                                         cfg.origin_alt_m, self.vehicle.g)
         self.commands = Commands(vs, out, cmd, nav, tel, cfg.sysid, cfg.compid)
         self.input = LinkInput(vs, out, self.commands.handlers(ofb.on_setpoint_msg, prm),
                                ofb.on_setpoint)
@@ -193,6 +193,7 @@ class Onboard:
         parameters the user set."""
         vs = self.status
         self.vehicle = vehicle
+        self.telemetry.g_mps2 = vehicle.g
         if self._ctrl_factory is not None:
             vs.ctrl = self._ctrl_factory(vehicle, dt=self.cfg.control_dt_s)
         vs.battery = Battery(vs.battery.p, vehicle.u_hover)
@@ -240,6 +241,8 @@ class Onboard:
         s = vs.state
         s.t = t_us * 1e-6
         ox, oy = self.origin
+        vs.v_prev = (s.vx, s.vy, s.vz)     # for HIGHRES_IMU's mean acceleration over the tick
+        vs.dt_us = dt_us
         s.x, s.y, s.z = x - ox, y - oy, z
         s.qw, s.qx, s.qy, s.qz = qw, qx, qy, qz
         if child == FRAME_LOCAL_NED:
