@@ -101,17 +101,18 @@ class Onboard:
         # ---- the parts
         self.commander = cmd = Commander(vs, out)
         self.navigator = nav = Navigator(vs, out, cmd, cfg.control_dt_s, cfg.origin_alt_m)
-        self.offboard = ofb = Offboard(vs, out, cmd, cfg.sysid, cfg.compid)
+        self.geo = wire.FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
+        self.offboard = ofb = Offboard(vs, out, cmd, cfg.sysid, cfg.compid, self.geo)
         cmd.navigator, cmd.offboard = nav, ofb
         self.parameters = prm = Parameters(vs, out, chans, lambda s, c: self.commands.for_us(s, c))
         self.failsafe = Failsafe(vs, out, cmd, prm.apply)
-        self.geo = wire.FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
         self.origin = (0.0, 0.0)   # m, simulator NED of the local origin (set by the 1st ODOMETRY)
         self.telemetry = tel = Telemetry(vs, out, cmd, prm, self.geo, cfg.sysid,
                                          cfg.origin_alt_m, self.vehicle.g)
         self.commands = Commands(vs, out, cmd, nav, tel, cfg.sysid, cfg.compid)
-        self.input = LinkInput(vs, out, self.commands.handlers(ofb.on_setpoint_msg, prm),
-                               ofb.on_setpoint)
+        handlers = self.commands.handlers(ofb.on_setpoint_msg, prm)
+        handlers.update(ofb.handlers())          # SET_POSITION_TARGET_GLOBAL_INT, attitude
+        self.input = LinkInput(vs, out, handlers, ofb.on_setpoint)
         for ch, rates in zip(chans, (cfg.api_rates_hz, cfg.gcs_rates_hz), strict=True):
             for sname, msgid in STREAMS.items():
                 st = Stream(msgid, hz_to_us(rates.get(sname, 0.0)), tel.emitter(msgid))
