@@ -34,6 +34,7 @@ class Commander:
         self.out = outbox
         self.navigator = None      # set by the vehicle (mav.onboard.navigator.Navigator)
         self.offboard = None       # set by the vehicle (mav.onboard.offboard.Offboard)
+        self.preflight = None      # () -> str | None: why arming must wait (set by the vehicle)
 
     # ------------------------------------------------------------------ state helpers
     def heading(self) -> float:
@@ -144,6 +145,10 @@ class Commander:
             self.out.statustext("Arming denied: no position estimate yet",
                                 M.MAV_SEVERITY_CRITICAL)
             return M.MAV_RESULT_TEMPORARILY_REJECTED
+        why = self.preflight() if self.preflight is not None else None
+        if why:
+            self.out.statustext(f"Arming denied: {why}", M.MAV_SEVERITY_CRITICAL)
+            return M.MAV_RESULT_DENIED
         if vs.mode == LAND:
             self.out.statustext("Arming denied: vehicle is in AUTO.LAND", M.MAV_SEVERITY_CRITICAL)
             return M.MAV_RESULT_DENIED

@@ -58,7 +58,7 @@ STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
          "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "hil_ignored", "hil_bad_values",
          "unknown_msgs", "unhandled_msgs", "not_for_us", "unsigned_rejected", "badsig_rejected",
          "setpoints", "rejected_setpoints", "commands", "commands_unsupported", "param_sets",
-         "param_rejected", "drain_deferred", "handler_errors")
+         "param_rejected", "param_denied_armed", "drain_deferred", "handler_errors")
 
 
 class Onboard:
@@ -129,6 +129,8 @@ class Onboard:
         vs.ctrl = controller
         vs.battery = Battery(BATTERIES[cfg.vehicle], self.vehicle.u_hover)
         prm.build()
+        prm.hover_fraction = self.vehicle.weight / (4.0 * self.vehicle.thrust_max)
+        cmd.preflight = prm.arming_problem
         vs.own["COM_OF_LOSS_T"] = cfg.offboard_loss_s
         vs.own["COM_FAIL_ACT_T"] = cfg.failsafe_land_s
         if cfg.param_file:
@@ -198,6 +200,7 @@ class Onboard:
         if self._ctrl_factory is not None:
             vs.ctrl = self._ctrl_factory(vehicle, dt=self.cfg.control_dt_s)
         vs.battery = Battery(vs.battery.p, vehicle.u_hover)
+        self.parameters.hover_fraction = vehicle.weight / (4.0 * vehicle.thrust_max)
         self.parameters.rebuild_keeping_user_values()
 
     def load_params(self, path: str) -> None:
