@@ -112,6 +112,8 @@ class Onboard:
         self.commands = Commands(vs, out, cmd, nav, tel, cfg.sysid, cfg.compid)
         handlers = self.commands.handlers(ofb.on_setpoint_msg, prm)
         handlers.update(ofb.handlers())          # SET_POSITION_TARGET_GLOBAL_INT, attitude
+        # QGC acknowledges a download of count 0 with MISSION_ACK: nothing to do (yet)
+        handlers.setdefault(M.MAVLINK_MSG_ID_MISSION_ACK, self.commands.ignore)
         self.input = LinkInput(vs, out, handlers, ofb.on_setpoint)
         for ch, rates in zip(chans, (cfg.api_rates_hz, cfg.gcs_rates_hz), strict=True):
             for sname, msgid in STREAMS.items():
