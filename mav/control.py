@@ -52,9 +52,12 @@ class MamboController(QuadCascade):
         _p("MC_XY_VEL_I", 0.1, 0.0, 5.0, "1/s",
            "horizontal velocity integral, per second of the velocity gain (0: off; wind)"),
         _p("MC_XY_I_LIM", 0.17, 0.0, 0.5, "rad", "tilt the horizontal integrator may hold"),
+        # PX4 0..20 m/s (mc_pos_control); a room needs less
         _p("MPC_XY_VEL_MAX", 2.0, 0.1, 7.0, "m/s", "horizontal speed limit"),
+        # PX4 20..89 deg; down to 5 deg as the Parrot airframes' MaxTilt, up to the template's 45
         _p("MPC_TILTMAX_AIR", 25.0, 5.0, 45.0, "deg", "tilt (roll/pitch reference) limit"),
-        _p("MPC_Z_VEL_MAX", 1.5, 0.1, 3.0, "m/s", "climb and descent rate limit"),
+        # PX4's MPC_Z_VEL_MAX was 0.5..4 m/s (since split into _UP 0.5..8 and _DN 0.5..4)
+        _p("MPC_Z_VEL_MAX", 1.5, 0.5, 3.0, "m/s", "climb and descent rate limit"),
         _p("MC_PITCH_P", 0.013, 0.0, 0.1, "N m/rad", "pitch angle P"),
         _p("MC_ROLL_P", 0.011, 0.0, 0.1, "N m/rad", "roll angle P"),
         _p("MC_RP_I", 0.01, 0.0, 0.1, "N m/(rad s)", "roll and pitch I"),
@@ -64,7 +67,7 @@ class MamboController(QuadCascade):
         _p("MC_ROLL_D", 0.003, 0.0, 0.02, "N m s/rad", "roll D on body rate p"),
         _p("MC_YAW_P", 0.004, 0.0, 0.05, "N m/rad", "yaw angle P"),
         _p("MC_YAW_D", 0.0012, 1e-5, 0.02, "N m s/rad", "yaw D on body rate r"),
-        _p("MC_YAWRATE_MAX", 200.0, 10.0, 720.0, "deg/s", "yaw rate limit"),
+        _p("MC_YAWRATE_MAX", 200.0, 10.0, 720.0, "deg/s", "yaw rate limit"),   # PX4 0..1800
         _p("MC_Z_P", 0.8, 0.0, 10.0, "N/m", "altitude P"),
         _p("MC_Z_I", 0.24, 0.0, 5.0, "N/(m s)", "altitude I (on the altitude error)"),
         _p("MC_Z_I_LIM", 2.0, 0.0, 10.0, "N", "altitude integrator limit"),
@@ -122,16 +125,18 @@ class Bebop2Controller(QuadCascade):
     identified Bebop 2 model (Pinto et al. 2020): tau_z = 0.25 s, tau_yawrate = 0.21 s."""
 
     PARAMS = (
-        _p("MPC_XY_P", 1.0, 0.0, 5.0, "1/s", "position -> horizontal velocity gain"),
+        # PX4 names with PX4's meaning take PX4's ranges (mc_pos_control, mc_att_control params)
+        _p("MPC_XY_P", 1.0, 0.0, 2.0, "1/s", "position -> horizontal velocity gain"),
         _p("MPC_XY_VEL_P", 2.0, 0.1, 10.0, "1/s",
            "horizontal velocity gain (acceleration per velocity error)"),
         _p("MPC_XY_ERR_MAX", 5.0, 0.1, 20.0, "m", "XY position error saturation per axis"),
-        _p("MPC_XY_VEL_I_ACC", 0.4, 0.0, 10.0, "1/s^2",
+        _p("MPC_XY_VEL_I_ACC", 0.4, 0.0, 10.0, "1/s^2",                   # PX4 0..60
            "horizontal velocity integral (acceleration per m/s of error per s; 0: off; wind)"),
         _p("MPC_XY_I_LIM", 0.17, 0.0, 0.6, "rad", "tilt the horizontal integrator may hold"),
         _p("MPC_XY_VEL_MAX", 5.0, 0.5, 15.0, "m/s", "horizontal speed limit"),
+        # the Parrot settings these emulate keep Parrot's ranges (reference/mavlink.md)
         _p("MPC_TILTMAX_AIR", 20.0, 5.0, 35.0, "deg", "Parrot MaxTilt"),
-        _p("MPC_Z_P", 1.5, 0.0, 5.0, "1/s", "altitude -> vertical velocity gain"),
+        _p("MPC_Z_P", 1.5, 0.0, 1.5, "1/s", "altitude -> vertical velocity gain"),   # PX4
         _p("MPC_Z_VEL_P", 4.0, 0.5, 20.0, "1/s",
            "vertical velocity gain (acceleration per velocity error)"),
         _p("MPC_Z_VEL_I", 1.0, 0.0, 10.0, "1/s^2", "vertical velocity integral gain"),
@@ -140,7 +145,7 @@ class Bebop2Controller(QuadCascade):
         _p("MC_RP_I", 20.0, 0.0, 1000.0, "1/s^3", "roll/pitch I"),
         _p("MC_RP_D", 18.0, 0.0, 100.0, "1/s", "roll/pitch D on body rates"),
         _p("MC_RP_I_LIM", 5.0, 0.0, 50.0, "rad/s^2", "roll/pitch integrator limit"),
-        _p("MC_YAW_P", 2.0, 0.0, 10.0, "1/s", "heading -> yaw rate gain"),
+        _p("MC_YAW_P", 2.0, 0.0, 5.0, "1/s", "heading -> yaw rate gain"),             # PX4
         _p("MC_YAWRATE_P", 4.73, 0.5, 50.0, "1/s",
            "yaw rate gain (angular accel per rate error)"),
         _p("MC_YAWRATE_MAX", 100.0, 10.0, 200.0, "deg/s", "Parrot MaxRotationSpeed"),

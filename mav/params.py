@@ -37,27 +37,39 @@ class OnboardParam:
     doc: str
 
 
-# The vehicle's own parameters (PX4 names where PX4 has the same meaning).
+# The vehicle's own parameters (PX4 names where PX4 has the same meaning). Ranges: PX4's
+# parameter metadata (the @min/@max of its *_params.c / module.yaml) where the name is PX4's, or
+# narrower (never wider) where a room-sized vehicle warrants it, said on the line; mav/README.md
+# has the table with PX4's ranges beside ours.
 ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
+    # PX4 0..80 m (navigator/mission_params.c); a room is a few metres high
     OnboardParam("MIS_TAKEOFF_ALT", 1.0, 0.2, 10.0, "m",
                  "AUTO.TAKEOFF height above home when MAV_CMD_NAV_TAKEOFF gives none"),
+    # PX4 1..5 m/s (mc_pos_control); wider below: the Mambo's 0.8 m/s climb to 1 m indoors
     OnboardParam("MPC_TKO_SPEED", 0.8, 0.1, 3.0, "m/s", "climb speed of AUTO.TAKEOFF"),
-    OnboardParam("MPC_LAND_SPEED", 0.4, 0.1, 2.0, "m/s", "descent speed of AUTO.LAND"),
+    # PX4 min 0.2 m/s, no max (mc_pos_control)
+    OnboardParam("MPC_LAND_SPEED", 0.4, 0.2, 2.0, "m/s", "descent speed of AUTO.LAND"),
+    # PX4 -1..20 s (<= 0: never); here always disarms, 0 = at once
     OnboardParam("COM_DISARM_LAND", 0.5, 0.0, 20.0, "s",
                  "time on the ground after a landing before the motors are disarmed"),
+    # PX4 0..60 s; 0 would fire between two setpoints
     OnboardParam("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s",
                  "offboard setpoint silence that triggers the failsafe (hold position)"),
-    OnboardParam("COM_FAIL_ACT_T", 5.0, 0.0, 60.0, "s",
+    # PX4 0..25 s (commander_params.c)
+    OnboardParam("COM_FAIL_ACT_T", 5.0, 0.0, 25.0, "s",
                  "failsafe hold time before the vehicle lands if offboard does not resume"),
+    # not a PX4 parameter (PX4 has PWM/DShot idle values instead)
     OnboardParam("MOT_IDLE_RATIO", 0.3, 0.0, 0.9, "1",
                  "armed-on-ground motor command as a fraction of the hover command"),
+    # PX4 battery module.yaml: capacity -1..100000 mAh, internal resistance -1..0.2 Ohm,
+    # low 0.12..0.5, critical 0.05..0.5
     OnboardParam("BAT1_CAPACITY", -1.0, -1.0, 100000.0, "mAh",
                  "battery capacity (-1: the vehicle preset's)"),
-    OnboardParam("BAT1_R_INTERNAL", -1.0, -1.0, 1.0, "Ohm",
+    OnboardParam("BAT1_R_INTERNAL", -1.0, -1.0, 0.2, "Ohm",
                  "battery internal resistance (-1: the vehicle preset's)"),
-    OnboardParam("BAT_LOW_THR", 0.15, 0.05, 0.5, "1", "remaining charge that warns"),
-    OnboardParam("BAT_CRIT_THR", 0.07, 0.01, 0.5, "1", "remaining charge that warns critically"),
-    OnboardParam("BAT_EMERGEN_THR", 0.05, 0.0, 0.5, "1",
+    OnboardParam("BAT_LOW_THR", 0.15, 0.12, 0.5, "1", "remaining charge that warns"),
+    OnboardParam("BAT_CRIT_THR", 0.07, 0.05, 0.5, "1", "remaining charge that warns critically"),
+    OnboardParam("BAT_EMERGEN_THR", 0.05, 0.03, 0.5, "1",
                  "remaining charge of the emergency level (PX4's default)"),
     OnboardParam("COM_LOW_BAT_ACT", 0.0, 0.0, 3.0, "",
                  "battery failsafe: 0 warn, 2 land at critical, 3 return at critical and land "
@@ -106,9 +118,47 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
                  "POSCTL: MANUAL_CONTROL silence after which the sticks count as centred"),
 )
 
+# ---- what may change while armed (issue 14, item 6)
+# A change in flight is refused (not deferred) when it would leave the flight envelope of a
+# parameter the vehicle cannot fly without: the loop gains (the proportional, derivative and
+# velocity gains of both controllers; not integral gains, whose output their limits bound,
+# nor speed/tilt limits, which only slow the vehicle) must stay within a factor GAIN_FACTOR of
+# their defaults, and the thrust limit at least THRUST_HEADROOM times the hover thrust (what
+# climbing and attitude control need on top of hovering; MC_THR_MAX = 0.1 brought a flying
+# Mambo down). Disarmed, any value in range is stored, but arming is refused while one is
+# outside its envelope, so a vehicle never takes off with it.
+FLIGHT_GAINS = frozenset({
+    # Mambo (template gains, absolute units)
+    "MC_XY_P", "MC_XY_D", "MC_PITCH_P", "MC_ROLL_P", "MC_PITCH_D", "MC_ROLL_D",
+    "MC_YAW_P", "MC_YAW_D", "MC_Z_P", "MC_Z_D",
+    # Bebop 2 (normalised gains)
+    "MPC_XY_P", "MPC_XY_VEL_P", "MPC_Z_P", "MPC_Z_VEL_P", "MC_RP_P", "MC_RP_D",
+    "MC_YAWRATE_P",
+})
+THRUST_LIMIT = "MC_THR_MAX"
+GAIN_FACTOR = 4.0          # in flight a gain stays within [default / 4, 4 x default]
+THRUST_HEADROOM = 1.5      # in flight MC_THR_MAX >= 1.5 x hover thrust / max thrust
+
+
+def flight_envelope(spec, hover_fraction: float) -> tuple[float, float] | None:
+    """The values parameter `spec` may take while the vehicle is armed (inside its range), or
+    None when every value of its range may be set in flight. `hover_fraction`: the hover
+    thrust as a fraction of the four rotors' maximum (weight / (4 T_max))."""
+    if spec.name in FLIGHT_GAINS:
+        lo, hi = spec.default / GAIN_FACTOR, spec.default * GAIN_FACTOR
+    elif spec.name == THRUST_LIMIT:
+        lo, hi = min(1.0, THRUST_HEADROOM * hover_fraction), spec.max
+    else:
+        return None
+    return max(lo, spec.min), min(hi, spec.max)
+
 
 class ParamError(ValueError):
     """A parameter name or value was refused; the message names the parameter."""
+
+
+class UnknownParamError(ParamError):
+    """No parameter of that name."""
 
 
 class _Entry:
@@ -167,20 +217,20 @@ class ParamTable:
     def spec(self, name: str):
         i = self._by_name.get(name)
         if i is None:
-            raise ParamError(f"unknown parameter {name!r}")
+            raise UnknownParamError(f"unknown parameter {name!r}")
         return self._entries[i].spec
 
     def get(self, name: str) -> float:
         i = self._by_name.get(name)
         if i is None:
-            raise ParamError(f"unknown parameter {name!r}")
+            raise UnknownParamError(f"unknown parameter {name!r}")
         return float(self._entries[i].get())
 
     def set(self, name: str, value: float) -> float:
         """Set and return the value now in effect; ParamError (a ValueError) names the fault."""
         i = self._by_name.get(name)
         if i is None:
-            raise ParamError(f"unknown parameter {name!r}")
+            raise UnknownParamError(f"unknown parameter {name!r}")
         e = self._entries[i]
         v = float(value)
         lo, hi = e.spec.min, e.spec.max

@@ -80,6 +80,27 @@ GLOBAL_POSITION_INT = FastMsg(mavlink2.MAVLink_global_position_int_message)
 EXTENDED_SYS_STATE = FastMsg(mavlink2.MAVLink_extended_sys_state_message)
 POSITION_TARGET_LOCAL_NED = FastMsg(mavlink2.MAVLink_position_target_local_ned_message)
 VFR_HUD = FastMsg(mavlink2.MAVLink_vfr_hud_message)
+
+
+class _ProtocolVersionLayout:
+    """PROTOCOL_VERSION (#300, MAVLink's minimal/common XML), which none of pymavlink 2.4.50's
+    generated dialects has (v20 common, standard, minimal, all, development: checked), so its
+    layout is stated here, in the form `FastMsg` reads from a pymavlink class. Wire order (the
+    uint16 fields before the uint8 arrays): version, min_version, max_version,
+    spec_version_hash[8], library_version_hash[8] (22 bytes). CRC_EXTRA 217: what pymavlink's
+    own generator computes from that XML definition (tests/test_onboard_telemetry.py
+    regenerates it with mavgen and decodes our bytes with the result) and the
+    MAVLINK_MSG_ID_PROTOCOL_VERSION_CRC of MAVLink's generated C headers."""
+
+    id = 300
+    msgname = "PROTOCOL_VERSION"
+    crc_extra = 217
+    unpacker = struct.Struct("<HHH8B8B")
+
+
+# sent on request only (not a pymavlink class: not in FAST_BY_ID, which mirrors pymavlink's)
+PROTOCOL_VERSION = FastMsg(_ProtocolVersionLayout)
+
 FAST_BY_ID: dict[int, FastMsg] = {
     m.id: m
     for m in (ODOMETRY, HIL_ACTUATOR_CONTROLS, SET_POSITION_TARGET_LOCAL_NED, LOCAL_POSITION_NED,

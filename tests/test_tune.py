@@ -70,7 +70,7 @@ def test_bebop2_velocity_time_constants_match_identified_model(results):
         ("mambo", {"MC_PITCH_P": 0.1}, "pitch"),   # underdamped attitude
         ("mambo", {"MC_XY_P": 1.0}, "x"),          # position loop too fast for attitude
         ("bebop2", {"MC_RP_D": 2.0}, "pitch"),
-        ("bebop2", {"MPC_XY_P": 5.0}, "x"),
+        ("bebop2", {"MPC_XY_P": 2.0, "MPC_XY_VEL_P": 1.0}, "x"),   # position loop too fast
     ],
 )
 def test_bad_gain_is_flagged(results, name, params, loop):

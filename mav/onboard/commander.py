@@ -39,6 +39,7 @@ class Commander:
         self.offboard = None       # set by the vehicle (mav.onboard.offboard.Offboard)
         self.mission = None        # set by the vehicle (mav.onboard.mission.Mission)
         self.manual = None         # set by the vehicle (mav.onboard.manual.Manual)
+        self.preflight = None      # () -> str | None: why arming must wait (set by the vehicle)
 
     # ------------------------------------------------------------------ state helpers
     def heading(self) -> float:
@@ -151,6 +152,10 @@ class Commander:
             self.out.statustext("Arming denied: no position estimate yet",
                                 M.MAV_SEVERITY_CRITICAL)
             return M.MAV_RESULT_TEMPORARILY_REJECTED
+        why = self.preflight() if self.preflight is not None else None
+        if why:
+            self.out.statustext(f"Arming denied: {why}", M.MAV_SEVERITY_CRITICAL)
+            return M.MAV_RESULT_DENIED
         if vs.mode in (LAND, RTL):
             self.out.statustext(f"Arming denied: vehicle is in {MODE_NAMES[vs.mode]}",
                                 M.MAV_SEVERITY_CRITICAL)

@@ -112,6 +112,8 @@ class Commands:
             res, after = M.MAV_RESULT_ACCEPTED, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION
         elif cmd == M.MAV_CMD_GET_HOME_POSITION:
             res, after = self.tel.request_message(M.MAVLINK_MSG_ID_HOME_POSITION)
+        elif cmd == M.MAV_CMD_REQUEST_PROTOCOL_VERSION:      # ACK, then PROTOCOL_VERSION (#300)
+            res, after = self.tel.request_message(300)
         elif cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:
             res = self.set_interval(ch, p1, p2)
         elif cmd == M.MAV_CMD_GET_MESSAGE_INTERVAL:

@@ -167,3 +167,28 @@ def rotate_body_to_world(qw: float, qx: float, qy: float, qz: float, bx: float, 
     return (bx + qw * tx + qy * tz - qz * ty,
             by + qw * ty + qz * tx - qx * tz,
             bz + qw * tz + qx * ty - qy * tx)
+
+
+# ==================================================================================================
+# Appended for issue 13 item 4 (telemetry a ground station expects) and items 2 and 7
+# (setpoints, parameter answers); kept at the end so the tables above stay as they were.
+MSG_ID_PROTOCOL_VERSION = 300      # not in pymavlink 2.4.50's dialects: mav/wire.PROTOCOL_VERSION
+# GPS_RAW_INT streamed (PX4's GCS link: 1 Hz, mavlink_main.cpp configure_stream_local); ODOMETRY
+# and HIGHRES_IMU off by default (REQUEST_MESSAGE, SET_MESSAGE_INTERVAL)
+STREAMS.update({
+    "GPS_RAW_INT": M.MAVLINK_MSG_ID_GPS_RAW_INT,
+    "ODOMETRY": M.MAVLINK_MSG_ID_ODOMETRY,
+    "HIGHRES_IMU": M.MAVLINK_MSG_ID_HIGHRES_IMU,
+})
+API_RATES_HZ.update({"GPS_RAW_INT": 1.0, "ODOMETRY": 0.0, "HIGHRES_IMU": 0.0})
+GCS_RATES_HZ.update({"GPS_RAW_INT": 1.0, "ODOMETRY": 0.0, "HIGHRES_IMU": 0.0})
+# GPS_RAW_INT in the legacy EXTENDED_STATUS group, as ArduPilot groups it; ODOMETRY and
+# HIGHRES_IMU in none, so MAVProxy's REQUEST_DATA_STREAM(ALL) does not switch them on
+DATA_STREAM_GROUPS[M.MAV_DATA_STREAM_EXTENDED_STATUS] += ("GPS_RAW_INT",)
+DATA_STREAM_GROUPS[M.MAV_DATA_STREAM_ALL] += ("GPS_RAW_INT",)
+# SYS_STATUS health: PX4 sets a component's health bit unless an error is reported for it,
+# present or not (mavlink/streams/SYS_STATUS.hpp, fillOutComponent), but never reports the
+# geofence, and MAVProxy's fence module says "fence breach" as soon as the GEOFENCE health bit
+# is clear (mavproxy_fence.py, handle_sys_status). There is no fence here: not present, not
+# enabled, healthy (nothing breached) by PX4's rule.
+SENSORS_HEALTH = SENSORS | M.MAV_SYS_STATUS_GEOFENCE

@@ -1,10 +1,12 @@
 """Offboard control: SET_POSITION_TARGET_LOCAL_NED with PX4's type_mask rules, in LOCAL_NED
-and BODY_NED, and the rule for when offboard setpoints count as a live stream."""
+and BODY_NED; SET_POSITION_TARGET_GLOBAL_INT turned into the same local setpoint; the refusal
+of SET_ATTITUDE_TARGET; and the rule for when offboard setpoints count as a live stream."""
 
 from __future__ import annotations
 
 import math
 
+from mav import wire
 from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     FRAME_BODY_NED,
@@ -22,19 +24,32 @@ from mav.onboard.defs import (
     SP_MAX_VEL_MPS,
     SP_MAX_YAW_RAD,
     SP_MAX_YAW_RATE,
+    M,
     wrap_pi,
 )
 from mav.onboard.links import Chan, Outbox
 from mav.onboard.status import VehicleStatus
 
+FRAME_GLOBAL_INT = M.MAV_FRAME_GLOBAL_INT                       # altitude AMSL
+FRAME_GLOBAL_REL_ALT_INT = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT  # altitude above home
+FRAME_GLOBAL_TERRAIN_ALT_INT = M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT
+
 
 class Offboard:
     def __init__(self, vs: VehicleStatus, outbox: Outbox, commander: Commander, sysid: int,
-                 compid: int) -> None:
+                 compid: int, geo: wire.FlatEarth | None = None) -> None:
         self.vs = vs
         self.out = outbox
         self.cmd = commander
         self.sysid, self.compid = sysid, compid
+        self.geo = geo          # the flat-earth origin GLOBAL_POSITION_INT is published with
+
+    def handlers(self) -> dict:
+        """The setpoint messages handled here besides the local one (decoded by pymavlink)."""
+        return {
+            M.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT: self.on_global_setpoint_msg,
+            M.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET: self.on_attitude_target_msg,
+        }
 
     def stream_ok(self) -> bool:
         # PX4 (commander, HealthAndArmingChecks/checks/offboardCheck.cpp): offboard is
@@ -91,6 +106,50 @@ class Offboard:
         of.yaw_rate = yaw_rate if use_rate else NAN
         vs.of_last_us = vs.t_us
         vs.stats["setpoints"] += 1
+
+    def on_global_setpoint_msg(self, ch: Chan, msg) -> None:
+        """SET_POSITION_TARGET_GLOBAL_INT, as PX4 takes it (mavlink_receiver.cpp,
+        handle_message_set_position_target_global_int): lat/lon projected into the local frame
+        about its reference (here the flat-earth origin GLOBAL_POSITION_INT is published with,
+        so the vehicle's own GLOBAL_POSITION_INT is where it is); altitude AMSL in GLOBAL_INT,
+        above home in GLOBAL_RELATIVE_ALT_INT; velocities NED, yaw and yaw rate as given. Then
+        the very rules of SET_POSITION_TARGET_LOCAL_NED (type_mask, ranges, the stream).
+        GLOBAL_TERRAIN_ALT_INT needs a terrain estimate (PX4 drops it without one; there is
+        none here): refused with a STATUSTEXT, as any other frame."""
+        frame = msg.coordinate_frame
+        if frame == FRAME_GLOBAL_TERRAIN_ALT_INT:
+            return self.reject("frame", "SET_POSITION_TARGET_GLOBAL_INT frame 11 (terrain) "
+                                        "unsupported: no terrain estimate; use 5 or 6")
+        if frame not in (FRAME_GLOBAL_INT, FRAME_GLOBAL_REL_ALT_INT):
+            return self.reject("frame", f"SET_POSITION_TARGET_GLOBAL_INT frame {frame} "
+                                        "unsupported (5 GLOBAL_INT or 6 RELATIVE_ALT)")
+        mask = msg.type_mask
+        x = y = z = math.nan
+        if not mask & (IGN_X | IGN_Y):
+            lat, lon = msg.lat_int, msg.lon_int
+            if not (-900_000_000 <= lat <= 900_000_000 and -1_800_000_000 <= lon <= 1_800_000_000):
+                return self.reject("range", "setpoint latitude/longitude out of range")
+            x, y, _ = self.geo.to_ned(lat * 1e-7, lon * 1e-7, self.geo.alt0_m)
+        if not mask & IGN_Z:
+            if frame == FRAME_GLOBAL_INT:
+                z = self.geo.alt0_m - msg.alt
+            elif self.vs.home is not None:
+                z = self.vs.home[2] - msg.alt
+            else:
+                return self.reject("range", "setpoint relative altitude: no home yet")
+        self.on_setpoint(ch, (msg.time_boot_ms, x, y, z, msg.vx, msg.vy, msg.vz, msg.afx,
+                              msg.afy, msg.afz, msg.yaw, msg.yaw_rate, mask, msg.target_system,
+                              msg.target_component, FRAME_LOCAL_NED))
+
+    def on_attitude_target_msg(self, ch: Chan, msg) -> None:
+        """SET_ATTITUDE_TARGET: the controller takes position, velocity and yaw setpoints, not
+        attitude and thrust, so it is refused, counted and reported at once (at most once a
+        second), never silently dropped until the offboard failsafe fires."""
+        if msg.target_system != self.sysid or msg.target_component not in (0, self.compid):
+            return self.reject("target", f"setpoint for system {msg.target_system}/"
+                                         f"{msg.target_component} rejected")
+        self.reject("attitude", "SET_ATTITUDE_TARGET unsupported: send velocity or position "
+                                "with SET_POSITION_TARGET_LOCAL_NED or _GLOBAL_INT")
 
     def reject(self, kind: str, text: str) -> None:
         st = self.vs.stats

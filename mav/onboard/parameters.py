@@ -1,6 +1,15 @@
 """Parameters: the controller's and the stack's own (`mav/params.py`) in one table, served over
-the MAVLink parameter protocol (PARAM_REQUEST_LIST / _READ / PARAM_SET / PARAM_VALUE), and the
-limits that derive from them."""
+the MAVLink parameter protocol (PARAM_REQUEST_LIST / _READ / PARAM_SET / PARAM_VALUE /
+PARAM_ERROR), the rule for changes while armed, and the limits that derive from them.
+
+Refusals are answered the way clients understand them. PX4 (mavlink_parameters.cpp) answers an
+unknown name with a STATUSTEXT only and does not check ranges, so MAVSDK retries a refused set
+until its timeout. Here the asking link first gets PARAM_ERROR (#345; DOES_NOT_EXIST,
+VALUE_OUT_OF_RANGE, PERMISSION_DENIED), which MAVSDK >= 4 turns into that result at once
+(sent after the echo it would first resend once), then every link the PARAM_VALUE of the value
+in effect (the MAVLink parameter protocol's echo, what QGroundControl and MAVProxy read), and a
+STATUSTEXT says why. ArduPilot answers with PARAM_ERROR the same way (GCS_Param.cpp).
+"""
 
 from __future__ import annotations
 
@@ -10,7 +19,14 @@ from mav import wire
 from mav.onboard.defs import M, text_of
 from mav.onboard.links import Chan, Outbox
 from mav.onboard.status import VehicleStatus
-from mav.params import ONBOARD_PARAMS, ParamError, ParamTable, f32, read_param_file
+from mav.params import (
+    ONBOARD_PARAMS,
+    ParamError,
+    ParamTable,
+    f32,
+    flight_envelope,
+    read_param_file,
+)
 
 
 class Parameters:
@@ -21,6 +37,8 @@ class Parameters:
         self.for_us = for_us            # (target_system, target_component) -> bool
         self.warnings: list[str] = []
         self.table = ParamTable()
+        self.hover_fraction = 0.5       # hover thrust / max thrust of the airframe (the vehicle
+        #                                 sets it; the thrust limit's flight envelope uses it)
 
     def build(self) -> None:
         """The table for the controller in use plus the stack's own parameters (defaults)."""
@@ -66,6 +84,29 @@ class Parameters:
         else:
             vs.bat_warn_mah = math.inf
 
+    # ------------------------------------------------------------------ changes while armed
+    def envelope(self, name: str) -> tuple[float, float] | None:
+        """The values `name` may take while armed (mav/params.py flight_envelope), or None."""
+        return flight_envelope(self.table.spec(name), self.hover_fraction)
+
+    def outside_envelope(self, name: str, value: float) -> tuple[float, float] | None:
+        """The envelope `value` is outside of (compared in single precision, as sent), or None."""
+        env = self.envelope(name)
+        if env is None or not math.isfinite(value):
+            return None
+        v = f32(value)
+        return env if v < f32(env[0]) or v > f32(env[1]) else None
+
+    def arming_problem(self) -> str | None:
+        """Why the vehicle must not arm: a parameter outside its flight envelope (commander)."""
+        t = self.table
+        for i in range(len(t)):
+            name = t.name_at(i)
+            env = self.outside_envelope(name, t.get(name))
+            if env is not None:
+                return f"{name} {t.get(name):g} outside its flight range {env[0]:.3g}..{env[1]:.3g}"
+        return None
+
     def load_file(self, path: str) -> None:
         """Apply a parameter file; unknown names are noted in `warnings`, bad values raise."""
         unknown = []
@@ -93,6 +134,12 @@ class Parameters:
         if self.for_us(msg.target_system, msg.target_component):
             ch.param_queue = list(range(len(self.table)))
 
+    def send_error(self, ch: Chan, name: str, index: int, error: int) -> None:
+        """PARAM_ERROR to whoever asked on `ch` (index -1: the name identifies it)."""
+        peer = ch.peer or (0, 0)
+        ch.send(wire.send_msg(ch.mav, M.MAVLink_param_error_message(
+            peer[0], peer[1], name.encode("ascii", errors="replace")[:16], index, error)))
+
     def on_request_read(self, ch: Chan, msg) -> None:
         if not self.for_us(msg.target_system, msg.target_component):
             return
@@ -102,9 +149,15 @@ class Parameters:
         if 0 <= idx < len(self.table):
             self.send_value(ch, idx)
         else:
-            self.out.warn_rate_limited("param", f"Unknown parameter {text_of(msg.param_id)!r}")
+            name = text_of(msg.param_id)
+            self.send_error(ch, name, msg.param_index if msg.param_index >= 0 else -1,
+                            M.MAV_PARAM_ERROR_DOES_NOT_EXIST)
+            self.out.warn_rate_limited("param", f"Unknown parameter {name!r}")
 
     def on_set(self, ch: Chan, msg) -> None:
+        """PARAM_SET: applied at once, or refused with PARAM_ERROR (to the asker), the echo of
+        the value in effect (every link) and a STATUSTEXT. While armed, a value outside the
+        parameter's flight envelope is refused (PERMISSION_DENIED: allowed when disarmed)."""
         if not self.for_us(msg.target_system, msg.target_component):
             return
         vs = self.vs
@@ -112,16 +165,34 @@ class Parameters:
         idx = self.table.index(name)
         if idx < 0:
             vs.stats["param_rejected"] += 1
+            self.send_error(ch, name, -1, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)
             self.out.warn_rate_limited("param", f"Unknown parameter {name!r}")
             return
-        try:
-            self.table.set(name, msg.param_value)
-            vs.user_params[name] = float(msg.param_value)
-            vs.stats["param_sets"] += 1
-            if name in vs.own:
-                self.apply()
-        except ParamError as exc:
+        value = float(msg.param_value)
+        env = self.outside_envelope(name, value)
+        error = text = None
+        if env is not None and vs.armed:
+            vs.stats["param_denied_armed"] += 1
+            error = M.MAV_PARAM_ERROR_PERMISSION_DENIED
+            text = (f"{name} {value:g} refused while armed: in flight "
+                    f"{env[0]:.3g}..{env[1]:.3g}; disarm to set it")
+        else:
+            try:
+                self.table.set(name, value)
+                vs.user_params[name] = value
+                vs.stats["param_sets"] += 1
+                if name in vs.own:
+                    self.apply()
+                if env is not None:
+                    self.out.statustext(f"{name} {value:g} is outside its flight range "
+                                        f"{env[0]:.3g}..{env[1]:.3g}: arming refused until "
+                                        "it is back", M.MAV_SEVERITY_WARNING)
+            except ParamError as exc:
+                error = M.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE
+                text = f"Param rejected: {exc}"
+        if error is not None:
             vs.stats["param_rejected"] += 1
-            self.out.statustext(f"Param rejected: {exc}", M.MAV_SEVERITY_WARNING)
+            self.send_error(ch, name, -1, error)     # first: MAVSDK ends the request on it
+            self.out.statustext(text, M.MAV_SEVERITY_WARNING)
         for c in self.chans:          # echo the value now in effect on every link
             self.send_value(c, idx)

@@ -26,6 +26,8 @@ class VehicleStatus:
     have_state: bool = False               # an ODOMETRY has arrived
     state: VehicleState = field(default_factory=VehicleState)
     u: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])  # motor commands
+    v_prev: tuple[float, float, float] = (0.0, 0.0, 0.0)   # m/s, NED velocity a tick before
+    dt_us: int = 0                         # us, the last tick's length (HIGHRES_IMU's interval)
     # ---- commander
     armed: bool = False
     mode: int = POSCTL                     # see defs.MODE_NAMES

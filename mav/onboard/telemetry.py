@@ -15,6 +15,7 @@ from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     CAPABILITIES,
     FLIGHT_SW_VERSION,
+    FRAME_LOCAL_NED,
     IGN_ACCEL,
     IGN_VX,
     IGN_VY,
@@ -26,20 +27,35 @@ from mav.onboard.defs import (
     IGN_Z,
     MAV_AUTOPILOT,
     MAV_TYPE,
+    MSG_ID_PROTOCOL_VERSION,
     PARAM_BURST,
     SENSORS,
+    SENSORS_HEALTH,
     M,
     px4_custom_mode,
+    rotate_body_to_world,
 )
 from mav.onboard.links import Chan, Outbox
 from mav.onboard.parameters import Parameters
 from mav.onboard.status import VehicleStatus
 
+# GPS_RAW_INT: the position is the estimate's (there is no receiver model); the rest is what a
+# healthy receiver reports, so a ground station's GPS indicator shows a 3-D fix
+GPS_EPH, GPS_EPV = 70, 100           # HDOP, VDOP x 100
+GPS_SATS = 12
+GPS_H_ACC_MM, GPS_V_ACC_MM, GPS_VEL_ACC_MMPS = 300, 500, 100
+GPS_COG_MIN_MPS = 0.2                # m/s: slower than this the course is unknown (65535)
+# PROTOCOL_VERSION: MAVLink 2 spoken, MAVLink 1 understood; no spec/library git hashes known
+PROTO_VERSION, PROTO_MIN, PROTO_MAX = 200, 100, 200
+_NO_HASH = (0,) * 16
+# HIGHRES_IMU: fields_updated bits of xacc..zgyro (the only fields filled in)
+IMU_ACC_GYRO_BITS = 0x3F
+
 
 class Telemetry:
     def __init__(self, vs: VehicleStatus, outbox: Outbox, commander: Commander,
                  params: Parameters, geo: wire.FlatEarth, sysid: int, origin_alt_m: float,
-                 mission) -> None:
+                 mission, g_mps2: float = 9.81) -> None:
         self.vs = vs
         self.out = outbox
         self.cmd = commander
@@ -48,6 +64,7 @@ class Telemetry:
         self.sysid = sysid
         self.origin_alt_m = origin_alt_m
         self.mission = mission
+        self.g_mps2 = g_mps2           # m/s^2, gravity in HIGHRES_IMU's specific force
         self.chans = outbox.chans
         self._emitters = self.emitters()
 
@@ -66,6 +83,10 @@ class Telemetry:
             M.MAVLINK_MSG_ID_VFR_HUD: self.emit_vfr_hud,
             M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.emit_autopilot_version,
             M.MAVLINK_MSG_ID_MISSION_CURRENT: self.mission.emit_current,
+            M.MAVLINK_MSG_ID_GPS_RAW_INT: self.emit_gps_raw_int,
+            M.MAVLINK_MSG_ID_ODOMETRY: self.emit_odometry,
+            M.MAVLINK_MSG_ID_HIGHRES_IMU: self.emit_highres_imu,
+            MSG_ID_PROTOCOL_VERSION: self.emit_protocol_version,
         }
 
     def emitter(self, msgid: int) -> Callable[[Chan], None] | None:
@@ -141,7 +162,7 @@ class Telemetry:
         b = self.vs.battery
         # wire order: sensors present/enabled/health, load, voltage mV, current cA, drop rate,
         # errors comm, errors 1..4, remaining %, extended present/enabled/health
-        ch.send(wire.pack(ch.mav, wire.SYS_STATUS, SENSORS, SENSORS, SENSORS, 0,
+        ch.send(wire.pack(ch.mav, wire.SYS_STATUS, SENSORS, SENSORS, SENSORS_HEALTH, 0,
                           wire.clamp_int(b.voltage * 1000.0, 0, 65534),
                           wire.clamp_int(b.current * 100.0, 0, 32767), 0, 0, 0, 0, 0, 0,
                           wire.clamp_int(100.0 * b.remaining, 0, 100), 0, 0, 0))
@@ -223,3 +244,56 @@ class Telemetry:
         ch.send(wire.send_msg(ch.mav, M.MAVLink_autopilot_version_message(
             CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, list(b"cosim\x00\x00\x00"), [0] * 8,
             [0] * 8, 0, 0, self.sysid, [0] * 18)))
+
+    def emit_protocol_version(self, ch: Chan) -> None:
+        """PROTOCOL_VERSION (MAV_CMD_REQUEST_PROTOCOL_VERSION, REQUEST_MESSAGE 300): always
+        MAVLink 2 (mav/wire.py has its layout; pymavlink's dialects lack it)."""
+        ch.send(wire.pack(ch.mav, wire.PROTOCOL_VERSION, PROTO_VERSION, PROTO_MIN, PROTO_MAX,
+                          *_NO_HASH))
+
+    def emit_gps_raw_int(self, ch: Chan) -> None:
+        """GPS_RAW_INT from the estimate: lat/lon/alt by the same flat-earth conversion as
+        GLOBAL_POSITION_INT (equal to it), ground speed and course; fix, DOPs, satellites and
+        accuracies of a healthy receiver (constants above). alt_ellipsoid = alt: the flat-earth
+        model has no geoid, so the separation is taken as 0."""
+        s = self.vs.state
+        lat, lon, alt = self.geo.to_int(s.x, s.y, s.z)
+        gs = math.hypot(s.vx, s.vy)
+        cog = 65535 if gs < GPS_COG_MIN_MPS else wire.clamp_int(
+            math.degrees(math.atan2(s.vy, s.vx)) % 360.0 * 100.0, 0, 35999)
+        ch.send(wire.send_msg(ch.mav, M.MAVLink_gps_raw_int_message(
+            self.vs.t_us, M.GPS_FIX_TYPE_3D_FIX, lat, lon, alt, GPS_EPH, GPS_EPV,
+            wire.clamp_int(gs * 100.0, 0, 65534), cog, GPS_SATS, alt, GPS_H_ACC_MM,
+            GPS_V_ACC_MM, GPS_VEL_ACC_MMPS, 0, 0)))
+
+    def emit_odometry(self, ch: Chan) -> None:
+        """ODOMETRY as PX4 streams its estimator output (ODOMETRY.hpp): pose in LOCAL_NED,
+        velocity in LOCAL_NED, body rates; covariances unknown (NaN), quality 100 (the
+        estimate is the simulator's state)."""
+        s = self.vs.state
+        ch.send(wire.encode_odometry(
+            ch.mav, self.vs.t_us, s.x, s.y, s.z, s.qw, s.qx, s.qy, s.qz, s.vx, s.vy, s.vz,
+            s.p, s.q, s.r, frame_id=FRAME_LOCAL_NED, child_frame_id=FRAME_LOCAL_NED,
+            estimator_type=M.MAV_ESTIMATOR_TYPE_AUTOPILOT, quality=100))
+
+    def emit_highres_imu(self, ch: Chan) -> None:
+        """HIGHRES_IMU DERIVED from the estimate, not a sensor model: accelerometer = specific
+        force f_B = R_BW (a_W - g_W), with a_W the mean acceleration over the last tick (the
+        difference of successive velocity estimates, as an IMU reports its delta velocity over
+        its integration interval: PX4's HIGHRES_IMU.hpp divides delta_velocity by its dt);
+        gyroscope = the body rates. At rest level it reads (0, 0, -g). No noise, bias,
+        vibration or magnetometer/baro fields (fields_updated = accel and gyro only); odometry
+        noise, if any, is amplified by 1/tick."""
+        vs = self.vs
+        s = vs.state
+        if vs.dt_us > 0:
+            k = 1e6 / vs.dt_us
+            px, py, pz = vs.v_prev
+            ax, ay, az = (s.vx - px) * k, (s.vy - py) * k, (s.vz - pz) * k
+        else:
+            ax = ay = az = 0.0
+        # world -> body: rotate by the conjugate of the body -> world quaternion
+        fx, fy, fz = rotate_body_to_world(s.qw, -s.qx, -s.qy, -s.qz, ax, ay, az - self.g_mps2)
+        ch.send(wire.send_msg(ch.mav, M.MAVLink_highres_imu_message(
+            vs.t_us, fx, fy, fz, s.p, s.q, s.r, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            IMU_ACC_GYRO_BITS, 0)))

@@ -64,7 +64,8 @@ STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
          "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "hil_ignored", "hil_bad_values",
          "unknown_msgs", "unhandled_msgs", "not_for_us", "unsigned_rejected", "badsig_rejected",
          "setpoints", "rejected_setpoints", "commands", "commands_unsupported", "param_sets",
-         "param_rejected", "drain_deferred", "handler_errors", "odometry_lost")
+         "param_rejected", "param_denied_armed", "drain_deferred", "handler_errors",
+         "odometry_lost")
 
 
 class Onboard:
@@ -110,17 +111,18 @@ class Onboard:
         self._blind_state = VehicleState()   # what the controller sees without an estimate
         self.commander = cmd = Commander(vs, out)
         self.navigator = nav = Navigator(vs, out, cmd, cfg.control_dt_s, self.geo)
-        self.offboard = ofb = Offboard(vs, out, cmd, cfg.sysid, cfg.compid)
+        self.offboard = ofb = Offboard(vs, out, cmd, cfg.sysid, cfg.compid, self.geo)
         self.mission = mis = Mission(vs, out, cmd, nav, cfg.sysid, cfg.compid)
         self.manual = man = Manual(vs, cmd, nav, cfg.sysid)
         cmd.navigator, cmd.offboard, cmd.mission, cmd.manual = nav, ofb, mis, man
         self.parameters = prm = Parameters(vs, out, chans, lambda s, c: self.commands.for_us(s, c))
         self.failsafe = Failsafe(vs, out, cmd, prm.apply)
         self.telemetry = tel = Telemetry(vs, out, cmd, prm, self.geo, cfg.sysid,
-                                         cfg.origin_alt_m, mis)
+                                         cfg.origin_alt_m, mis, self.vehicle.g)
         self.commands = Commands(vs, out, cmd, nav, tel, cfg.sysid, cfg.compid, mis)
         handlers = self.commands.handlers(ofb.on_setpoint_msg, prm, man)
         handlers[M.MAVLINK_MSG_ID_HEARTBEAT] = self.failsafe.on_heartbeat
+        handlers.update(ofb.handlers())          # SET_POSITION_TARGET_GLOBAL_INT, attitude
         self.input = LinkInput(vs, out, handlers, ofb.on_setpoint)
         for ch, rates in zip(chans, (cfg.api_rates_hz, cfg.gcs_rates_hz), strict=True):
             for sname, msgid in STREAMS.items():
@@ -138,6 +140,8 @@ class Onboard:
         vs.ctrl = controller
         vs.battery = Battery(BATTERIES[cfg.vehicle], self.vehicle.u_hover)
         prm.build()
+        prm.hover_fraction = self.vehicle.weight / (4.0 * self.vehicle.thrust_max)
+        cmd.preflight = prm.arming_problem
         vs.own["COM_OF_LOSS_T"] = cfg.offboard_loss_s
         vs.own["COM_FAIL_ACT_T"] = cfg.failsafe_land_s
         if cfg.param_file:
@@ -203,9 +207,11 @@ class Onboard:
         parameters the user set."""
         vs = self.status
         self.vehicle = vehicle
+        self.telemetry.g_mps2 = vehicle.g
         if self._ctrl_factory is not None:
             vs.ctrl = self._ctrl_factory(vehicle, dt=self.cfg.control_dt_s)
         vs.battery = Battery(vs.battery.p, vehicle.u_hover)
+        self.parameters.hover_fraction = vehicle.weight / (4.0 * vehicle.thrust_max)
         self.parameters.rebuild_keeping_user_values()
 
     def rebooted(self) -> Onboard:
@@ -268,6 +274,8 @@ class Onboard:
         vs.t_us = t_us
         s = vs.state
         s.t = t_us * 1e-6
+        vs.v_prev = (s.vx, s.vy, s.vz)     # for HIGHRES_IMU's mean acceleration over the tick
+        vs.dt_us = dt_us
         s.qw, s.qx, s.qy, s.qz = qw, qx, qy, qz
         s.p, s.q, s.r = p, q, r
         lost = quality < 0 and vs.have_state    # ODOMETRY.quality -1: the estimate failed
