@@ -51,10 +51,12 @@ def test_scenario_flies_and_passes(path, summaries):
     failed = {k: v for k, v in s["criteria"].items() if not v["passed"]}
     if sc.criteria.must_complete:
         assert s["exit_reason"] == "mission_complete", s["message"]
+    elif sc.criteria.expect_exit is not None:   # a fault scenario: e.g. held, then landed
+        assert s["exit_reason"] == sc.criteria.expect_exit, s["message"]
     else:   # an endurance scenario (mambo_hover) flies until its time limit
         assert s["exit_reason"] in ("mission_complete", "time_limit"), s["message"]
     assert not failed, failed
-    if sc.app.name == "line_follower":
+    if sc.app.name == "line_follower" and sc.criteria.must_complete:
         m = s["metrics"]
         assert m["landing_error_m"] < 0.10
         assert m["path_error_rms_m"] < sc.criteria.path_rms_max_m
