@@ -88,6 +88,7 @@ class Watch:
         self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=200)
         self.hb = self.ext = self.lpos = None
         self.texts: list[str] = []
+        self.reached: list[int] = []
 
     def until(self, cond, what: str, timeout_s: float = STEP_S) -> None:
         end = time.monotonic() + timeout_s
@@ -106,6 +107,8 @@ class Watch:
                 self.lpos = m
             elif t == "STATUSTEXT":
                 self.texts.append(m.text)
+            elif t == "MISSION_ITEM_REACHED":
+                self.reached.append(m.seq)
 
     @property
     def mode(self) -> str:
@@ -196,6 +199,58 @@ def test_mavproxy_flies_cosim_sitl(tmp_path):
         opens = [p for p in tl["ftp_out"] if p[3] == 4]
         assert len(opens) == 1 and any(p[3] == 129 and p[5] == 4 for p in tl["ftp_in"])
         assert tl["list_ms"] is not None and tl["list_ms"] < 1000, tl
+    except BaseException:
+        if mp is not None:
+            print("\n".join(mp.lines[-80:]))
+        print("vehicle said:", w.texts)
+        raise
+    finally:
+        if mp is not None:
+            mp.close()
+        w.conn.close()
+
+
+def test_mavproxy_uploads_and_flies_a_mission_then_rtl(tmp_path):
+    """MAVProxy's `wp load` (a QGC WPL 110 file) uploads a mission over the mission protocol,
+    `wp list` reads it back, AUTO.MISSION flies it from the ground (the vehicle climbs first,
+    as PX4 does), MISSION_ITEM_REACHED for each item, then RTL lands at home."""
+    from mav import wire
+
+    geo = wire.FlatEarth(42.299886, -71.350447, 71.3232)    # the vehicle's default origin
+    corners = [(-1.0, 0.0), (-1.0, 1.0), (0.0, 1.0)]        # inside the seed world's arena
+    lines = ["QGC WPL 110"]
+    for i, (n, e) in enumerate(corners):
+        lat, lon, _ = geo.to_geodetic(n, e, 0.0)
+        lines.append(f"{i}\t0\t3\t16\t0\t0\t0\t0\t{lat:.8f}\t{lon:.8f}\t1.0\t1")
+    (tmp_path / "square.txt").write_text("\n".join(lines) + "\n")
+    gcs_port, api_port = free_udp_port(), free_udp_port()
+    w = Watch(api_port)
+    mp = None
+    try:
+        with sitl(tmp_path, api_port=api_port, gcs_port=gcs_port, speed=4.0):
+            w.until(lambda v: v.hb is not None, "heartbeat")
+            mp = Proxy(gcs_port, tmp_path)
+            mp.expect("Detected vehicle")
+            mp.expect("Received")                                  # parameters
+            since = mp.mark()
+            mp.cmd("wp load square.txt")
+            mp.expect("Sent all 3 waypoints", "Loaded 3 waypoints", since=since)
+            w.until(lambda v: any("Mission uploaded: 3 items" in t for t in v.texts),
+                    "mission stored")
+            since = mp.mark()
+            mp.cmd("wp list")
+            mp.expect("Saved 3 waypoints", "Requesting 3 waypoints", since=since)
+            mp.cmd("arm throttle")
+            w.until(lambda v: v.armed, "armed")
+            mp.cmd("long DO_SET_MODE 1 4 4")                     # AUTO.MISSION
+            w.until(lambda v: v.mode == "MISSION", "mission mode")
+            w.until(lambda v: v.reached[-1:] == [2], "the last item reached", timeout_s=40.0)
+            mp.cmd("long DO_SET_MODE 1 4 5")                     # AUTO.RTL
+            w.until(lambda v: v.mode == "RTL", "RTL mode")
+            w.until(lambda v: v.landed == M.MAV_LANDED_STATE_ON_GROUND and not v.armed,
+                    "landed and disarmed", timeout_s=40.0)
+            assert abs(w.lpos.x) < 0.15 and abs(w.lpos.y) < 0.15
+        assert w.reached == [0, 1, 2], w.reached
     except BaseException:
         if mp is not None:
             print("\n".join(mp.lines[-80:]))
