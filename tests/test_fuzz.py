@@ -56,16 +56,28 @@ TARGETED = [M.MAVLink_command_long_message, M.MAVLink_command_int_message,
             M.MAVLink_set_position_target_local_ned_message, M.MAVLink_param_set_message,
             M.MAVLink_param_request_read_message, M.MAVLink_param_request_list_message,
             M.MAVLink_set_mode_message, M.MAVLink_request_data_stream_message,
-            M.MAVLink_mission_request_list_message, M.MAVLink_timesync_message]
-COMMANDS = [400, 22, 21, 176, 512, 511, 510, 520, 519, 410, 20, 246, 0, 65535]
+            M.MAVLink_mission_request_list_message, M.MAVLink_timesync_message,
+            M.MAVLink_mission_count_message, M.MAVLink_mission_item_int_message,
+            M.MAVLink_mission_item_message, M.MAVLink_mission_request_int_message,
+            M.MAVLink_mission_request_message, M.MAVLink_mission_ack_message,
+            M.MAVLink_mission_clear_all_message, M.MAVLink_mission_set_current_message,
+            M.MAVLink_manual_control_message, M.MAVLink_heartbeat_message,
+            M.MAVLink_set_position_target_global_int_message,
+            M.MAVLink_set_attitude_target_message, M.MAVLink_file_transfer_protocol_message]
+COMMANDS = [400, 22, 21, 176, 512, 511, 510, 520, 519, 410, 20, 246, 192, 178, 224, 300, 0,
+            65535]
 
 
-def hostile_valid(rng: random.Random, mav) -> bytes:
-    """A CRC-correct packet with hostile contents (mostly aimed at system 1)."""
+def hostile_valid(rng: random.Random, mav, target: int = 1) -> bytes:
+    """A CRC-correct packet with hostile contents (mostly aimed at system 1; with another
+    `target`, every targeted message is addressed to that system)."""
     cls = rng.choice(TARGETED) if rng.random() < 0.7 else None
     msg = random_message(rng, cls)
-    if hasattr(msg, "target_system") and rng.random() < 0.8:
-        msg.target_system = 1
+    aim = target != 1 or rng.random() < 0.8
+    if hasattr(msg, "target_system") and aim:
+        msg.target_system = target
+    if hasattr(msg, "target") and aim:                        # MANUAL_CONTROL
+        msg.target = target
     if hasattr(msg, "target_component") and rng.random() < 0.8:
         msg.target_component = rng.choice([0, 1])
     if hasattr(msg, "command") and isinstance(msg, (M.MAVLink_command_long_message,
@@ -107,11 +119,11 @@ def mutate(rng: random.Random, data: bytes) -> bytes:
     return bytes(b)
 
 
-def fuzz_datagram(rng: random.Random, mav) -> bytes:
+def fuzz_datagram(rng: random.Random, mav, target: int = 1) -> bytes:
     r = rng.random()
     if r < 0.15:
         return bytes(rng.randrange(256) for _ in range(rng.randrange(0, 300)))
-    valid = hostile_valid(rng, mav)
+    valid = hostile_valid(rng, mav, target)
     if r < 0.55:
         return valid
     return mutate(rng, valid)
@@ -170,3 +182,46 @@ def test_flood_is_bounded_per_tick():
     assert rig.ob.stats["rx_gcs"] == DRAIN_MAX and rig.ob.stats["drain_deferred"] == 1
     rig.tick(3)
     assert rig.ob.stats["rx_gcs"] == 3 * DRAIN_MAX
+
+
+@pytest.mark.slow
+def test_long_fuzz_in_flight_keeps_position_and_rates():
+    """Issue 14: >= 100k datagrams per link (random bytes, mutations, CRC-valid packets of
+    every message id the vehicle handles with hostile values, all addressed to another
+    system so none is a legitimate order) while the vehicle hovers: it keeps its position,
+    answers every HIL tick and keeps its 1 Hz heartbeat on both links."""
+    from test_onboard_auto import flying_rig, pos
+
+    rng = random.Random(11)
+    rig = flying_rig()
+    rig.decode = True
+    home = pos(rig)
+    mav = M.MAVLink(None, 255, 190)
+    per_tick, n = 100, 100_000
+
+    worst, answers0, t0 = 0.0, len(rig.answers), rig.t_us
+    rig.clear()
+    api_hb: list[int] = []                 # the app's client owns the api link: count there
+    on_hb = rig.client._on_heartbeat
+
+    def count_hb(f, compid):
+        api_hb.append(rig.t_us)
+        on_hb(f, compid)
+
+    rig.client._fast_handlers[M.MAVLINK_MSG_ID_HEARTBEAT] = count_hb
+    for _ in range(n // per_tick):
+        for link in ("api", "gcs"):
+            for _ in range(per_tick):
+                rig.links[link].send(fuzz_datagram(rng, mav, target=7))
+        rig.tick()
+        worst = max(worst, math.dist(pos(rig), home))
+    st = rig.ob.stats
+    ticks = (rig.t_us - t0) // 5000
+    assert st["handler_errors"] == 0 and len(rig.answers) - answers0 == ticks
+    assert st["rx_api"] >= n and st["rx_gcs"] >= n
+    assert worst < 0.05 and rig.ob.armed and rig.ob.mode_name == "AUTO.LOITER"
+    for link in ("api", "gcs"):
+        hbs = api_hb if link == "api" else [
+            t for t, m in rig.rx[link] if m is not None and m.get_type() == "HEARTBEAT"]
+        gaps = [b - a for a, b in zip(hbs, hbs[1:], strict=False)]
+        assert len(hbs) >= ticks * 5000 // 1_000_000 - 1 and max(gaps) <= 1_000_000, link
