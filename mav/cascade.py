@@ -37,6 +37,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
+from mav import fastpath
 from mav.airframe import Airframe
 from mav.mixer import inverse4, mixer_matrix
 from mav.types import Setpoint, VehicleState
@@ -134,9 +135,18 @@ class QuadCascade:
     # False: yaw-rate setpoints close a pure rate loop (Parrot PCMD style).
     YAW_RATE_INTEGRATES = True
 
-    def __init__(self, vehicle: Airframe, dt: float = 0.005, preset: str = "default"):
+    def __init__(self, vehicle: Airframe, dt: float = 0.005, preset: str = "default",
+                 fast: bool | None = None):
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
+        # the compiled tick (mav/csrc/fastpath.c) when built; `fast` False forces the Python
+        # reference below, True requires the compiled one
+        if fast is None:
+            fast = fastpath.lib is not None
+        if fast and fastpath.lib is None:
+            raise RuntimeError("the compiled fast path is not available: "
+                               + fastpath.describe())
+        self._c = fastpath.lib.Cascade() if fast else None
         self.vehicle = vehicle
         self.dt = float(dt)
         self._specs = {p.name: p for p in self.PARAMS}
@@ -161,6 +171,8 @@ class QuadCascade:
         if preset != "default":
             self.apply_preset(preset)
         self._refresh()
+        if self._c is not None:
+            self.update = self._c.update   # the same law, compiled (bit-identical)
 
     # ---------------------------------------------------------------- parameters
     def param_table(self) -> list[ParamSpec]:
@@ -240,6 +252,8 @@ class QuadCascade:
             t_max, 1.0 / (v.k_thrust * v.omega_max * v.omega_max),
             self._A[2][0], self.dt, self.YAW_RATE_INTEGRATES,
         )
+        if self._c is not None:
+            self._c.set_gains(self._g)
 
     # ---------------------------------------------------------------- state
     def reset(self) -> None:
@@ -248,10 +262,15 @@ class QuadCascade:
         self._i_n = self._i_e = 0.0
         self._yaw_ref = 0.0
         self._n = 0
+        if self._c is not None:
+            self._c.reset()
 
     # ---------------------------------------------------------------- hot path
     def update(self, s: VehicleState, sp: Setpoint, out: list[float]) -> None:
         """One control tick: state estimate + setpoint -> motor commands u1..u4 in out[0:4].
+
+        The readable model and the reference: with the fast path built, instances run the
+        compiled copy of this method (mav/csrc/fastpath.c), tested bit-identical to it.
 
         The state must be finite (the estimator's job); a NaN still never reaches the motors
         (the commands are clipped NaN-safe into [0, 1])."""

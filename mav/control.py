@@ -180,11 +180,13 @@ class Bebop2Controller(QuadCascade):
         }
 
 
-def make_controller(vehicle: Airframe, dt: float = 0.005) -> Controller:
+def make_controller(vehicle: Airframe, dt: float = 0.005,
+                    fast: bool | None = None) -> Controller:
     """The low-level controller for `vehicle` ('mambo' -> MamboController, 'bebop2' ->
-    Bebop2Controller), with default parameters."""
+    Bebop2Controller), with default parameters; `fast` as QuadCascade's (None: compiled
+    when built)."""
     if vehicle.name == "mambo":
-        return MamboController(vehicle, dt)
+        return MamboController(vehicle, dt, fast=fast)
     if vehicle.name == "bebop2":
-        return Bebop2Controller(vehicle, dt)
+        return Bebop2Controller(vehicle, dt, fast=fast)
     raise ValueError(f"no controller for vehicle {vehicle.name!r}; known: mambo, bebop2")

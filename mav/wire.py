@@ -26,6 +26,8 @@ import struct
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from mav import fastpath
+
 try:  # pymavlink itself uses fastcrc when it is installed; so do we
     from fastcrc.crc16 import mcrf4xx as _mcrf4xx
 except ImportError:  # pragma: no cover - the project pins fastcrc
@@ -49,6 +51,11 @@ def _crc16_py(data: bytes, crc: int = 0xFFFF) -> int:
 
 
 crc16 = _mcrf4xx if _mcrf4xx is not None else _crc16_py
+
+# the compiled framing and frame checks (mav/csrc/fastpath.c), same bytes and verdicts as the
+# Python below (tests/test_fastpath.py); None: the Python path
+_fp_frame = fastpath.lib.frame if fastpath.lib is not None else None
+_fp_check = fastpath.lib.check if fastpath.lib is not None else None
 
 
 class FastMsg:
@@ -133,10 +140,12 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     carries mav's seq/srcSystem/srcComponent, the CRC includes CRC_EXTRA, and if
     `mav.signing.sign_outgoing` the packet is signed with mav's key, link id and timestamp.
     """
-    p = payload.rstrip(b"\x00") or payload[:1]
     seq = mav.seq
     mav.seq = (seq + 1) & 0xFF
     signing = mav.signing
+    if _fp_frame is not None and not signing.sign_outgoing:
+        return _fp_frame(seq, mav.srcSystem, mav.srcComponent, m.id, m.crc_extra, payload)
+    p = payload.rstrip(b"\x00") or payload[:1]
     if signing.sign_outgoing:
         buf = _HDR.pack(MAGIC_V2, len(p), IFLAG_SIGNED, 0, seq, mav.srcSystem, mav.srcComponent)
         buf += m.id3 + p
@@ -249,6 +258,13 @@ def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | N
         end = frame_end(data, i)
         if end < 0:
             return None
+    if _fp_check is not None and type(data) is bytes:
+        plen = _fp_check(data, i, end, m.id, m.crc_extra)
+        if plen < 0:
+            return None
+        if plen >= m.size:
+            return m.st.unpack_from(data, i + HEADER_LEN_V2)
+        return m.st.unpack(data[i + HEADER_LEN_V2:i + HEADER_LEN_V2 + plen] + m.zeros[plen:])
     if data[i] != MAGIC_V2 or data[i + 7:i + 10] != m.id3:
         return None
     flags = data[i + 2]
@@ -272,6 +288,18 @@ def _one_frame_decoder(m: FastMsg, used: struct.Struct):
     id3, extra, zeros, used_len = m.id3, m.extra, m.zeros, used.size
     unpack, unpack_from = used.unpack, used.unpack_from
 
+    check, mid, crc_extra = _fp_check, m.id, m.crc_extra
+
+    def decode_compiled(data: bytes) -> tuple | None:
+        if type(data) is not bytes:
+            return decode(data)
+        plen = check(data, 0, -1, mid, crc_extra)
+        if plen < 0:
+            return None
+        if plen >= used_len:
+            return unpack_from(data, HEADER_LEN_V2)
+        return unpack(data[HEADER_LEN_V2:HEADER_LEN_V2 + plen] + zeros[plen:used_len])
+
     def decode(data: bytes) -> tuple | None:
         n = len(data)
         if n < 12 or data[0] != MAGIC_V2 or data[7:10] != id3:
@@ -290,19 +318,21 @@ def _one_frame_decoder(m: FastMsg, used: struct.Struct):
             return unpack_from(data, HEADER_LEN_V2)
         return unpack(data[HEADER_LEN_V2:crc_at] + zeros[plen:used_len])
 
-    return decode
+    return decode if check is None else decode_compiled
 
 
 # ODOMETRY -> (time_usec, x, y, z, qw, qx, qy, qz, vx, vy, vz, rollspeed, pitchspeed, yawspeed,
 # frame_id, child_frame_id, quality): the covariances, reset counter and estimator type, which
 # the onboard stack does not use, are skipped (the onboard stack's per-tick HIL input).
 # quality (int8): -1 the estimate has failed, 0 unknown, 1..100 worst..best (MAVLink).
-decode_odometry = _one_frame_decoder(ODOMETRY, struct.Struct("<Q13f168xBB2xb"))
+ODOMETRY_USED = struct.Struct("<Q13f168xBB2xb")
+decode_odometry = _one_frame_decoder(ODOMETRY, ODOMETRY_USED)
 
 # HIL_ACTUATOR_CONTROLS -> (time_usec, controls[0..3]): the four motors the simulator applies
 # (the simulator's per-tick HIL input).
+HIL_ACTUATOR_CONTROLS_USED = struct.Struct("<Q8x4f")
 decode_hil_actuator_controls = _one_frame_decoder(HIL_ACTUATOR_CONTROLS,
-                                                  struct.Struct("<Q8x4f"))
+                                                  HIL_ACTUATOR_CONTROLS_USED)
 
 
 def header_of(data: bytes, i: int = 0) -> tuple[int, int, int]:

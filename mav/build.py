@@ -1,0 +1,100 @@
+"""Build the onboard fast path (`mav/csrc/fastpath.c` -> `mav/_fastpath*.so`):
+``python -m mav.build`` (the install step runs it, as it builds the FMU).
+
+A CPython extension compiled with gcc against this interpreter's headers, with the flags that
+keep it bit-identical to the Python reference (mav/cascade.py): -O2 without -ffast-math and
+with -ffp-contract=off (no fused multiply-add), so every double operation rounds as Python's
+does. A build is skipped when a hash of the source, the flags, the interpreter's ABI tag and
+gcc's version matches the one recorded beside the library. Without the library (no compiler,
+another platform) the onboard stack runs its Python implementation, with the same results.
+
+Examples::
+
+    python -m mav.build            # build if the source changed, print the path
+    python -m mav.build --force    # always rebuild
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tempfile
+
+PACKAGE_DIR = pathlib.Path(__file__).resolve().parent
+SOURCE = PACKAGE_DIR / "csrc" / "fastpath.c"
+CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99", "-Wall", "-Wextra", "-Wno-unused-parameter",
+          "-ffp-contract=off", "-fno-fast-math", "-fvisibility=hidden")
+LIBS = ("-lm",)
+
+
+class BuildError(RuntimeError):
+    """The fast path could not be built (no compiler, no Python headers, compile error)."""
+
+
+def library_path() -> pathlib.Path:
+    """Where the extension goes: beside this file, named for this interpreter's ABI."""
+    return PACKAGE_DIR / ("_fastpath" + sysconfig.get_config_var("EXT_SUFFIX"))
+
+
+def _gcc() -> str:
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        raise BuildError("gcc not found: install it with `apt-get install gcc`")
+    return gcc
+
+
+def source_hash() -> str:
+    h = hashlib.sha256(SOURCE.read_bytes())
+    h.update(" ".join(CFLAGS + LIBS).encode())
+    h.update((sysconfig.get_config_var("EXT_SUFFIX") or "").encode())
+    out = subprocess.run([_gcc(), "--version"], capture_output=True, text=True, check=False)
+    h.update(out.stdout.encode())
+    return h.hexdigest()
+
+
+def build(force: bool = False) -> pathlib.Path:
+    """Compile the extension if needed; returns its path. Safe from several processes at once
+    (written to a temporary file and moved into place)."""
+    lib = library_path()
+    stamp = lib.with_name(lib.name + ".sha256")
+    digest = source_hash()
+    if not force and lib.is_file() and stamp.is_file() and stamp.read_text().strip() == digest:
+        return lib
+    include = sysconfig.get_paths()["include"]
+    if not (pathlib.Path(include) / "Python.h").is_file():
+        raise BuildError(f"Python.h not found in {include} (install the Python headers)")
+    with tempfile.TemporaryDirectory(dir=PACKAGE_DIR, prefix=".build-") as tmp:
+        out = pathlib.Path(tmp) / lib.name
+        cmd = [_gcc(), *CFLAGS, f"-I{include}", SOURCE.name, "-o", str(out), *LIBS]
+        res = subprocess.run(cmd, capture_output=True, text=True, cwd=SOURCE.parent,
+                             check=False)
+        if res.returncode != 0:
+            raise BuildError(f"gcc failed ({res.returncode}):\n{' '.join(cmd)}\n{res.stderr}")
+        os.replace(out, lib)
+        tmp_stamp = pathlib.Path(tmp) / "stamp"
+        tmp_stamp.write_text(digest + "\n")
+        os.replace(tmp_stamp, stamp)
+    return lib
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m mav.build",
+                                 description="Build the onboard fast path (mav/_fastpath).")
+    ap.add_argument("--force", action="store_true", help="rebuild even if up to date")
+    args = ap.parse_args(argv)
+    try:
+        print(build(force=args.force))
+    except BuildError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

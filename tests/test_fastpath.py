@@ -1,0 +1,213 @@
+"""The compiled onboard fast path (mav/csrc/fastpath.c) against its Python reference
+(mav/cascade.py): bit-identical tick by tick on random inputs, and on closed-loop missions
+(the Simulink model-vs-generated-code check)."""
+
+from __future__ import annotations
+
+import math
+import random
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cosim.outputs.report import summarize
+from cosim.scenario.parse import load_scenario
+from cosim.sim.master import RunOptions, run_scenario
+from mav import fastpath
+from mav.airframe import BEBOP2, MAMBO
+from mav.control import make_controller
+from mav.types import Setpoint, VehicleState
+
+SCEN = Path(__file__).resolve().parents[1] / "scenarios"
+NAN = math.nan
+
+
+def bits(v: float) -> bytes:
+    return struct.pack("<d", v)
+
+
+def test_the_fast_path_is_built_and_used():
+    """The install step builds it, so the suite exercises the compiled path (a silent fallback
+    to Python would hide a broken build)."""
+    assert fastpath.lib is not None, fastpath.describe()
+    assert make_controller(MAMBO)._c is not None
+    assert make_controller(MAMBO, fast=False)._c is None
+
+
+def _random_tick(rng: random.Random, s: VehicleState, sp: Setpoint) -> None:
+    """A state and setpoint drawn to reach every branch: saturations, NaN fields, yaw wrap,
+    tilts beyond 60 deg, disarm/re-arm."""
+    u = rng.uniform
+    s.x, s.y, s.z = u(-5, 5), u(-5, 5), u(-3, 0.1)
+    s.vx, s.vy, s.vz = u(-3, 3), u(-3, 3), u(-2, 2)
+    ang = [u(-1.2, 1.2), u(-1.2, 1.2), u(-math.pi, math.pi)]
+    if rng.random() < 0.05:
+        ang[0] = u(1.2, 3.1)                    # upside down: r33 < 0.5
+    cr, sr = math.cos(ang[0] / 2), math.sin(ang[0] / 2)
+    cp, spt = math.cos(ang[1] / 2), math.sin(ang[1] / 2)
+    cy, sy = math.cos(ang[2] / 2), math.sin(ang[2] / 2)
+    s.qw = cr * cp * cy + sr * spt * sy
+    s.qx = sr * cp * cy - cr * spt * sy
+    s.qy = cr * spt * cy + sr * cp * sy
+    s.qz = cr * cp * sy - sr * spt * cy
+    s.p, s.q, s.r = u(-4, 4), u(-4, 4), u(-4, 4)
+
+    def maybe(lo, hi, p_nan=0.3):
+        return NAN if rng.random() < p_nan else u(lo, hi)
+    sp.x, sp.y = maybe(-8, 8), maybe(-8, 8)
+    sp.z = maybe(-4, 0)
+    sp.vx, sp.vy, sp.vz = maybe(-4, 4), maybe(-4, 4), maybe(-3, 3)
+    sp.yaw = maybe(-4, 4, 0.5)
+    sp.yaw_rate = maybe(-5, 5)
+    sp.ax = maybe(-6, 6, 0.5)
+    sp.ay = u(-6, 6)
+    sp.armed = rng.random() > 0.02
+
+
+@pytest.mark.parametrize("vehicle", [MAMBO, BEBOP2], ids=["mambo", "bebop2"])
+def test_compiled_controller_is_bit_identical_to_the_reference(vehicle):
+    rng = random.Random(16)
+    ref, fast = make_controller(vehicle, fast=False), make_controller(vehicle, fast=True)
+    s, sp = VehicleState(), Setpoint()
+    out_r, out_f = [0.0] * 4, [0.0] * 4
+    for k in range(20_000):
+        if k % 2000 == 0:   # a parameter change mid-run rebuilds both gain sets
+            for c in (ref, fast):
+                c.set_param("MPC_XY_VEL_MAX", 0.5 + k / 4000)
+        _random_tick(rng, s, sp)
+        ref.update(s, sp, out_r)
+        fast.update(s, sp, out_f)
+        assert list(map(bits, out_r)) == list(map(bits, out_f)), (k, out_r, out_f)
+        state = (ref._i_p, ref._i_r, ref._i_z, ref._i_n, ref._i_e, ref._yaw_ref, ref._n)
+        assert list(map(bits, state[:6])) == list(map(bits, fast._c.integrators()[:6])), k
+        assert state[6] == fast._c.integrators()[6]
+    ref.reset()
+    fast.reset()
+    assert fast._c.integrators() == (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)
+
+
+def test_compiled_controller_rejects_bad_arguments():
+    c = make_controller(MAMBO, fast=True)
+    with pytest.raises(TypeError):
+        c.update(VehicleState(), Setpoint())
+    with pytest.raises(ValueError, match="47 values"):
+        c._c.set_gains((1.0,) * 3)
+    sp = Setpoint()
+    sp.armed = True
+    with pytest.raises(AttributeError):
+        c.update(object(), sp, [0.0] * 4)
+
+
+def _fly(name: str, fast: bool, mode: str = "mil"):
+    sc = load_scenario(SCEN / f"{name}.toml")
+    if fast:
+        res = run_scenario(sc, RunOptions(mode=mode))
+    else:
+        with fastpath.reference():
+            assert fastpath.lib is None
+            res = run_scenario(sc, RunOptions(mode=mode))
+        assert fastpath.lib is not None
+    return res, summarize(res)
+
+
+@pytest.mark.parametrize("name,mode", [("mambo_seed_track", "mil"),
+                                       ("bebop2_scripted_square", "mil"),
+                                       ("mambo_seed_track", "sil")])
+def test_closed_loop_missions_identical_compiled_and_reference(name, mode):
+    """The whole onboard stack compiled vs its Python reference (in SIL, the onboard process
+    runs the reference: MAV_FASTPATH=0): the same run, bit for bit."""
+    ref, s_ref = _fly(name, fast=False, mode=mode)
+    fast, s_fast = _fly(name, fast=True, mode=mode)
+    assert ref.exit_reason == fast.exit_reason and ref.ticks == fast.ticks
+    assert np.array_equal(ref.series, fast.series, equal_nan=True)
+    def same(s):   # everything but the wall-clock figures
+        return {k: v for k, v in s.items() if "wall" not in k and "real_time" not in k}
+    assert same(s_ref) == same(s_fast)
+
+
+# ------------------------------------------------------------------ MAVLink framing
+class _Layout:
+    """A FastMsg stand-in for an arbitrary message id and CRC_EXTRA."""
+
+    def __init__(self, msgid: int, crc_extra: int) -> None:
+        self.id = msgid
+        self.crc_extra = crc_extra
+        self.extra = bytes((crc_extra,))
+        self.id3 = struct.pack("<I", msgid)[:3]
+
+
+def test_compiled_framing_gives_the_same_bytes(monkeypatch):
+    from pymavlink.dialects.v20 import common as M
+
+    from mav import wire
+
+    assert wire._fp_frame is not None
+    rng = random.Random(7)
+    for k in range(5000):
+        n = rng.randint(1, 255)
+        payload = bytes(rng.randrange(256) if rng.random() < 0.6 else 0 for _ in range(n))
+        if k % 50 == 0:
+            payload = bytes(n)                      # all zeros: one byte stays
+        m = _Layout(rng.randrange(1 << 24), rng.randrange(256))
+        mav_c = M.MAVLink(None, rng.randrange(256), rng.randrange(256))
+        mav_p = M.MAVLink(None, mav_c.srcSystem, mav_c.srcComponent)
+        mav_c.seq = mav_p.seq = k & 0xFF
+        got = wire.frame(mav_c, m, payload)
+        with monkeypatch.context() as mp:
+            mp.setattr(wire, "_fp_frame", None)
+            want = wire.frame(mav_p, m, payload)
+        assert got == want and mav_c.seq == mav_p.seq, k
+    # and pymavlink agrees on a real message
+    mav_c, mav_p = M.MAVLink(None, 1, 1), M.MAVLink(None, 1, 1)
+    msg = M.MAVLink_attitude_message(1234, 0.1, -0.2, 3.0, 0.0, 0.5, 0.0)
+    assert wire.encode_attitude(mav_c, 1234, 0.1, -0.2, 3.0, 0.0, 0.5, 0.0) == msg.pack(mav_p)
+
+
+def _mutations(rng: random.Random, frame: bytes):
+    yield frame
+    b = bytearray(frame)
+    b[rng.randrange(len(b))] ^= 1 << rng.randrange(8)
+    yield bytes(b)
+    yield frame[:rng.randrange(len(frame))]
+    yield frame + bytes(rng.randint(1, 20))
+    s = bytearray(frame)
+    s[2] = 1                                         # "signed" without a signature
+    yield bytes(s)
+    yield bytes(s) + bytes(13)                       # signed: the signature is not checked here
+    s[2] = 2                                         # an unknown incompat flag
+    yield bytes(s)
+
+
+def test_compiled_frame_checks_give_the_same_verdicts(monkeypatch):
+    from mav import wire
+    from mav.hil import HilSimulatorCodec
+
+    assert wire._fp_check is not None
+    rng = random.Random(3)
+    hil = HilSimulatorCodec()
+    with monkeypatch.context() as mp:
+        mp.setattr(wire, "_fp_check", None)
+        py_odo = wire._one_frame_decoder(wire.ODOMETRY, struct.Struct("<Q13f168xBB2xb"))
+    c_odo = wire.decode_odometry
+    for k in range(3000):
+        vals = tuple(rng.uniform(-5, 5) for _ in range(13))
+        if k % 10 == 0:
+            vals = (0.0,) * 13
+        odo = hil.encode_odometry(rng.randrange(1 << 40), vals)
+        sp = wire.encode_set_position_target_local_ned(
+            hil.mav, k, 1, 1, 1, rng.randrange(1 << 16), *(rng.uniform(-9, 9) for _ in range(11)))
+        for data in (*_mutations(rng, odo), *_mutations(rng, sp), sp + odo):
+            assert c_odo(data) == py_odo(data), k
+            for m in (wire.ODOMETRY, wire.SET_POSITION_TARGET_LOCAL_NED):
+                got = wire.decode_fast(m, data)
+                with monkeypatch.context() as mp:
+                    mp.setattr(wire, "_fp_check", None)
+                    want = wire.decode_fast(m, data)
+                assert got == want or _same_nan(got, want), k
+
+
+def _same_nan(a, b) -> bool:
+    return a is not None and b is not None and len(a) == len(b) and all(
+        x == y or (x != x and y != y) for x, y in zip(a, b, strict=True))
