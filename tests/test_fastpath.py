@@ -1,6 +1,7 @@
-"""The compiled onboard fast path (mav/csrc/fastpath.c) against its Python reference
-(mav/cascade.py): bit-identical tick by tick on random inputs, and on closed-loop missions
-(the Simulink model-vs-generated-code check)."""
+"""The fast paths against their references: the compiled onboard code (mav/csrc/fastpath.c)
+against its Python reference (mav/cascade.py, mav/wire.py), bit-identical tick by tick on
+random inputs and on closed-loop missions (the Simulink model-vs-generated-code check); the
+SIL lockstep's spin-then-sleep HIL wait against sleeping at once."""
 
 from __future__ import annotations
 
@@ -211,3 +212,14 @@ def test_compiled_frame_checks_give_the_same_verdicts(monkeypatch):
 def _same_nan(a, b) -> bool:
     return a is not None and b is not None and len(a) == len(b) and all(
         x == y or (x != x and y != y) for x, y in zip(a, b, strict=True))
+
+
+@pytest.mark.parametrize("spin_us", [0.0, 50.0])
+def test_sil_hil_wait_spinning_or_not_gives_the_same_run(spin_us):
+    """How the SIL processes wait for each other's HIL datagram (poll for a while, or sleep in
+    the kernel at once) changes the wall time only: the run equals the MIL one bit for bit."""
+    sc = load_scenario(SCEN / "mambo_seed_track.toml")
+    mil = run_scenario(sc, RunOptions(mode="mil"))
+    sil = run_scenario(sc, RunOptions(mode="sil", hil_spin_us=spin_us))
+    assert sil.exit_reason == mil.exit_reason and sil.ticks == mil.ticks
+    assert np.array_equal(mil.series, sil.series, equal_nan=True)

@@ -162,6 +162,7 @@ def test_hil_silence_exits(tmp_path):
     (["--signing-key", "zz"], "64 hex digits"),
     (["--signing-key", "ab" * 8], "need 32"),
     (["--hil-timeout", "0"], "seconds > 0"),
+    (["--hil-spin-us", "-5"], "0..1e6 microseconds"),
 ])
 def test_bad_arguments_exit_2(args, msg):
     module = "mav" if args[0] == "--vehicle" else "mav.onboard"     # `python -m mav` too

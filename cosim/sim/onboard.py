@@ -4,6 +4,7 @@ GCS links (tapped into the run's tlog), `stats`, `close`; for `cosim sitl`, `res
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +102,11 @@ class OnboardHandle:
             overrides += (f"--sysid={sysid}",)
         if origin is not None:
             overrides += ("--origin=" + ",".join(repr(float(v)) for v in origin),)
+        spin_us = opts.hil_spin_us
+        if spin_us is None:
+            spin_us = 200.0 if (os.cpu_count() or 1) >= 2 and not opts.realtime else 0.0
+        if spin_us > 0:
+            overrides += (f"--hil-spin-us={spin_us!r}",)
         self.proc = OnboardProcess(
             vname, api.local_address, gcs.local_address, log_dir / "onboard.log",
             hil_timeout_s=max(10.0, 5 * opts.hil_timeout_s), extra_args=overrides,
@@ -109,8 +115,8 @@ class OnboardHandle:
         for link, name in ((hil, "hil"), (api, "api"), (gcs, "gcs")):
             link.remote = ("127.0.0.1", ports[name])
             link._fixed_remote = True
-        hil.sock.setblocking(True)
-        hil.sock.settimeout(opts.hil_timeout_s)
+        self._spin_ns = round(1000 * spin_us)
+        self._hil_timeout_s = opts.hil_timeout_s
         self.hil = hil
         self.api = TapLink(api, tlog)
         self.gcs = TapLink(gcs, tlog)
@@ -129,10 +135,13 @@ class OnboardHandle:
                 raise ComponentError("onboard", "no HIL_ACTUATOR_CONTROLS answer")
             return ans
         try:
-            return self.hil.sock.recv(65535)
-        except (TimeoutError, ConnectionRefusedError, OSError):
+            ans = self.hil.recv_spin(self._spin_ns, self._hil_timeout_s)
+        except OSError:
+            ans = None
+        if ans is None:
             what = self.proc.failure_text()
-            raise ComponentError("onboard", f"stopped answering HIL ({what})") from None
+            raise ComponentError("onboard", f"stopped answering HIL ({what})")
+        return ans
 
     def respawn(self) -> None:
         """MIL: the flight stack rebooted on the same links and sysid (`Onboard.rebooted`):

@@ -67,6 +67,10 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vehicle-param", action="append", default=[], metavar="FIELD=VALUE",
                    help="override an airframe value of the preset (a mav.airframe."
                         "Airframe field, SI units), e.g. mass=0.07; repeatable")
+    p.add_argument("--hil-spin-us", type=float, default=0.0, metavar="US",
+                   help="after each tick, poll the HIL link this long (us, wall clock) before "
+                        "sleeping in the kernel: a lockstep simulator on another CPU answers "
+                        "sooner than a wake-up (default 0: sleep at once)")
     p.add_argument("--hil-timeout", type=float, default=10.0, metavar="SECONDS",
                    help="exit (code 0) when the simulator is silent this long, wall clock "
                         "(default 10)")
@@ -118,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
         kw.update(origin_lat_deg=lat, origin_lon_deg=lon, origin_alt_m=alt)
     if not (args.hil_timeout > 0):
         parser.error("--hil-timeout: expected seconds > 0")
+    if not 0.0 <= args.hil_spin_us <= 1e6:
+        parser.error("--hil-spin-us: expected 0..1e6 microseconds")
     try:
         cfg = OnboardConfig(**kw)
     except ValueError as exc:
@@ -157,8 +163,18 @@ def main(argv: list[str] | None = None) -> int:
     poller.register(hil.sock.fileno(), select.POLLIN)
     wait = poller.poll
     last_rx = time.monotonic()
+    spin_ns = round(1000 * args.hil_spin_us) if args.hil_spin_us > 0 else 0
+    clock = time.perf_counter_ns
     try:
         while not stop:
+            if spin_ns:     # poll for the next tick's datagram before sleeping
+                deadline = clock() + spin_ns
+                got = onboard.poll()
+                while not got and clock() <= deadline:
+                    got = onboard.poll()
+                if got:
+                    last_rx = time.monotonic()
+                    continue
             try:
                 r = wait(100)
             except InterruptedError:
