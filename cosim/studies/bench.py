@@ -222,7 +222,7 @@ def bench_front(n: int, repeats: int) -> dict[str, Any]:
     return out
 
 
-def bench_mission(mode: str, repeats: int) -> dict[str, Any]:
+def bench_mission(mode: str, repeats: int, **opts: Any) -> dict[str, Any]:
     from cosim.scenario.parse import load_scenario
     from cosim.sim.master import RunOptions, run_scenario
 
@@ -230,7 +230,7 @@ def bench_mission(mode: str, repeats: int) -> dict[str, Any]:
     rtf, loop_rtf, sim = [], [], []
     reason = ""
     for _ in range(repeats):
-        res = run_scenario(sc, RunOptions(mode=mode))
+        res = run_scenario(sc, RunOptions(mode=mode, **opts))
         rtf.append(res.real_time_factor)
         loop_rtf.append(res.loop_real_time_factor)
         sim.append(res.t_end_s)
@@ -392,9 +392,10 @@ def run(quick: bool = False) -> dict[str, Any]:
     mr = 1 if quick else 3
     res["mission_mil"] = bench_mission("mil", mr)
     res["mission_sil"] = bench_mission("sil", mr)
-    with fastpath.reference():       # the same missions before the compiled fast path
+    res["mission_sil_nospin"] = bench_mission("sil", mr, hil_spin_us=0.0)
+    with fastpath.reference():       # the same missions as before issue 16's changes
         res["mission_mil_python"] = bench_mission("mil", mr)
-        res["mission_sil_python"] = bench_mission("sil", mr)
+        res["mission_sil_python"] = bench_mission("sil", mr, hil_spin_us=0.0)
     res["sil_over_mil_time"] = res["mission_mil"]["median"] / res["mission_sil"]["median"]
     res["mil_tick_breakdown"] = bench_tick_breakdown()
     res["floor_us_per_tick"] = floor_estimate(res)
@@ -430,15 +431,19 @@ def format_report(res: dict[str, Any]) -> str:
     row("seed mission MIL (end to end)", res["mission_mil"]["end_to_end"])
     row("seed mission SIL (tick loop)", res["mission_sil"])
     row("seed mission SIL (end to end)", res["mission_sil"]["end_to_end"])
-    row("  MIL, Python reference onboard", res["mission_mil_python"])
-    row("  SIL, Python reference onboard", res["mission_sil_python"])
+    row("  SIL, HIL wait without spinning", res["mission_sil_nospin"])
+    row("  MIL before (Python onboard)", res["mission_mil_python"])
+    row("  SIL before (Python, no spin)", res["mission_sil_python"])
     row("controller, Python reference", res["controller_update"]["python_reference"])
     cu = res["controller_update"]
-    lines.append(f"onboard fast path: {cu['implementation']}; speed-up over the Python "
-                 f"reference (same run): MIL "
-                 f"{res['mission_mil']['median'] / res['mission_mil_python']['median']:.2f}x, "
-                 f"SIL {res['mission_sil']['median'] / res['mission_sil_python']['median']:.2f}x,"
-                 f" controller {cu['python_reference']['median'] / cu['median']:.1f}x")
+
+    def ratio(a: str, b: str) -> float:
+        return res[a]["median"] / res[b]["median"]
+    lines.append(f"onboard fast path: {cu['implementation']}; now / before (same run): MIL "
+                 f"{ratio('mission_mil', 'mission_mil_python'):.2f}x, SIL "
+                 f"{ratio('mission_sil', 'mission_sil_python'):.2f}x (spinning alone "
+                 f"{ratio('mission_sil', 'mission_sil_nospin'):.2f}x), controller "
+                 f"{cu['python_reference']['median'] / cu['median']:.1f}x")
     c = res["codec"]
     lines.append(f"ratios (same run): ODOMETRY encode pymavlink/ours "
                  f"{c['ratio_odometry_encode_ours']:.1f}x, actuator decode pymavlink/ours "
