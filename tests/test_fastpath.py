@@ -16,7 +16,7 @@ import pytest
 from cosim.outputs.report import summarize
 from cosim.scenario.parse import load_scenario
 from cosim.sim.master import RunOptions, run_scenario
-from mav import fastpath
+from mav import fastpath, reference
 from mav.airframe import BEBOP2, MAMBO
 from mav.control import make_controller
 from mav.types import Setpoint, VehicleState
@@ -106,7 +106,7 @@ def _fly(name: str, fast: bool, mode: str = "mil"):
     if fast:
         res = run_scenario(sc, RunOptions(mode=mode))
     else:
-        with fastpath.reference():
+        with reference.python():
             assert fastpath.lib is None
             res = run_scenario(sc, RunOptions(mode=mode))
         assert fastpath.lib is not None

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from mav import fastpath
+from mav import fastpath, reference
 
 ROOT = Path(__file__).resolve().parents[2]
 SEED = ROOT / "scenarios" / "mambo_seed_track.toml"
@@ -393,7 +393,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["mission_mil"] = bench_mission("mil", mr)
     res["mission_sil"] = bench_mission("sil", mr)
     res["mission_sil_nospin"] = bench_mission("sil", mr, hil_spin_us=0.0)
-    with fastpath.reference():       # the same missions as before issue 16's changes
+    with reference.python():       # the same missions as before issue 16's changes
         res["mission_mil_python"] = bench_mission("mil", mr)
         res["mission_sil_python"] = bench_mission("sil", mr, hil_spin_us=0.0)
     res["sil_over_mil_time"] = res["mission_mil"]["median"] / res["mission_sil"]["median"]
