@@ -19,6 +19,8 @@ from mav import wire
 SIM_SYSID = 250
 SIM_COMPID = mavlink2.MAV_COMP_ID_SYSTEM_CONTROL
 INJECT_COMPID = mavlink2.MAV_COMP_ID_USER1   # the simulator's fault injector (own sequence)
+MAX_R_SCALE = 1000.0       # battery sag: the largest resistance factor the vehicle accepts
+MAX_V_DROP = 100.0         # V, battery sag: the largest fixed drop
 
 
 # ODOMETRY payload = time_usec and the 13 measured values, then a tail that is the same every

@@ -38,11 +38,9 @@ from __future__ import annotations
 
 import math
 
+from mav.hil import MAX_R_SCALE, MAX_V_DROP
 from mav.onboard.defs import M
 from mav.onboard.status import VehicleStatus
-
-MAX_R_SCALE = 1000.0
-MAX_V_DROP = 100.0                      # V
 
 
 def battery_failure(vs: VehicleStatus, msg, sysid: int, compid: int) -> bool:
