@@ -12,6 +12,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
+from cosim.apps.scripted import ScriptedApp
 from cosim.errors import ScenarioError
 from cosim.scenario.parse import load_scenario, with_set
 from cosim.sim.faults import FaultHooks, parse_faults
@@ -129,3 +130,37 @@ def test_battery_faults_mil_equals_sil_bit_for_bit():
     assert rem[8.0] > 90 and rem[9.0] == rem[11.0] == 6
     texts = [m.text for m in _tlog_msgs(mil, "STATUSTEXT")]
     assert "Battery low: 6% remaining" in texts          # COM_LOW_BAT_ACT 0: warnings only
+
+
+class LowBatteryLands(ScriptedApp):
+    """The hover app of mambo_hover.toml, which first sets COM_LOW_BAT_ACT = 2 (land at
+    critical) over its link, as a ground station would: a scenario cannot set it."""
+
+    def on_start(self, ctx) -> None:
+        super().on_start(ctx)
+        ctx.client.set_param("COM_LOW_BAT_ACT", 2.0)
+
+
+def test_drain_mid_hover_lands_the_vehicle_through_the_failsafe_in_mil_and_sil():
+    sc = with_set(load_scenario(SCEN / "mambo_hover.toml"), {"timing.t_final_s": 30.0, "faults": {
+        "battery": [{"kind": "drain", "start_s": 10.0, "remaining": 0.06}]}})
+    runs = {m: run_scenario(sc, RunOptions(mode=m, app_override=LowBatteryLands(sc.app.params)))
+            for m in ("mil", "sil")}
+    mil = runs["mil"]
+    for r in runs.values():
+        assert r.exit_reason is ExitReason.LANDED, r.message
+        assert r.faults == [(10.0, "battery drain to 6% (fault 0)")]
+    assert np.array_equal(mil.series, runs["sil"].series, equal_nan=True)
+    assert mil.tlog.read() == runs["sil"].tlog.read()
+    texts = [m.text for m in _tlog_msgs(mil, "STATUSTEXT")]
+    assert "Battery low: 6% remaining" in texts
+    assert "Failsafe: battery critical, landing" in texts
+    # hovering at 1 m until the fault, then down, on the spot
+    t, x, y, z = mil.recorded.columns("t", "x", "y", "z")
+    k = np.searchsorted(t, 10.0)
+    assert -z[k] > 0.9 and -z[-1] < 0.1 and 10.0 < t[-1] < 16.0
+    assert np.hypot(x[-1] - x[k], y[-1] - y[k]) < 0.1
+    modes = [((m.custom_mode >> 16) & 0xFF, m.custom_mode >> 24)   # PX4 main, sub mode
+             for m in _tlog_msgs(mil, "HEARTBEAT")
+             if m.get_srcComponent() == M.MAV_COMP_ID_AUTOPILOT1 and m._timestamp >= 9.0]
+    assert modes[0] == (6, 0) and modes[-1] == (4, 6)    # OFFBOARD, then AUTO.LAND
