@@ -44,9 +44,9 @@ Wind gusts are `[[wind.gust]]` (cosim/world/wind.py). Every random choice comes 
 stream per fault seeded by (scenario seed, 9, fault index), drawn in the order datagrams and
 ticks happen, so a run is deterministic and MIL == SIL holds (the wrappers sit in the master's
 process on the app's end of each link in both modes; battery faults, not random, on the
-master's end of the HIL link). Link time is simulated time: a delayed
-datagram to the vehicle is released at the start of the tick it is due, before the app's tick
-and the HIL exchange; one from the vehicle is handed to the app when due. `fired()` lists when
+master's end of the HIL link). Link time is simulated time: a delayed datagram to the vehicle
+is released at the start of the tick it is due, before the app's tick and the HIL exchange;
+one from the vehicle is handed to the app when due. `fired()` lists when
 each fault first took effect and, at the end, what it did (datagrams dropped, ...).
 """
 

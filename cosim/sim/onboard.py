@@ -71,8 +71,8 @@ class OnboardHandle:
             except BaseException:
                 self.close_partial()
                 raise
-        if hooks is not None:  # faults between the app / GCS and the vehicle; battery faults
-            self.api.inner = hooks.wrap_link("api", self.api.inner)   # on the HIL link
+        if hooks is not None:  # faults between the app / GCS and the vehicle, and on HIL
+            self.api.inner = hooks.wrap_link("api", self.api.inner)    # (battery faults)
             self.gcs.inner = hooks.wrap_link("gcs", self.gcs.inner)
             self.hil = hooks.wrap_link("hil", self.hil)
 
