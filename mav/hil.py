@@ -1,4 +1,5 @@
-"""The simulator's end of the HIL link: ODOMETRY out, HIL_ACTUATOR_CONTROLS in.
+"""The simulator's end of the HIL link: ODOMETRY out, HIL_ACTUATOR_CONTROLS in (and, from
+the fault injector, battery failures: `encode_inject_failure`).
 
 The simulator speaks as its own MAVLink system (SIM_SYSID, MAV_COMP_ID_SYSTEM_CONTROL), like
 PX4 SITL's simulator bridge. ODOMETRY carries float position (world NED), the body->world
@@ -17,6 +18,9 @@ from mav import wire
 
 SIM_SYSID = 250
 SIM_COMPID = mavlink2.MAV_COMP_ID_SYSTEM_CONTROL
+INJECT_COMPID = mavlink2.MAV_COMP_ID_USER1   # the simulator's fault injector (own sequence)
+MAX_R_SCALE = 1000.0       # battery sag: the largest resistance factor the vehicle accepts
+MAX_V_DROP = 100.0         # V, battery sag: the largest fixed drop
 
 
 # ODOMETRY payload = time_usec and the 13 measured values, then a tail that is the same every
@@ -48,3 +52,15 @@ class HilSimulatorCodec:
         if f is None:
             raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(data)} bytes)")
         return f
+
+
+def encode_inject_failure(mav, failure_type: int, param4: float = 0.0,
+                          param5: float = 0.0) -> bytes:
+    """COMMAND_LONG MAV_CMD_INJECT_FAILURE for the vehicle's battery, to whoever is on the HIL
+    link (target 0/0): FAILURE_TYPE_OK (0) ends a sag, OFF (1) drops the charge to param4
+    (0..1), WRONG (4) sags the voltage (resistance x param4, minus param5 V). The contract and
+    the project's use of the reserved param4/5: `mav/onboard/inject.py`. `mav`: a MAVLink
+    instance of (SIM_SYSID, INJECT_COMPID)."""
+    return wire.send_msg(mav, mavlink2.MAVLink_command_long_message(
+        0, 0, mavlink2.MAV_CMD_INJECT_FAILURE, 0, mavlink2.FAILURE_UNIT_SYSTEM_BATTERY,
+        failure_type, 0, param4, param5, 0, 0))

@@ -46,6 +46,10 @@ class MemoryLink:
         inbox = self._inbox
         return inbox.popleft() if inbox else None
 
+    def pending(self) -> int:
+        """Datagrams waiting to be received at this end."""
+        return len(self._inbox)
+
     def close(self) -> None:
         self._inbox.clear()
 

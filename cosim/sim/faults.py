@@ -35,12 +35,18 @@
     thrust = 0.5               # the fraction of its thrust left (0: dead)
     start_s = 15.0             # end_s optional
 
+    [[faults.battery]]         # the flight stack's battery, over the HIL link as MAVLink
+    kind = "sag"               # sag: voltage sag over [start_s, end_s) | drain: the charge
+    start_s = 20.0             #   drops to `remaining` at start_s (cosim/sim/faults_battery.py)
+    r_factor = 3.0             # sag: internal resistance x this; drop_v: a fixed drop (V)
+
 Wind gusts are `[[wind.gust]]` (cosim/world/wind.py). Every random choice comes from one
 stream per fault seeded by (scenario seed, 9, fault index), drawn in the order datagrams and
 ticks happen, so a run is deterministic and MIL == SIL holds (the wrappers sit in the master's
-process on the app's end of each link in both modes). Link time is simulated time: a delayed
-datagram to the vehicle is released at the start of the tick it is due, before the app's tick
-and the HIL exchange; one from the vehicle is handed to the app when due. `fired()` lists when
+process on the app's end of each link in both modes; battery faults, not random, on the
+master's end of the HIL link). Link time is simulated time: a delayed datagram to the vehicle
+is released at the start of the tick it is due, before the app's tick and the HIL exchange;
+one from the vehicle is handed to the app when due. `fired()` lists when
 each fault first took effect and, at the end, what it did (datagrams dropped, ...).
 """
 
@@ -56,8 +62,7 @@ import numpy as np
 
 from cosim.errors import ScenarioError
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string
-
-END = 1e12
+from cosim.sim.faults_battery import END, BatteryFault, HilInjector, parse_battery
 
 
 @dataclass(frozen=True)
@@ -107,9 +112,10 @@ class FaultSpec:
     odometry: tuple[OdometryFault, ...] = ()
     camera: tuple[CameraFault, ...] = ()
     motors: tuple[MotorFault, ...] = ()
+    battery: tuple[BatteryFault, ...] = ()
 
     def __bool__(self) -> bool:
-        return bool(self.links or self.odometry or self.camera or self.motors)
+        return bool(self.links or self.odometry or self.camera or self.motors or self.battery)
 
 
 # ------------------------------------------------------------------ parsing
@@ -134,7 +140,7 @@ def _window(e: dict, w: str, need_end: bool = False) -> tuple[float, float]:
 
 def parse_faults(raw: Mapping) -> FaultSpec:
     """The `[faults]` table -> FaultSpec; a bad field raises ScenarioError naming it."""
-    no_unknown(raw, {"link", "odometry", "camera", "motor"}, "faults")
+    no_unknown(raw, {"link", "odometry", "camera", "motor", "battery"}, "faults")
     links, odo, cam, mot = [], [], [], []
     for w, e in _entries(raw, "link"):
         no_unknown(e, {"link", "direction", "start_s", "end_s", "loss", "burst_enter",
@@ -181,7 +187,8 @@ def parse_faults(raw: Mapping) -> FaultSpec:
         start, end = _window(e, w)
         mot.append(MotorFault(integer(e, "motor", w, lo=1, hi=4),
                               number(e, "thrust", w, lo=0.0, hi=1.0), start, end))
-    return FaultSpec(tuple(links), tuple(odo), tuple(cam), tuple(mot))
+    return FaultSpec(tuple(links), tuple(odo), tuple(cam), tuple(mot),
+                     parse_battery(_entries(raw, "battery"), _window))
 
 
 # ------------------------------------------------------------------ the hooks
@@ -320,6 +327,10 @@ class FaultHooks:
             self._fired.append((round(t, 6), what))
 
     def wrap_link(self, name: str, link):
+        if name == "hil":       # battery faults: commands before the tick's ODOMETRY
+            if not self.spec.battery:
+                return link
+            return HilInjector(link, lambda: self.t_us, self.spec.battery, self._note)
         to_v = self._dirs.get((name, "to_vehicle"), [])
         from_v = self._dirs.get((name, "from_vehicle"), [])
         if not (to_v or from_v):

@@ -63,6 +63,7 @@ class OnboardHandle:
             if sc.vehicle != get_vehicle(vname):   # the flight stack flies the changed plant
                 self.onboard.set_airframe(Airframe(name=vname, **sc.vehicle.fmu_parameters()))
             self.hil = hil_m
+            self._hil_v = hil_v                  # the vehicle's end: datagrams still queued
             self.api = TapLink(api_app, tlog)
             self.gcs = TapLink(gcs_m, tlog)
         else:
@@ -71,9 +72,10 @@ class OnboardHandle:
             except BaseException:
                 self.close_partial()
                 raise
-        if hooks is not None:  # faults between the app / GCS and the vehicle
-            self.api.inner = hooks.wrap_link("api", self.api.inner)
+        if hooks is not None:  # faults between the app / GCS and the vehicle, and on HIL
+            self.api.inner = hooks.wrap_link("api", self.api.inner)    # (battery faults)
             self.gcs.inner = hooks.wrap_link("gcs", self.gcs.inner)
+            self.hil = hooks.wrap_link("hil", self.hil)
 
     def close_partial(self) -> None:
         """After a failed SIL start: close what was opened (process, sockets)."""
@@ -123,11 +125,14 @@ class OnboardHandle:
         self._own = ()
 
     def exchange(self, data: bytes) -> bytes:
-        """Send one HIL datagram and return the answer."""
+        """Send one HIL datagram (a tick's ODOMETRY, after the fault commands a `hil` hook
+        sends first) and return the answer."""
         self.hil.send(data)
         if self.proc is None:
-            try:
-                self.onboard.poll()
+            try:   # one poll per datagram, as the SIL process polls once per readable event
+                poll, queued = self.onboard.poll, self._hil_v.pending
+                while not poll() and queued():
+                    pass
             except Exception as exc:  # the onboard stack is a separate part: name it
                 raise ComponentError("onboard", f"{type(exc).__name__}: {exc}") from exc
             ans = self.hil.recv()

@@ -118,6 +118,9 @@ class Commands:
             res = self.set_interval(ch, p1, p2)
         elif cmd == M.MAV_CMD_GET_MESSAGE_INTERVAL:
             res = self.get_interval(ch, p1)
+        elif cmd == M.MAV_CMD_INJECT_FAILURE:   # the simulator's, on HIL only (inject.py)
+            res = M.MAV_RESULT_DENIED
+            vs.stats["inject_denied"] += 1
         else:
             res = M.MAV_RESULT_UNSUPPORTED
             vs.stats["commands_unsupported"] += 1

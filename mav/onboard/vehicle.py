@@ -48,6 +48,7 @@ from mav.onboard.defs import (
     rotate_body_to_world,
 )
 from mav.onboard.failsafe import Failsafe
+from mav.onboard.inject import battery_failure
 from mav.onboard.links import Chan, LinkInput, Outbox, Stream
 from mav.onboard.manual import Manual
 from mav.onboard.mission import Mission
@@ -65,7 +66,7 @@ STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
          "unknown_msgs", "unhandled_msgs", "not_for_us", "unsigned_rejected", "badsig_rejected",
          "setpoints", "rejected_setpoints", "commands", "commands_unsupported", "param_sets",
          "param_rejected", "param_denied_armed", "drain_deferred", "handler_errors",
-         "odometry_lost")
+         "odometry_lost", "faults_injected", "inject_denied")
 
 
 class Onboard:
@@ -363,11 +364,13 @@ class Onboard:
         if vs.fs_active and mode == LOITER and t - vs.fs_t0 > vs.fail_act_us:
             self.failsafe.hold_expired()
         self.navigator.detect_air_and_ground(t)
-        if vs.battery.consumed_mah > vs.bat_warn_mah:
+        if vs.battery.used_mah > vs.bat_warn_mah:     # drawn + lost to a fault
             self.failsafe.battery_warning()
 
     def _hil_not_odometry(self, data: bytes) -> None:
-        """Count a HIL datagram that is not a valid ODOMETRY: another message or garbage."""
+        """A HIL datagram that is not a valid ODOMETRY: a battery fault from the simulator
+        (`inject.py`, applied now, on the clock of the previous tick), another message or
+        garbage (counted)."""
         end = wire.frame_end(data, 0)
         if end == len(data):
             try:
@@ -375,6 +378,12 @@ class Onboard:
             except Exception:
                 msg = None
             if msg is not None and not isinstance(msg, M.MAVLink_unknown):
-                self.stats["hil_ignored"] += 1     # e.g. a HEARTBEAT, HIL_SENSOR (later)
+                # the simulator's battery faults (inject.py); anything else, e.g. a HEARTBEAT
+                # or HIL_SENSOR (later), is ignored
+                if msg.get_msgId() == M.MAVLINK_MSG_ID_COMMAND_LONG and battery_failure(
+                        self.status, msg, self.cfg.sysid, self.cfg.compid):
+                    self.stats["faults_injected"] += 1
+                else:
+                    self.stats["hil_ignored"] += 1
                 return
         self.stats["dropped_bad_hil"] += 1
