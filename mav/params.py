@@ -273,3 +273,27 @@ def read_param_file(path: str | Path) -> list[tuple[str, float]]:
             raise ValueError(f"{path}:{lineno}: {name}: value {val!r} is not a number") from None
         out.append((name, v))
     return out
+
+
+def check_values(vehicle: str, values: Iterable[tuple[str, float]]) -> list[tuple[str, float]]:
+    """Check parameter values for `vehicle`'s flight stack before it starts (a scenario's
+    `[onboard.params]`): every name known (the controller's and the stack's own), every value
+    finite and within its bounds. Returns the pairs as floats; ParamError names the first
+    fault. The stack applies them as it applies a parameter file (`--params`)."""
+    from mav.airframe import get_airframe
+    from mav.control import make_controller
+
+    t = ParamTable()
+    for spec in make_controller(get_airframe(vehicle), fast=False).param_table():
+        t.add(spec, lambda: 0.0, lambda v: None)
+    t.add_store(ONBOARD_PARAMS, {})
+    out = []
+    for name, v in values:
+        t.set(name, v)
+        out.append((name, float(v)))
+    return out
+
+
+def write_param_file(path: str | Path, values: Iterable[tuple[str, float]]) -> None:
+    """`NAME VALUE` lines that `read_param_file` reads back exactly (repr of the float)."""
+    Path(path).write_text("".join(f"{n} {float(v)!r}\n" for n, v in values))

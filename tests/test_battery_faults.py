@@ -164,3 +164,20 @@ def test_drain_mid_hover_lands_the_vehicle_through_the_failsafe_in_mil_and_sil()
              for m in _tlog_msgs(mil, "HEARTBEAT")
              if m.get_srcComponent() == M.MAV_COMP_ID_AUTOPILOT1 and m._timestamp >= 9.0]
     assert modes[0] == (6, 0) and modes[-1] == (4, 6)    # OFFBOARD, then AUTO.LAND
+
+
+def test_shipped_battery_scenario_lands_the_same_in_mil_and_sil():
+    """scenarios/mambo_seed_battery.toml: `[onboard.params]` COM_LOW_BAT_ACT = 2 reaches the
+    flight stack in both modes (a parameter file: OnboardConfig.param_file / --params), and a
+    cell failing mid-track lands the vehicle where it is, bit for bit the same run."""
+    from cosim.outputs.report import summarize
+
+    sc = load_scenario(Path(__file__).resolve().parents[1] / "scenarios"
+                       / "mambo_seed_battery.toml")
+    assert sc.onboard_params == (("COM_LOW_BAT_ACT", 2.0),)
+    mil = run_scenario(sc, RunOptions(mode="mil"))
+    sil = run_scenario(sc, RunOptions(mode="sil"))
+    assert mil.exit_reason.value == "landed"
+    assert summarize(mil)["passed"]
+    assert np.array_equal(mil.series, sil.series, equal_nan=True)
+    assert mil.faults == sil.faults

@@ -63,6 +63,13 @@ def _raw():
          "faults.battery[0].r_factor"),
         (lambda r: r["vehicle"].__setitem__("overrides", {"mass": -0.1}),
          "vehicle.overrides.mass"),
+        (lambda r: r.__setitem__("onboard", {"params": {"NO_SUCH_PARAM": 1}}),
+         "onboard.params.NO_SUCH_PARAM"),
+        (lambda r: r.__setitem__("onboard", {"params": {"COM_LOW_BAT_ACT": 7}}),
+         "onboard.params.COM_LOW_BAT_ACT"),
+        (lambda r: r.__setitem__("onboard", {"params": {"MPC_XY_CRUISE": "fast"}}),
+         "onboard.params.MPC_XY_CRUISE"),
+        (lambda r: r.__setitem__("onboard", {"parameters": {}}), "onboard.parameters"),
         (lambda r: r["vehicle"].__setitem__("overrides", {"mass_kg": 0.1}),
          "vehicle.overrides.mass_kg"),
         (lambda r: r.setdefault("sensors", {}).__setitem__(

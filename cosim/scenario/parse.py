@@ -29,7 +29,7 @@ from cosim.world.wind import parse_wind
 # --------------------------------------------------------------------------- parsing
 NAME_OK = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,79}")
 TOP_KEYS = {"name", "description", "seed", "vehicle", "timing", "world", "camera", "app",
-            "sensors", "wind", "faults", "criteria"}
+            "sensors", "wind", "faults", "onboard", "criteria"}
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -140,6 +140,11 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     wind = wind_spec.mean
     faults = parse_faults(table(raw, "faults", ""))
 
+    # the flight stack's parameters at start (PX4-style names, mav/README.md "Parameters")
+    ob = table(raw, "onboard", "")
+    no_unknown(ob, {"params"}, "onboard")
+    onboard_params = _onboard_params(table(ob, "params", "onboard"), preset)
+
     # criteria
     c = table(raw, "criteria", "")
     known = {"must_complete", "landing_error_max_m", "path_rms_max_m", "path_max_m",
@@ -183,8 +188,26 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         timing=timing, world=world, camera=camera, app=app, noise=noise,
         wind_ned_mps=wind, criteria=criteria, source=source, raw=raw, world_table=world_table,
         wind=wind_spec,
-        faults=faults,
+        faults=faults, onboard_params=onboard_params,
     )
+
+
+def _onboard_params(p: dict, vehicle: str) -> tuple[tuple[str, float], ...]:
+    """`[onboard.params]` NAME = value: each name known to the vehicle's flight stack, each
+    value a finite number within the parameter's bounds (a fault names the field)."""
+    from mav.params import ParamError, UnknownParamError, check_values
+
+    pairs = [(k, number(p, k, "onboard.params")) for k in p]
+    for k, v in pairs:
+        try:
+            check_values(vehicle, [(k, v)])
+        except UnknownParamError:
+            raise ScenarioError(f"onboard.params.{k}", v,
+                                f"a parameter of the {vehicle} flight stack") from None
+        except ParamError as exc:
+            raise ScenarioError(f"onboard.params.{k}", v,
+                                str(exc).split("; ", 1)[-1]) from None
+    return tuple(pairs)
 
 
 def with_set(sc: Scenario, assignments: dict[str, Any]) -> Scenario:

@@ -86,3 +86,4 @@ class Scenario:
     world_table: dict[str, Any] = field(default_factory=dict, repr=False)  # [world], file merged
     wind: Any = None                          # cosim.world.wind.WindSpec (mean = wind_ned_mps)
     faults: Any = None                        # cosim.sim.faults.FaultSpec ([faults]; falsy: none)
+    onboard_params: tuple[tuple[str, float], ...] = ()   # [onboard.params]: set at start

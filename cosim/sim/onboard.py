@@ -56,7 +56,8 @@ class OnboardHandle:
             geo = {} if origin is None else dict(
                 zip(("origin_lat_deg", "origin_lon_deg", "origin_alt_m"), origin, strict=True))
             self.onboard = Onboard(OnboardConfig(vehicle=vname, sysid=sysid,
-                                                 signing_key=opts.signing_key, **geo),
+                                                 signing_key=opts.signing_key,
+                                                 param_file=_param_file(sc, log_dir), **geo),
                                    hil_v, api_v, gcs_v)
             if opts.external_links:
                 self._own = (api_v, gcs_v)
@@ -100,6 +101,9 @@ class OnboardHandle:
         )
         if opts.signing_key is not None:
             overrides += (f"--signing-key={opts.signing_key.hex()}",)
+        params = _param_file(sc, log_dir)
+        if params is not None:
+            overrides += (f"--params={params}",)
         if sysid != 1:
             overrides += (f"--sysid={sysid}",)
         if origin is not None:
@@ -178,3 +182,16 @@ class OnboardHandle:
                 pass
         if self.proc is not None:
             self.proc.close()
+
+
+def _param_file(sc: Scenario, log_dir: Path) -> str | None:
+    """The scenario's `[onboard.params]` as a parameter file in the run's log folder (both
+    modes read it the same way: OnboardConfig.param_file / --params), or None."""
+    if not sc.onboard_params:
+        return None
+    from mav.params import write_param_file
+
+    path = Path(log_dir) / "onboard.params"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_param_file(path, sc.onboard_params)
+    return str(path)
