@@ -197,21 +197,23 @@ class FrontCamera:
         w, h = x1 - x0, y1 - y0
         roi = frame[y0:y1, x0:x1]
         exact_edges = near_clipped or tile.surface.group >= 2
-        mask = None
+        mask = pts = None
         if exact_edges or inv_z is not None:
             k, u, v = poly
             pts = np.rint(np.stack([(u[:k] - x0) * 16.0, (v[:k] - y0) * 16.0], axis=1)
                           ).astype(np.int32)
-            mask = np.zeros((h, w), np.uint8)
-            cv2.fillConvexPoly(mask, pts, 255, cv2.LINE_8, 4)
-        tex = tile.level(lv)
-        if exact_edges:
-            warped = cv2.warpPerspective(tex, M, (w, h), flags=_WARP,
+            if inv_z is not None or tile.plain is None:
+                mask = np.zeros((h, w), np.uint8)
+                cv2.fillConvexPoly(mask, pts, 255, cv2.LINE_8, 4)
+        if not exact_edges:     # the slice's extent is the tile's extent (plus its apron)
+            cv2.warpPerspective(tile.level(lv), M, (w, h), dst=roi, flags=_WARP,
+                                borderMode=cv2.BORDER_TRANSPARENT)
+        elif tile.plain is not None:      # = a warp of the constant through the mask
+            cv2.fillConvexPoly(roi, pts, tile.plain, cv2.LINE_8, 4)
+        else:
+            warped = cv2.warpPerspective(tile.level(lv), M, (w, h), flags=_WARP,
                                          borderMode=cv2.BORDER_REPLICATE)
             cv2.copyTo(warped, mask, roi)
-        else:   # the slice's extent is the tile's extent (plus its apron): no mask needed
-            cv2.warpPerspective(tex, M, (w, h), dst=roi, flags=_WARP,
-                                borderMode=cv2.BORDER_TRANSPARENT)
         if inv_z is not None:
             self._depth(inv_z, tile, view, box, mask)
 

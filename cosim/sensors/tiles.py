@@ -30,7 +30,8 @@ class Tile:
     """A piece of a surface (at most tile_m on a side) with lazily sliced pyramid levels.
 
     ``bounds[lv]`` = (c0, c1, r0, r1): the texel columns and rows of pyramid level ``lv``
-    covering the tile plus its apron (clamped to the level)."""
+    covering the tile plus its apron (clamped to the level). ``plain``: the RGBA colour of a
+    one-colour surface (None for a texture)."""
 
     __slots__ = ("surface", "outline", "O", "U", "V", "normal", "n_dot_O", "corners",
                  "levels", "pyr", "bounds", "plain")
@@ -56,7 +57,7 @@ class Tile:
             self.bounds.append((c0, max(c1, c0 + 1), r0, max(r1, r0 + 1)))
         img = surface.image
         # one colour: drawn as a filled polygon (bilinear samples of a constant are exact)
-        self.plain = bool((img == img[:1, :1]).all())
+        self.plain = (*(int(x) for x in img[0, 0]), 255) if (img == img[:1, :1]).all() else None
 
     def level(self, lv: int) -> np.ndarray:
         """RGBA slice of pyramid level lv with the apron (``bounds[lv]``)."""
@@ -139,24 +140,22 @@ def plan(P: np.ndarray, count: np.ndarray, D: np.ndarray, planes, cfg) -> dict[s
     polygon's area on its plane, m^2, and on the image, px^2, at least 1e-9). Sums run in
     the order of the scalar code (``cumsum``): the same bits."""
     crossed = (D < 0.0).any(axis=1)                         # (n, planes)
-    cut = np.flatnonzero(crossed.any(axis=1))
-    if len(cut):
+    cut = np.flatnonzero(crossed.any(axis=1)).tolist()
+    if cut:
         count = count.copy()
+        cnt = count.tolist()
+        rows = P[cut].tolist()
         polys = []
-        for i, cr in zip(cut.tolist(), crossed[cut].tolist(), strict=True):
-            poly = clip(P[i, :count[i]].tolist(), [pl for pl, x in zip(planes, cr, strict=True)
-                                                   if x])
-            count[i] = len(poly)
-            polys.append(poly)
-        k = max(P.shape[1], max(len(p) for p in polys))
+        for i, row, cr in zip(cut, rows, crossed[cut].tolist(), strict=True):
+            poly = clip(row[:cnt[i]], [pl for pl, x in zip(planes, cr, strict=True) if x])
+            count[i] = n = len(poly)
+            polys.append(poly + poly[-1:] * (P.shape[1] - n) if n >= 3 else
+                         [(1.0, 1.0, 1.0)] * P.shape[1])     # (nothing left: dummy, unused)
+        k = max(len(p) for p in polys)
         if k > P.shape[1]:
             P = np.concatenate([P, np.repeat(P[:, -1:], k - P.shape[1], axis=1)], axis=1)
-        for i, poly in zip(cut.tolist(), polys, strict=True):
-            n = len(poly)
-            if n >= 3:
-                P[i] = poly + poly[-1:] * (k - n)
-            else:
-                P[i] = 1.0                                  # nothing left: dummy, unused
+            polys = [p + p[-1:] * (k - len(p)) for p in polys]
+        P[cut] = polys
     k = P.shape[1]
     x, y, z = P[..., 0], P[..., 1], P[..., 2]
     u = cfg.cx + cfg.fx * x / z
