@@ -55,7 +55,7 @@ from cosim.sensors.pinhole import (
     yaw_of,
 )
 from cosim.sensors.raycast import ReferenceRenderer
-from cosim.sensors.tiles import PAD, Tile, plan, pyramid, tiles_of
+from cosim.sensors.tiles import PAD, Planner, Tile, pyramid, tiles_of
 from cosim.world.surfaces import solid_centres
 
 __all__ = ["R_BC_FRONT", "FrontCamera", "FrontCameraConfig", "ReferenceRenderer", "camera_pose",
@@ -98,9 +98,12 @@ class FrontCamera:
                                  ).reshape(-1, kmax, 3)
         self._count = np.array([len(t.corners) for t in self._tiles], dtype=np.int64)
         self._normals = np.array([t.normal for t in self._tiles]).reshape(-1, 3)
-        self._U = np.array([t.U for t in self._tiles]).reshape(-1, 3)
-        self._V = np.array([t.V for t in self._tiles]).reshape(-1, 3)
-        self._O = np.array([t.O for t in self._tiles]).reshape(-1, 3)
+        # [U V O] per tile (columns), and each level's slice bounds (c0, c1, r0, r1)
+        self._UVO = np.array([np.stack([t.U, t.V, t.O], axis=1) for t in self._tiles]
+                             ).reshape(-1, 3, 3)
+        nl = max((len(t.pyr) for t in self._tiles), default=1)
+        self._bounds = np.array([t.bounds + t.bounds[-1:] * (nl - len(t.bounds))
+                                 for t in self._tiles], dtype=float).reshape(-1, nl, 4)
         self._n_dot_O = np.array([t.n_dot_O for t in self._tiles])
         self._tile_group = np.array([t.surface.group for t in self._tiles], dtype=np.int64)
         self._ppm = np.array([t.surface.ppm for t in self._tiles])
@@ -114,6 +117,7 @@ class FrontCamera:
         self._plane_n = np.array([p[:3] for p in self._planes]).T      # (3, 5)
         self._plane_e = np.array([p[3] for p in self._planes])
         self._K = cfg.K()
+        self._planner = Planner(cfg, self._planes)
         self._background = np.empty((cfg.height, cfg.width, 4), np.uint8)
         self._background[:] = (*cfg.background_rgb, 255)
 
@@ -128,10 +132,10 @@ class FrontCamera:
         frame = self._background.copy()
         inv_z = np.zeros((cfg.height, cfg.width), np.float32) if cfg.depth else None
         tiles = self._tiles
-        idx, lv, box, M, near_clipped, count, u, v = self._visible(view)
+        idx, lv, box, M, near_clipped, count, uv = self._visible(view)
         for j, i in enumerate(idx):
             self._draw(frame, inv_z, tiles[i], view, lv[j], box[j], M[j], near_clipped[j],
-                       (count[j], u[j], v[j]))
+                       (count[j], uv[j]))
         if inv_z is not None:
             with np.errstate(divide="ignore"):
                 self.last_depth = np.where(inv_z > 0, 1.0 / inv_z, np.inf).astype(np.float32)
@@ -140,44 +144,48 @@ class FrontCamera:
     def _visible(self, view: _View):
         """What to draw, in the painter's order (room, posters, solids far to near): the tiles
         facing the camera, not wholly outside the view and not clipped away. Returns lists
-        over them of: tile index, pyramid level, ROI (x0, x1, y0, y1), ROI pixel -> texel
+        over them of: tile index, pyramid level, ROI (x0, y0, x1, y1), ROI pixel -> texel
         homography of the level's slice (3, 3), near-plane clipped?, and the clipped polygon
-        (vertex count, its vertices' image columns and rows in px, padded by repeating the
-        last). The level is the one whose texel best matches the tile's projected pixel size
-        (texels per pixel from the areas of the clipped polygon in the texture and on the
-        image)."""
+        (vertex count, its vertices' image columns and rows in px (k, 2), padded by
+        repeating the last). The level is the one whose texel best matches the tile's
+        projected pixel size (texels per pixel from the areas of the clipped polygon in the
+        texture and on the image)."""
         c, R = view.c, view.R_CW
         front = self._normals @ c - self._n_dot_O > 1e-9
-        P = (self._corners - c) @ R.T                            # (N, k, 3) camera frame
-        D = P @ self._plane_n - self._plane_e                    # (N, k, 5): >= 0 inside
+        nt, kt = self._corners.shape[:2]
+        P = (self._corners.reshape(-1, 3) - c) @ R.T             # (N k, 3) camera frame
+        D = (P @ self._plane_n - self._plane_e).reshape(nt, kt, -1)  # (N, k, 5): >= 0 inside
+        P = P.reshape(nt, kt, 3)
         vis = front & ~(D < 0.0).all(axis=1).any(axis=1)
         idx = np.flatnonzero(vis)
-        if len(self._solids):
+        grp = self._tile_group[idx]
+        solid = grp >= 2
+        if solid.any():     # the room and posters stay in order (tiles are in group order)
             dist = np.array([math.hypot(n - c[0], e - c[1]) - r for n, e, r in self._solids])
-            idx = idx[_painter_order(self._tile_group[idx], dist)]
-        D = D[idx]
-        g = plan(P[idx], self._count[idx], D, self._planes, self.config)
+            idx = np.concatenate([idx[~solid], idx[solid][_painter_order(grp[solid], dist)]])
+        g = self._planner(P[idx], self._count[idx], D[idx])
         sel = np.flatnonzero(g["ok"])
         idx = idx[sel]
-        x0, y0 = g["lo"][sel].T
-        x1, y1 = g["hi"][sel].T
+        lo, hi = g["lo"][sel], g["hi"][sel]
         ppm = self._ppm[idx]
         ratio = g["area_m2"][sel] * ppm * ppm / g["area_px"][sel]
-        tiles, nlev = self._tiles, self._n_levels
+        nlev = self._n_levels
         il = idx.tolist()
         lv = [0 if r <= 1.0 else min(nlev[i] - 1, int(0.5 * math.log2(r) + 0.5))
               for i, r in zip(il, ratio.tolist(), strict=True)]
-        off = np.array([tiles[i].bounds[k] for i, k in zip(il, lv, strict=True)],
-                       dtype=float).reshape(-1, 4)
+        lva = np.array(lv, dtype=np.int64)
+        off = self._bounds[idx, lva]                             # (n, 4) c0 c1 r0 r1
         # ROI pixel -> (s, t) m: inverse of K R_CW [U V O-c], shifted to the ROI origin,
         # then -> texel of the slice: scale and offset of its level
-        cols = np.stack([self._U[idx], self._V[idx], self._O[idx] - c], axis=2)   # (n, 3, 3)
-        Minv = np.linalg.inv(self._K @ R @ cols)
-        step = np.left_shift(1, np.array(lv, dtype=np.int64))
+        cols = self._UVO[idx]
+        cols[:, :, 2] -= c
+        Minv = np.linalg.inv((self._K @ R) @ cols)
+        step = np.left_shift(1, lva)
         sc = ppm / step
         half = PAD - 0.5 / step
         oc = half - off[:, 0]
         orow = half - off[:, 2]
+        x0, y0 = lo[:, 0], lo[:, 1]
         A, B, C = Minv[:, 0], Minv[:, 1], Minv[:, 2]
         A[:, 2] += A[:, 0] * x0 + A[:, 1] * y0
         B[:, 2] += B[:, 0] * x0 + B[:, 1] * y0
@@ -186,22 +194,19 @@ class FrontCamera:
         M[:, 0] = sc[:, None] * A + oc[:, None] * C
         M[:, 1] = sc[:, None] * B + orow[:, None] * C
         M[:, 2] = C
-        near = (D[sel, :, 0] < 0.0).any(axis=1)
-        box = np.stack([x0, x1, y0, y1], axis=1).astype(np.int64).tolist()
-        return (il, lv, box, M, near.tolist(), g["count"][sel].tolist(), g["u"][sel],
-                g["v"][sel])
+        box = np.concatenate([lo, hi], axis=1).astype(np.int64).tolist()
+        return il, lv, box, M, g["near"][sel].tolist(), g["count"][sel].tolist(), g["uv"][sel]
 
     def _draw(self, frame: np.ndarray, inv_z, tile: Tile, view: _View, lv: int, box, M,
               near_clipped: bool, poly) -> None:
-        x0, x1, y0, y1 = box
+        x0, y0, x1, y1 = box
         w, h = x1 - x0, y1 - y0
         roi = frame[y0:y1, x0:x1]
         exact_edges = near_clipped or tile.surface.group >= 2
         mask = pts = None
         if exact_edges or inv_z is not None:
-            k, u, v = poly
-            pts = np.rint(np.stack([(u[:k] - x0) * 16.0, (v[:k] - y0) * 16.0], axis=1)
-                          ).astype(np.int32)
+            k, uv = poly
+            pts = np.rint((uv[:k] - (x0, y0)) * 16.0).astype(np.int32)
             if inv_z is not None or tile.plain is None:
                 mask = np.zeros((h, w), np.uint8)
                 cv2.fillConvexPoly(mask, pts, 255, cv2.LINE_8, 4)
@@ -221,7 +226,7 @@ class FrontCamera:
         """Write 1/z of the tile's plane through the mask into ``inv_z``."""
         cfg = self.config
         fx, fy, cx, cy = cfg.fx, cfg.fy, cfg.cx, cfg.cy
-        x0, x1, y0, y1 = box
+        x0, y0, x1, y1 = box
         # plane n_C . X = d_C in camera coordinates; 1/z = n_C . K^-1 [u v 1] / d_C
         c, R = view.c, view.R_CW
         n_C = R @ tile.normal

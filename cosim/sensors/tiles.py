@@ -15,6 +15,7 @@ scalar code they replace, so the pixels are the same bit for bit.
 from __future__ import annotations
 
 import math
+from itertools import chain
 
 import cv2
 import numpy as np
@@ -123,60 +124,75 @@ def clip(poly: list, planes) -> list:
     return poly
 
 
-_PREV: dict[int, np.ndarray] = {}     # vertex count -> index of each vertex's predecessor
+class Planner:
+    """Clips, projects and measures the visible tiles' polygons for one camera (pinhole
+    ``cfg``, clip ``planes`` (a, b, c, e): keep a x + b y + c z >= e, camera frame)."""
 
+    def __init__(self, cfg, planes) -> None:
+        self.planes = planes
+        # the planes a polygon crosses, by bit mask (bit j: plane j)
+        self.subsets = [[pl for j, pl in enumerate(planes) if code >> j & 1]
+                        for code in range(1 << len(planes))]
+        self.bits = 1 << np.arange(len(planes), dtype=np.int64)
+        self.f = np.array([cfg.fx, cfg.fy])
+        self.c = np.array([cfg.cx, cfg.cy])
+        self.size = np.array([float(cfg.width), float(cfg.height)])
+        self.prev: dict[int, np.ndarray] = {}   # k -> index of each vertex's predecessor
 
-def plan(P: np.ndarray, count: np.ndarray, D: np.ndarray, planes, cfg) -> dict[str, np.ndarray]:
-    """Clip, project and measure the visible tiles' polygons.
+    def __call__(self, P: np.ndarray, count: np.ndarray, D: np.ndarray) -> dict:
+        """``P`` (n, k, 3): the tiles' corners in the camera frame (m), each row padded to k
+        by repeating its last corner; ``count`` (n,): corner counts; ``D`` (n, k, planes):
+        the corners' signed distances to the clip planes (>= 0 inside). A polygon is clipped
+        against the planes some corner of it is outside of (it is convex: the others cannot
+        cut it).
 
-    ``P`` (n, k, 3): corners in the camera frame (m), each row padded to k by repeating its
-    last corner; ``count`` (n,): corner counts; ``D`` (n, k, len(planes)): the corners'
-    signed distances to the clip planes (>= 0 inside). A polygon is clipped against the
-    planes some corner of it is outside of (it is convex: the others cannot cut it).
-
-    Returns arrays over the tiles, in input order: ``ok`` (something to draw), ``count``
-    (vertices left), ``u``, ``v`` (projected vertices, px, padded the same way), ``box``
-    (x0, x1, y0, y1) ROI clamped to the image, ``area_m2`` and ``area_px`` (the clipped
-    polygon's area on its plane, m^2, and on the image, px^2, at least 1e-9). Sums run in
-    the order of the scalar code (``cumsum``): the same bits."""
-    crossed = (D < 0.0).any(axis=1)                         # (n, planes)
-    cut = np.flatnonzero(crossed.any(axis=1)).tolist()
-    if cut:
-        count = count.copy()
-        cnt = count.tolist()
-        rows = P[cut].tolist()
-        polys = []
-        for i, row, cr in zip(cut, rows, crossed[cut].tolist(), strict=True):
-            poly = clip(row[:cnt[i]], [pl for pl, x in zip(planes, cr, strict=True) if x])
-            count[i] = n = len(poly)
-            polys.append(poly + poly[-1:] * (P.shape[1] - n) if n >= 3 else
-                         [(1.0, 1.0, 1.0)] * P.shape[1])     # (nothing left: dummy, unused)
-        k = max(len(p) for p in polys)
-        if k > P.shape[1]:
-            P = np.concatenate([P, np.repeat(P[:, -1:], k - P.shape[1], axis=1)], axis=1)
-            polys = [p + p[-1:] * (k - len(p)) for p in polys]
-        P[cut] = polys
-    k = P.shape[1]
-    x, y, z = P[..., 0], P[..., 1], P[..., 2]
-    u = cfg.cx + cfg.fx * x / z
-    v = cfg.cy + cfg.fy * y / z
-    lo = np.floor(np.stack([u.min(axis=1), v.min(axis=1)], axis=1))
-    hi = np.ceil(np.stack([u.max(axis=1), v.max(axis=1)], axis=1)) + 1
-    np.maximum(lo, 0, out=lo)
-    np.minimum(hi, (cfg.width, cfg.height), out=hi)
-    # shoelace on the image, and the 3D polygon's area (half the norm of the edge crosses);
-    # the predecessor of vertex 0 is the (repeated) last one
-    prev = _PREV.get(k)
-    if prev is None:
-        prev = _PREV[k] = np.roll(np.arange(k), 1)
-    a = P[:, prev]
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    up, vp = u[:, prev], v[:, prev]
-    terms = np.stack([up * v - u * vp, ay * z - az * y, az * x - ax * z, ax * y - ay * x])
-    s = terms.cumsum(axis=2)[:, :, -1]                      # (4, n)
-    area_px = 0.5 * np.abs(s[0])
-    nx, ny, nz = s[1], s[2], s[3]
-    area_m2 = 0.5 * np.sqrt(nx * nx + ny * ny + nz * nz)
-    ok = (count >= 3) & (hi > lo).all(axis=1)
-    return {"ok": ok, "count": count, "u": u, "v": v, "area_m2": area_m2,
-            "area_px": np.maximum(area_px, 1e-9), "lo": lo, "hi": hi}
+        Returns, over the tiles in input order: ``ok`` (something left to draw), ``near``
+        (clipped by the near plane, plane 0), ``count`` (vertices left), ``uv`` (n, k', 2)
+        projected vertices (px, padded the same way), ``lo``, ``hi`` (n, 2) the ROI's first
+        and one-past-last column and row, clamped to the image, ``area_m2`` and ``area_px``
+        (the clipped polygon's area on its plane, m^2, and on the image, px^2, at least
+        1e-9). Operations and sums run in the order of the scalar code (``cumsum`` is
+        sequential): the same bits."""
+        crossed = (D < 0.0).any(axis=1)                     # (n, planes)
+        code = crossed.dot(self.bits)
+        cut = np.flatnonzero(code).tolist()
+        if cut:
+            count = count.copy()
+            cnt = count.tolist()
+            k = P.shape[1]
+            subsets = self.subsets
+            polys = []
+            for i, row, cd in zip(cut, P[cut].tolist(), code[cut].tolist(), strict=True):
+                poly = clip(row[:cnt[i]], subsets[cd])
+                count[i] = n = len(poly)
+                polys.append(poly if n >= 3 else [(1.0, 1.0, 1.0)])   # (nothing left: dummy)
+            kk = max(len(p) for p in polys)
+            if kk > k:
+                P = np.concatenate([P, np.repeat(P[:, -1:], kk - k, axis=1)], axis=1)
+                k = kk
+            flat = chain.from_iterable(chain.from_iterable(p + p[-1:] * (k - len(p))
+                                                           for p in polys))
+            P[cut] = np.fromiter(flat, float, 3 * k * len(cut)).reshape(-1, k, 3)
+        k = P.shape[1]
+        uv = self.c + self.f * P[..., :2] / P[..., 2:]      # (n, k, 2): cx + fx x / z, ...
+        lo = np.floor(uv.min(axis=1))
+        hi = np.ceil(uv.max(axis=1)) + 1
+        np.maximum(lo, 0.0, out=lo)
+        np.minimum(hi, self.size, out=hi)
+        # shoelace on the image, and the 3D polygon's area (half the norm of the sum of the
+        # edge crosses); the predecessor of vertex 0 is the (repeated) last one
+        prev = self.prev.get(k)
+        if prev is None:
+            prev = self.prev[k] = np.roll(np.arange(k), 1)
+        P5 = np.concatenate([P, P[..., :2]], axis=2)        # x y z x y: rotations are views
+        a5 = P5[:, prev]
+        nrm = a5[..., 1:4] * P5[..., 2:5] - a5[..., 2:5] * P5[..., 1:4]
+        s = nrm.cumsum(axis=1)[:, -1]                       # (n, 3)
+        s *= s
+        area_m2 = 0.5 * np.sqrt(s[:, 0] + s[:, 1] + s[:, 2])
+        up = uv[:, prev]
+        area_px = 0.5 * np.abs((up[..., 0] * uv[..., 1] - uv[..., 0] * up[..., 1])
+                               .cumsum(axis=1)[:, -1])
+        ok = (count >= 3) & (hi > lo).all(axis=1)
+        return {"ok": ok, "near": crossed[:, 0], "count": count, "uv": uv, "lo": lo, "hi": hi,
+                "area_m2": area_m2, "area_px": np.maximum(area_px, 1e-9)}
