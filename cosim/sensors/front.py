@@ -164,7 +164,8 @@ class FrontCamera:
             dist = np.array([math.hypot(n - c[0], e - c[1]) - r for n, e, r in self._solids])
             idx = np.concatenate([idx[~solid], idx[solid][_painter_order(grp[solid], dist)]])
         g = self._planner(P[idx], self._count[idx], D[idx])
-        sel = np.flatnonzero(g["ok"])
+        ok = g["ok"]
+        sel = slice(None) if ok.all() else np.flatnonzero(ok)
         idx = idx[sel]
         lo, hi = g["lo"][sel], g["hi"][sel]
         ppm = self._ppm[idx]
