@@ -14,14 +14,18 @@ Renderers (``cosim/world/surfaces.py`` gives the scene as textured convex planar
 
 - ``FrontCamera`` (default): per surface tile, back-face culling, clipping of the polygon
   against the near plane (``near_m``) and the image borders in camera space (a wall 5 cm away
-  is just a clipped polygon), a mask of the projected polygon, and one
-  ``cv2.warpPerspective`` of the ROI from the tile's texture through the plane-induced
-  homography, copied through the mask. Visibility by the painter's order: the room (convex,
-  seen from inside: no overlaps), then posters, then the solids far to near (each is convex
-  and culled, so its faces do not overlap). Anti-aliasing: each surface has a texture pyramid
-  (``cv2.pyrDown``) and each tile (at most ``tile_m`` on a side) samples, bilinearly, the
-  level whose texel best matches its projected pixel size (texels per pixel from the areas of
-  the clipped polygon in the texture and on the image). The per-frame geometry of the tiles
+  is just a clipped polygon), and one ``cv2.warpPerspective`` of the polygon's bounding box
+  (ROI) from the tile's texture slice through the plane-induced homography: straight into
+  the frame for the room and posters (ROI pixels that map outside the slice, i.e. the tile
+  plus a 2-texel apron, are left alone), through a mask of the projected polygon where the
+  edges must be exact (solids, near-clipped tiles); a one-colour solid face is that polygon
+  filled with its colour (the same pixels as warping a constant). Visibility by the
+  painter's order: the room (convex, seen from inside: no overlaps), then posters, then the
+  solids far to near (each is convex and culled, so its faces do not overlap).
+  Anti-aliasing: each surface has a texture pyramid (``cv2.pyrDown``) and each tile (at most
+  ``tile_m`` on a side) samples, bilinearly, the level whose texel best matches its projected
+  pixel size (texels per pixel from the areas of the clipped polygon in the texture and on
+  the image). The per-frame geometry of the tiles
   (culling, clipping, projection, level, homography) is done for all of them at once
   (``cosim/sensors/tiles.py``); what is left per tile is the warp.
 - ``ReferenceRenderer`` (``raycast.py``; ``exact = true``, and the tests' oracle): ray
