@@ -14,14 +14,20 @@ Renderers (``cosim/world/surfaces.py`` gives the scene as textured convex planar
 
 - ``FrontCamera`` (default): per surface tile, back-face culling, clipping of the polygon
   against the near plane (``near_m``) and the image borders in camera space (a wall 5 cm away
-  is just a clipped polygon), a mask of the projected polygon, and one
-  ``cv2.warpPerspective`` of the ROI from the tile's texture through the plane-induced
-  homography, copied through the mask. Visibility by the painter's order: the room (convex,
-  seen from inside: no overlaps), then posters, then the solids far to near (each is convex
-  and culled, so its faces do not overlap). Anti-aliasing: each surface has a texture pyramid
-  (``cv2.pyrDown``) and each tile (at most ``tile_m`` on a side) samples, bilinearly, the
-  level whose texel best matches its projected pixel size (texels per pixel from the areas of
-  the clipped polygon in the texture and on the image).
+  is just a clipped polygon), and one ``cv2.warpPerspective`` of the polygon's bounding box
+  (ROI) from the tile's texture slice through the plane-induced homography: straight into
+  the frame for the room and posters (ROI pixels that map outside the slice, i.e. the tile
+  plus a 2-texel apron, are left alone), through a mask of the projected polygon where the
+  edges must be exact (solids, near-clipped tiles); a one-colour solid face is that polygon
+  filled with its colour (the same pixels as warping a constant). Visibility by the
+  painter's order: the room (convex, seen from inside: no overlaps), then posters, then the
+  solids far to near (each is convex and culled, so its faces do not overlap).
+  Anti-aliasing: each surface has a texture pyramid (``cv2.pyrDown``) and each tile (at most
+  ``tile_m`` on a side) samples, bilinearly, the level whose texel best matches its projected
+  pixel size (texels per pixel from the areas of the clipped polygon in the texture and on
+  the image). The per-frame geometry of the tiles
+  (culling, clipping, projection, level, homography) is done for all of them at once
+  (``cosim/sensors/tiles.py``); what is left per tile is the warp.
 - ``ReferenceRenderer`` (``raycast.py``; ``exact = true``, and the tests' oracle): ray
   casting per pixel (``supersample`` x ``supersample`` rays, box-filtered), the nearest hit
   over every surface (an exact z-buffer), bilinear samples of the full-resolution textures.
@@ -53,81 +59,13 @@ from cosim.sensors.pinhole import (
     yaw_of,
 )
 from cosim.sensors.raycast import ReferenceRenderer
-from cosim.world.surfaces import Surface, solid_centres
+from cosim.sensors.tiles import PAD, Planner, Tile, pyramid, tiles_of
+from cosim.world.surfaces import solid_centres
 
 __all__ = ["R_BC_FRONT", "FrontCamera", "FrontCameraConfig", "ReferenceRenderer", "camera_pose",
            "project", "rpy_matrix", "world_surfaces", "yaw_of"]
 
-APRON = 2          # texels of neighbouring texture around each tile's slice
-PAD = 1            # replicated texels around each pyramid level (coverage reaches the edge)
-MIN_LEVEL_PX = 4   # smallest pyramid level side
-
-
-def _clip(poly: list[tuple[float, float, float]], planes) -> list:
-    """Sutherland-Hodgman: keep the part of a convex polygon with a x + b y + c z >= e."""
-    for a, b, c, e in planes:
-        if not poly:
-            return poly
-        out = []
-        n = len(poly)
-        for i in range(n):
-            p, q = poly[i], poly[(i + 1) % n]
-            dp = a * p[0] + b * p[1] + c * p[2] - e
-            dq = a * q[0] + b * q[1] + c * q[2] - e
-            if dp >= 0.0:
-                out.append(p)
-            if (dp >= 0.0) != (dq >= 0.0):
-                t = dp / (dp - dq)
-                out.append((p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1]),
-                            p[2] + t * (q[2] - p[2])))
-        poly = out
-    return poly
-
-
-class _Tile:
-    """A piece of a surface (at most tile_m on a side) with lazily sliced pyramid levels."""
-
-    __slots__ = ("surface", "outline", "O", "U", "V", "normal", "n_dot_O", "corners",
-                 "levels", "pyr", "s_range", "t_range")
-
-    def __init__(self, surface: Surface, pyr: list[np.ndarray], s_range, t_range,
-                 outline: np.ndarray) -> None:
-        self.surface, self.pyr = surface, pyr
-        self.s_range, self.t_range = s_range, t_range
-        self.outline = outline                          # (k, 2) (s, t) of the tile's polygon
-        self.O, self.U, self.V = surface.O, surface.U, surface.V
-        self.normal = surface.normal
-        self.n_dot_O = float(self.normal @ self.O)
-        self.levels: dict[int, tuple[np.ndarray, float, float]] = {}
-        st = outline
-        self.corners = self.O[None, :] + st[:, :1] * self.U[None, :] + st[:, 1:] * self.V[None, :]
-
-    def level(self, lv: int) -> tuple[np.ndarray, float, float]:
-        """(RGBA slice of pyramid level lv with an apron, col offset, row offset)."""
-        got = self.levels.get(lv)
-        if got is None:
-            img = self.pyr[lv]
-            ppm = self.surface.ppm / (1 << lv)
-            rows, cols = img.shape[:2]
-            c0 = max(0, int(math.floor(self.s_range[0] * ppm)) + PAD - APRON)
-            c1 = min(cols, int(math.ceil(self.s_range[1] * ppm)) + PAD + APRON)
-            r0 = max(0, int(math.floor(self.t_range[0] * ppm)) + PAD - APRON)
-            r1 = min(rows, int(math.ceil(self.t_range[1] * ppm)) + PAD + APRON)
-            c1, r1 = max(c1, c0 + 1), max(r1, r0 + 1)
-            got = (np.ascontiguousarray(img[r0:r1, c0:c1]), float(c0), float(r0))
-            self.levels[lv] = got
-        return got
-
-
-def _pyramid(img: np.ndarray) -> list[np.ndarray]:
-    """RGBA levels (cv2.pyrDown), each with PAD replicated texels around it."""
-    level = cv2.cvtColor(img, cv2.COLOR_RGB2RGBA)
-    out = []
-    while True:
-        out.append(cv2.copyMakeBorder(level, PAD, PAD, PAD, PAD, cv2.BORDER_REPLICATE))
-        if min(level.shape[:2]) < 2 * MIN_LEVEL_PX:
-            return out
-        level = cv2.pyrDown(level)
+_WARP = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
 
 
 class FrontCamera:
@@ -148,25 +86,32 @@ class FrontCamera:
             self._ref = ReferenceRenderer(world, cfg, surfaces=self.surfaces)
             return
         # tiles per draw group: 0 room, 1 posters, 2 + i solid i
-        self._groups: dict[int, list[_Tile]] = {}
+        groups: dict[int, list[Tile]] = {}
         for s in self.surfaces:
-            pyr = _pyramid(s.image)
-            for tile in _tiles(s, pyr, cfg.tile_m):
-                self._groups.setdefault(s.group, []).append(tile)
+            pyr = pyramid(s.image)
+            for tile in tiles_of(s, pyr, cfg.tile_m):
+                groups.setdefault(s.group, []).append(tile)
         self._solids = solid_centres(world.scene)
-        # every tile in draw-group order, with corner arrays padded to one shape so that
-        # culling (back faces, outside the view) is one numpy pass per frame
-        self._tiles = [t for g in sorted(self._groups) for t in self._groups[g]]
+        # every tile in draw-group order, with corner arrays padded to one shape (repeating
+        # the last corner) so that culling and the clipping, projection and level choice of
+        # the visible tiles are a few numpy passes per frame
+        self._tiles = [t for g in sorted(groups) for t in groups[g]]
         kmax = max((len(t.corners) for t in self._tiles), default=4)
         self._corners = np.array([np.vstack([t.corners] + [t.corners[-1:]] *
                                             (kmax - len(t.corners))) for t in self._tiles]
                                  ).reshape(-1, kmax, 3)
+        self._count = np.array([len(t.corners) for t in self._tiles], dtype=np.int64)
         self._normals = np.array([t.normal for t in self._tiles]).reshape(-1, 3)
-        self._U = np.array([t.U for t in self._tiles]).reshape(-1, 3)
-        self._V = np.array([t.V for t in self._tiles]).reshape(-1, 3)
-        self._O = np.array([t.O for t in self._tiles]).reshape(-1, 3)
+        # [U V O] per tile (columns), and each level's slice bounds (c0, c1, r0, r1)
+        self._UVO = np.array([np.stack([t.U, t.V, t.O], axis=1) for t in self._tiles]
+                             ).reshape(-1, 3, 3)
+        nl = max((len(t.pyr) for t in self._tiles), default=1)
+        self._bounds = np.array([t.bounds + t.bounds[-1:] * (nl - len(t.bounds))
+                                 for t in self._tiles], dtype=float).reshape(-1, nl, 4)
         self._n_dot_O = np.array([t.n_dot_O for t in self._tiles])
         self._tile_group = np.array([t.surface.group for t in self._tiles], dtype=np.int64)
+        self._ppm = np.array([t.surface.ppm for t in self._tiles])
+        self._n_levels = [len(t.pyr) for t in self._tiles]
         W, H = cfg.width, cfg.height
         fx, fy, cx, cy = cfg.fx, cfg.fy, cfg.cx, cfg.cy
         m = 1.0   # px of margin around the image
@@ -176,6 +121,7 @@ class FrontCamera:
         self._plane_n = np.array([p[:3] for p in self._planes]).T      # (3, 5)
         self._plane_e = np.array([p[3] for p in self._planes])
         self._K = cfg.K()
+        self._planner = Planner(cfg, self._planes)
         self._background = np.empty((cfg.height, cfg.width, 4), np.uint8)
         self._background[:] = (*cfg.background_rgb, 255)
 
@@ -190,109 +136,113 @@ class FrontCamera:
         frame = self._background.copy()
         inv_z = np.zeros((cfg.height, cfg.width), np.float32) if cfg.depth else None
         tiles = self._tiles
-        idx, D, P, Minv, all_in = self._visible(view)
-        Minv = Minv.tolist()
+        idx, lv, box, M, near_clipped, count, uv = self._visible(view)
         for j, i in enumerate(idx):
-            self._draw(frame, inv_z, tiles[i], view, D[j], P[j], Minv[j], all_in[j])
+            self._draw(frame, inv_z, tiles[i], view, lv[j], box[j], M[j], near_clipped[j],
+                       (count[j], uv[j]))
         if inv_z is not None:
             with np.errstate(divide="ignore"):
                 self.last_depth = np.where(inv_z > 0, 1.0 / inv_z, np.inf).astype(np.float32)
         return self._noise.apply(cv2.cvtColor(frame, cv2.COLOR_RGBA2RGB))
 
     def _visible(self, view: _View):
-        """(tile index, plane distances (k, 5), camera-frame corners (k, 3), pixel -> (s, t)
-        map (3, 3)) of the tiles facing the camera and not wholly outside the view, in the
-        painter's order: room, posters, solids far to near."""
+        """What to draw, in the painter's order (room, posters, solids far to near): the tiles
+        facing the camera, not wholly outside the view and not clipped away. Returns lists
+        over them of: tile index, pyramid level, ROI (x0, y0, x1, y1), ROI pixel -> texel
+        homography of the level's slice (3, 3), near-plane clipped?, and the clipped polygon
+        (vertex count, its vertices' image columns and rows in px (k, 2), padded by
+        repeating the last). The level is the one whose texel best matches the tile's
+        projected pixel size (texels per pixel from the areas of the clipped polygon in the
+        texture and on the image)."""
         c, R = view.c, view.R_CW
         front = self._normals @ c - self._n_dot_O > 1e-9
-        P = (self._corners - c) @ R.T                            # (N, k, 3) camera frame
-        D = P @ self._plane_n - self._plane_e                    # (N, k, 5): >= 0 inside
+        nt, kt = self._corners.shape[:2]
+        P = (self._corners.reshape(-1, 3) - c) @ R.T             # (N k, 3) camera frame
+        D = (P @ self._plane_n - self._plane_e).reshape(nt, kt, -1)  # (N, k, 5): >= 0 inside
+        P = P.reshape(nt, kt, 3)
         vis = front & ~(D < 0.0).all(axis=1).any(axis=1)
         idx = np.flatnonzero(vis)
-        if len(self._solids):
+        grp = self._tile_group[idx]
+        solid = grp >= 2
+        if solid.any():     # the room and posters stay in order (tiles are in group order)
             dist = np.array([math.hypot(n - c[0], e - c[1]) - r for n, e, r in self._solids])
-            idx = idx[_painter_order(self._tile_group[idx], dist)]
-        # pixel -> (s, t) for every visible tile at once: inverse of K R_CW [U V O-c]
-        cols = np.stack([self._U[idx], self._V[idx], self._O[idx] - c], axis=2)   # (n, 3, 3)
-        Minv = np.linalg.inv(self._K @ R @ cols)
-        all_in = (D[idx] >= 0.0).all(axis=(1, 2))
-        return idx.tolist(), D[idx], P[idx], Minv, all_in.tolist()
+            idx = np.concatenate([idx[~solid], idx[solid][_painter_order(grp[solid], dist)]])
+        g = self._planner(P[idx], self._count[idx], D[idx])
+        ok = g["ok"]
+        sel = slice(None) if ok.all() else np.flatnonzero(ok)
+        idx = idx[sel]
+        lo, hi = g["lo"][sel], g["hi"][sel]
+        ppm = self._ppm[idx]
+        ratio = g["area_m2"][sel] * ppm * ppm / g["area_px"][sel]
+        nlev = self._n_levels
+        il = idx.tolist()
+        lv = [0 if r <= 1.0 else min(nlev[i] - 1, int(0.5 * math.log2(r) + 0.5))
+              for i, r in zip(il, ratio.tolist(), strict=True)]
+        lva = np.array(lv, dtype=np.int64)
+        off = self._bounds[idx, lva]                             # (n, 4) c0 c1 r0 r1
+        # ROI pixel -> (s, t) m: inverse of K R_CW [U V O-c], shifted to the ROI origin,
+        # then -> texel of the slice: scale and offset of its level
+        cols = self._UVO[idx]
+        cols[:, :, 2] -= c
+        Minv = np.linalg.inv((self._K @ R) @ cols)
+        step = np.left_shift(1, lva)
+        sc = ppm / step
+        half = PAD - 0.5 / step
+        oc = half - off[:, 0]
+        orow = half - off[:, 2]
+        x0, y0 = lo[:, 0], lo[:, 1]
+        A, B, C = Minv[:, 0], Minv[:, 1], Minv[:, 2]
+        A[:, 2] += A[:, 0] * x0 + A[:, 1] * y0
+        B[:, 2] += B[:, 0] * x0 + B[:, 1] * y0
+        C[:, 2] += C[:, 0] * x0 + C[:, 1] * y0
+        M = np.empty_like(Minv)
+        M[:, 0] = sc[:, None] * A + oc[:, None] * C
+        M[:, 1] = sc[:, None] * B + orow[:, None] * C
+        M[:, 2] = C
+        box = np.concatenate([lo, hi], axis=1).astype(np.int64).tolist()
+        return il, lv, box, M, g["near"][sel].tolist(), g["count"][sel].tolist(), g["uv"][sel]
 
-    def _draw(self, frame: np.ndarray, inv_z, tile: _Tile, view: _View, D, P, Minv,
-              all_in: bool) -> None:
-        cfg = self.config
-        k = len(tile.corners)
-        if all_in:
-            poly = P[:k].tolist()
-            near_clipped = False
-        else:
-            near_clipped = bool((D[:k, 0] < 0.0).any())
-            poly = _clip(P[:k].tolist(), self._planes)
-            if len(poly) < 3:
-                return
-        fx, fy, cx, cy = cfg.fx, cfg.fy, cfg.cx, cfg.cy
-        us = [cx + fx * x / z for x, _, z in poly]
-        vs = [cy + fy * y / z for _, y, z in poly]
-        x0 = max(0, math.floor(min(us)))
-        x1 = min(cfg.width, math.ceil(max(us)) + 1)
-        y0 = max(0, math.floor(min(vs)))
-        y1 = min(cfg.height, math.ceil(max(vs)) + 1)
-        if x1 <= x0 or y1 <= y0:
-            return
-        surf = tile.surface
-        # texels per pixel: the polygon's area in the texture over its area on the image
-        area_px = 0.5 * abs(_shoelace(us, vs))
-        nx = ny = nz = 0.0
-        for i in range(len(poly)):
-            a, b = poly[i - 1], poly[i]
-            nx += a[1] * b[2] - a[2] * b[1]
-            ny += a[2] * b[0] - a[0] * b[2]
-            nz += a[0] * b[1] - a[1] * b[0]
-        area_m2 = 0.5 * math.sqrt(nx * nx + ny * ny + nz * nz)
-        ratio = area_m2 * surf.ppm * surf.ppm / max(area_px, 1e-9)
-        lv = 0 if ratio <= 1.0 else min(len(tile.pyr) - 1, int(0.5 * math.log2(ratio) + 0.5))
-        tex, c_off, r_off = tile.level(lv)
-        # ROI pixel -> texel of the slice: scale/offset (s, t) after Minv after the ROI shift
-        sc = surf.ppm / (1 << lv)
-        oc = PAD - 0.5 / (1 << lv) - c_off
-        orow = PAD - 0.5 / (1 << lv) - r_off
-        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = Minv
-        a2 += a0 * x0 + a1 * y0
-        b2 += b0 * x0 + b1 * y0
-        c2 += c0 * x0 + c1 * y0
-        M = np.array(((sc * a0 + oc * c0, sc * a1 + oc * c1, sc * a2 + oc * c2),
-                      (sc * b0 + orow * c0, sc * b1 + orow * c1, sc * b2 + orow * c2),
-                      (c0, c1, c2)))
+    def _draw(self, frame: np.ndarray, inv_z, tile: Tile, view: _View, lv: int, box, M,
+              near_clipped: bool, poly) -> None:
+        x0, y0, x1, y1 = box
         w, h = x1 - x0, y1 - y0
         roi = frame[y0:y1, x0:x1]
-        exact_edges = near_clipped or surf.group >= 2
-        mask = None
+        exact_edges = near_clipped or tile.surface.group >= 2
+        mask = pts = None
         if exact_edges or inv_z is not None:
-            mask = np.zeros((h, w), np.uint8)
-            pts = np.array([[round((u - x0) * 16.0), round((v - y0) * 16.0)]
-                            for u, v in zip(us, vs, strict=True)], np.int32)
-            cv2.fillConvexPoly(mask, pts, 255, cv2.LINE_8, 4)
-        if exact_edges:
-            warped = cv2.warpPerspective(tex, M, (w, h),
-                                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            k, uv = poly
+            pts = np.rint((uv[:k] - (x0, y0)) * 16.0).astype(np.int32)
+            if inv_z is not None or tile.plain is None:
+                mask = np.zeros((h, w), np.uint8)
+                cv2.fillConvexPoly(mask, pts, 255, cv2.LINE_8, 4)
+        if not exact_edges:     # the slice's extent is the tile's extent (plus its apron)
+            cv2.warpPerspective(tile.level(lv), M, (w, h), dst=roi, flags=_WARP,
+                                borderMode=cv2.BORDER_TRANSPARENT)
+        elif tile.plain is not None:      # = a warp of the constant through the mask
+            cv2.fillConvexPoly(roi, pts, tile.plain, cv2.LINE_8, 4)
+        else:
+            warped = cv2.warpPerspective(tile.level(lv), M, (w, h), flags=_WARP,
                                          borderMode=cv2.BORDER_REPLICATE)
             cv2.copyTo(warped, mask, roi)
-        else:   # the slice's extent is the tile's extent (plus its apron): no mask needed
-            cv2.warpPerspective(tex, M, (w, h), dst=roi,
-                                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                borderMode=cv2.BORDER_TRANSPARENT)
         if inv_z is not None:
-            # plane n_C . X = d_C in camera coordinates; 1/z = n_C . K^-1 [u v 1] / d_C
-            c, R = view.c, view.R_CW
-            n_C = R @ tile.normal
-            d_C = float(n_C @ (R @ (tile.O - c)))
-            a = n_C[0] / fx / d_C
-            b = n_C[1] / fy / d_C
-            k0 = (n_C[2] - n_C[0] * cx / fx - n_C[1] * cy / fy) / d_C
-            uu = np.arange(x0, x1, dtype=np.float32)[None, :]
-            vv = np.arange(y0, y1, dtype=np.float32)[:, None]
-            iz = (a * uu + b * vv + k0).astype(np.float32)
-            cv2.copyTo(iz, mask, inv_z[y0:y1, x0:x1])
+            self._depth(inv_z, tile, view, box, mask)
+
+    def _depth(self, inv_z: np.ndarray, tile: Tile, view: _View, box, mask) -> None:
+        """Write 1/z of the tile's plane through the mask into ``inv_z``."""
+        cfg = self.config
+        fx, fy, cx, cy = cfg.fx, cfg.fy, cfg.cx, cfg.cy
+        x0, y0, x1, y1 = box
+        # plane n_C . X = d_C in camera coordinates; 1/z = n_C . K^-1 [u v 1] / d_C
+        c, R = view.c, view.R_CW
+        n_C = R @ tile.normal
+        d_C = float(n_C @ (R @ (tile.O - c)))
+        a = n_C[0] / fx / d_C
+        b = n_C[1] / fy / d_C
+        k0 = (n_C[2] - n_C[0] * cx / fx - n_C[1] * cy / fy) / d_C
+        uu = np.arange(x0, x1, dtype=np.float32)[None, :]
+        vv = np.arange(y0, y1, dtype=np.float32)[:, None]
+        iz = (a * uu + b * vv + k0).astype(np.float32)
+        cv2.copyTo(iz, mask, inv_z[y0:y1, x0:x1])
 
 
 def _painter_order(grp: np.ndarray, dist: np.ndarray) -> np.ndarray:
@@ -304,26 +254,3 @@ def _painter_order(grp: np.ndarray, dist: np.ndarray) -> np.ndarray:
     i = grp[solid] - 2
     rank[solid] = 2.0 + (dist.max() - dist[i]) + 1e-9 * i
     return np.argsort(rank, kind="stable")
-
-
-def _shoelace(xs: list, ys: list) -> float:
-    n = len(xs)
-    return sum(xs[i - 1] * ys[i] - xs[i] * ys[i - 1] for i in range(n))
-
-
-def _tiles(s: Surface, pyr: list[np.ndarray], tile_m: float) -> list[_Tile]:
-    if s.poly is not None:
-        st = s.poly
-        return [_Tile(s, pyr, (st[:, 0].min(), st[:, 0].max()), (st[:, 1].min(), st[:, 1].max()),
-                      st)]
-    ns, nt = max(1, math.ceil(s.w / tile_m - 1e-9)), max(1, math.ceil(s.h / tile_m - 1e-9))
-    out = []
-    for i in range(ns):
-        for j in range(nt):
-            sa, sb = s.w * i / ns, s.w * (i + 1) / ns
-            ta, tb = s.h * j / nt, s.h * (j + 1) / nt
-            out.append(_Tile(s, pyr, (sa, sb), (ta, tb),
-                             np.array([[sa, ta], [sb, ta], [sb, tb], [sa, tb]])))
-    return out
-
-
