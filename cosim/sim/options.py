@@ -20,9 +20,9 @@ class RunOptions:
     out_dir: Path | None = None       # where the SIL onboard log goes (None: a temp dir)
     hil_timeout_s: float = 2.0        # s wall clock without a HIL answer -> onboard failed
     # SIL lockstep: wait this long (us wall clock) for the other process's HIL datagram by
-    # polling before sleeping in the kernel (a wake-up costs ~40 us here, the other side's
-    # tick ~20 us). None: 200 us with >= 2 CPUs and not real time, else 0. Results do not
-    # depend on it (lockstep), only the wall time and CPU use do.
+    # polling before sleeping in the kernel (a wake-up per datagram otherwise; the other
+    # side's tick takes tens of us). None: 200 us with >= 2 CPUs and not real time, else 0.
+    # Results do not depend on it (lockstep), only the wall time and CPU use do.
     hil_spin_us: float | None = None
     app_override: Any = None          # an app object to use instead of the scenario's
     # sitl: the onboard stack's API and GCS links are real UDP sockets for outside clients,
