@@ -17,6 +17,7 @@ $(STAMP): pyproject.toml
 fmu: $(STAMP)
 	$(PY) -m fmus.build
 	$(PY) -m mav.build
+	$(PY) -m cosim.plant.build
 
 demo: setup
 	$(VENV)/bin/cosim run scenarios/mambo_seed_track.toml --out runs/demo

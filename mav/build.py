@@ -49,8 +49,8 @@ def _gcc() -> str:
     return gcc
 
 
-def source_hash() -> str:
-    h = hashlib.sha256(SOURCE.read_bytes())
+def source_hash(source: pathlib.Path = SOURCE) -> str:
+    h = hashlib.sha256(source.read_bytes())
     h.update(" ".join(CFLAGS + LIBS).encode())
     h.update((sysconfig.get_config_var("EXT_SUFFIX") or "").encode())
     out = subprocess.run([_gcc(), "--version"], capture_output=True, text=True, check=False)
@@ -59,20 +59,27 @@ def source_hash() -> str:
 
 
 def build(force: bool = False) -> pathlib.Path:
-    """Compile the extension if needed; returns its path. Safe from several processes at once
-    (written to a temporary file and moved into place)."""
-    lib = library_path()
+    """Compile the fast path if needed; returns its path."""
+    return build_extension(SOURCE, library_path(), force=force)
+
+
+def build_extension(source: pathlib.Path, lib: pathlib.Path, force: bool = False
+                    ) -> pathlib.Path:
+    """Compile one C source into the CPython extension `lib` if needed (the hash of the source,
+    flags, ABI tag and gcc recorded beside it differs); returns `lib`. Safe from several
+    processes at once (written to a temporary file and moved into place). Also used for the
+    simulator's own extension (cosim/plant/build.py)."""
     stamp = lib.with_name(lib.name + ".sha256")
-    digest = source_hash()
+    digest = source_hash(source)
     if not force and lib.is_file() and stamp.is_file() and stamp.read_text().strip() == digest:
         return lib
     include = sysconfig.get_paths()["include"]
     if not (pathlib.Path(include) / "Python.h").is_file():
         raise BuildError(f"Python.h not found in {include} (install the Python headers)")
-    with tempfile.TemporaryDirectory(dir=PACKAGE_DIR, prefix=".build-") as tmp:
+    with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build-") as tmp:
         out = pathlib.Path(tmp) / lib.name
-        cmd = [_gcc(), *CFLAGS, f"-I{include}", SOURCE.name, "-o", str(out), *LIBS]
-        res = subprocess.run(cmd, capture_output=True, text=True, cwd=SOURCE.parent,
+        cmd = [_gcc(), *CFLAGS, f"-I{include}", source.name, "-o", str(out), *LIBS]
+        res = subprocess.run(cmd, capture_output=True, text=True, cwd=source.parent,
                              check=False)
         if res.returncode != 0:
             raise BuildError(f"gcc failed ({res.returncode}):\n{' '.join(cmd)}\n{res.stderr}")

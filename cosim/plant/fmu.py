@@ -29,11 +29,13 @@ from __future__ import annotations
 import collections
 import ctypes
 import math
+import os
 import pathlib
 import shutil
 import statistics
 import struct
 import time
+import weakref
 from ctypes import POINTER, byref, c_char, c_double, c_int, c_size_t, c_uint, c_void_p
 from dataclasses import dataclass
 
@@ -123,6 +125,7 @@ class Plant:
         omega0: float = 0.0,
         fmu_path: str | pathlib.Path | None = None,
         fast: bool = True,
+        stepper: bool | None = None,
     ) -> None:
         from fmpy import calloc, extract, free, read_model_description
         from fmpy.fmi2 import (
@@ -139,6 +142,7 @@ class Plant:
             raise ValueError(f"step_size must be a positive number of seconds, got {step_size!r}")
         self.vehicle = vehicle
         self.step_size = float(step_size)
+        self._stepper = None
         self.k = 0
         self._closed = True
         self._messages: collections.deque[str] = collections.deque(maxlen=32)
@@ -244,6 +248,7 @@ class Plant:
             #: latest outputs in OUTPUT_NAMES order (updated in place by step())
             self.y: list[float] = [0.0] * len(OUTPUT_NAMES)
             self._read_outputs()
+            self._use_stepper(stepper)
             self._initial_state = self.get_state()
         except BaseException:
             self.close()
@@ -308,6 +313,49 @@ class Plant:
         y[_N_REAL_OUT] = 1.0 if self._og_val[0] else 0.0
         return y
 
+    def _use_stepper(self, want: bool | None) -> None:
+        """Bind :meth:`step` to the compiled stepper (see the class docstring)."""
+        if want is None:
+            want = os.environ.get("COSIM_FMI2STEP", "1") != "0"
+            try:
+                from cosim.plant._fmi2step import Stepper
+            except ImportError:
+                return
+        elif want:
+            from cosim.plant._fmi2step import Stepper
+        if not want:
+            return
+
+        def addr(f) -> int:
+            return ctypes.cast(f, c_void_p).value or 0
+
+        fns = (addr(self._raw_set_real), addr(self._raw_do_step), addr(self._raw_get_real),
+               addr(self._raw_get_bool),
+               addr(self._raw_set_step_get) if self._raw_set_step_get is not None else 0)
+        me = weakref.ref(self)         # no reference cycle plant -> stepper -> plant
+
+        def on_error(status: int, what: str) -> None:
+            me()._check(status, what)
+
+        st = Stepper(fns, self._comp.value, tuple(self._in_vr), tuple(self._out_vr),
+                     tuple(self._og_vr), self.step_size, self.y, on_error, INPUT_NAMES)
+        st.k = self._k
+        self._stepper = st
+        self.step = st.step           # the master's per-tick call is the C method itself
+
+    @property
+    def k(self) -> int:
+        """Ticks stepped since t = 0."""
+        st = self._stepper
+        return self._k if st is None else st.k
+
+    @k.setter
+    def k(self, value: int) -> None:
+        if self._stepper is None:
+            self._k = value
+        else:
+            self._stepper.k = value
+
     @property
     def t(self) -> float:
         """Simulated time of the latest outputs, s (= k * step_size)."""
@@ -367,6 +415,11 @@ class Plant:
         if self._closed:
             return
         self._closed = True
+        st = self._stepper
+        if st is not None:            # no C calls into a freed instance: back to the ctypes path
+            self._stepper = None
+            self._k = st.k
+            self.__dict__.pop("step", None)
         try:
             if self._scratch_state.value:
                 self._free_state(self._comp, byref(self._scratch_state))

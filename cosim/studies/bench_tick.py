@@ -1,0 +1,150 @@
+"""`cosim bench`'s tick breakdown: where the MIL tick of the seed mission goes, part by part,
+and the floor (the essentials of a tick measured alone)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from cosim.studies.bench_common import SEED, _per_call_us
+
+_HIL = "HIL exchange (onboard)"
+_CTRL = "  onboard controller"
+_TICK_PARTS = (
+    ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None),
+    ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None),
+    ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None),
+    ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None),
+    ("mav.client", "OffboardClient", "poll", "  client poll (telemetry in)", "app on_tick"),
+    ("mav.client", "OffboardClient", "_setpoint", "  setpoint encode+send",
+     "app on_tick"),
+    ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None),
+    ("cosim.sim.onboard", "OnboardHandle", "exchange", "HIL exchange (onboard)", None),
+    ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL),
+    ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", "HIL exchange (onboard)"),
+    ("mav.cascade", "QuadCascade", "update", _CTRL, _HIL),
+    ("mav.battery", "Battery", "step", "  onboard battery", "HIL exchange (onboard)"),
+    ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL),
+    ("mav.hil", "HilSimulatorCodec", "decode_actuators", "HIL_ACTUATOR_CONTROLS decode", None),
+    ("cosim.sim.onboard", "OnboardHandle", "drain_gcs", "GCS link drain", None),
+    ("cosim.plant.fmu", "Plant", "step", "plant step", None),
+)
+
+
+def bench_tick_breakdown() -> dict[str, Any]:
+    """Where the MIL tick of the seed mission goes, in us per tick (averaged over the run).
+
+    One run with every part of `_TICK_PARTS` wrapped in a timer. The cost of a timer (measured
+    here on a no-op) is taken out of the parent's figure for each timed call inside it; what
+    is left of the loop is the master's own work (recording, exit checks, tlog taps, loop).
+    The timed run is slower than an untimed one by about that timer cost per call.
+    """
+    import importlib
+
+    from cosim.scenario.parse import load_scenario
+    from cosim.sim.master import RunOptions, run_scenario
+
+    acc: dict[str, list[int]] = {}
+
+    def timed(fn: Callable, label: str) -> Callable:
+        cell = acc.setdefault(label, [0, 0])
+        clock = time.perf_counter_ns
+
+        def wrapper(*a: Any, **kw: Any) -> Any:
+            t0 = clock()
+            try:
+                return fn(*a, **kw)
+            finally:
+                cell[0] += clock() - t0
+                cell[1] += 1
+        return wrapper
+
+    # timer cost: a wrapped no-op minus a bare no-op
+    def noop() -> None:
+        return None
+    w = timed(noop, "_noop")
+    n = 200_000
+    bare = min(_per_call_us(noop, n, 1)[0] for _ in range(3))
+    wrapped = min(_per_call_us(w, n, 1)[0] for _ in range(3))
+    overhead_us = max(0.0, wrapped - bare)
+    del acc["_noop"]
+
+    saved = []
+    try:
+        for mod, cls, meth, label, _ in _TICK_PARTS:
+            c = getattr(importlib.import_module(mod), cls)
+            orig = c.__dict__[meth]
+            saved.append((c, meth, orig))
+            setattr(c, meth, timed(orig, label))
+        # the compiled controller is an instance attribute (mav/fastpath.py): time it there
+        from mav.cascade import QuadCascade
+        init = QuadCascade.__dict__["__init__"]
+        saved.append((QuadCascade, "__init__", init))
+
+        def init_timed(self, *a: Any, **kw: Any) -> None:
+            init(self, *a, **kw)
+            if "update" in self.__dict__:
+                self.update = timed(self.update, _CTRL)
+        QuadCascade.__init__ = init_timed
+        # so is the compiled FMI stepper (cosim/plant/fmu.py: Plant.step bound to it)
+        from cosim.plant.fmu import Plant
+        use = Plant.__dict__["_use_stepper"]
+        saved.append((Plant, "_use_stepper", use))
+
+        def use_timed(self, *a: Any, **kw: Any) -> None:
+            use(self, *a, **kw)
+            if "step" in self.__dict__:
+                self.step = timed(self.step, "plant step")
+        Plant._use_stepper = use_timed
+        res = run_scenario(load_scenario(SEED), RunOptions(mode="mil"))
+    finally:
+        for c, meth, orig in reversed(saved):
+            setattr(c, meth, orig)
+    ticks = res.ticks
+    parts: dict[str, float] = {}
+    for _, _, _, label, _parent in _TICK_PARTS:
+        ns = acc.get(label, [0, 0])[0]
+        inner = sum(acc.get(lb, [0, 0])[1] for _, _, _, lb, pa in _TICK_PARTS if pa == label)
+        parts[label] = (ns / 1e3 - inner * overhead_us) / ticks
+    top_calls = sum(acc.get(lb, [0, 0])[1] for _, _, _, lb, pa in _TICK_PARTS if pa is None)
+    top = sum(parts[lb] for _, _, _, lb, pa in _TICK_PARTS if pa is None)
+    loop_us = res.loop_wall_s * 1e6 / ticks - top_calls * overhead_us / ticks
+    for _, _, _, label, parent in _TICK_PARTS:
+        if parent is not None:
+            parts[parent + ": rest"] = parts.get(parent + ": rest", parts[parent]) - parts[label]
+    parts["master loop itself (record, exit checks, taps)"] = loop_us - top
+    st = res.onboard_stats
+    sc = res.scenario
+    return {"ticks": ticks, "timer_overhead_us": overhead_us, "loop_us_per_tick": loop_us,
+            "parts_us_per_tick": parts,
+            "setpoints_per_tick": st.get("setpoints", 0) / ticks,
+            "telemetry_per_tick": (st.get("tx_api", 0) + st.get("tx_gcs", 0)) / ticks,
+            "frames_per_tick": 1.0 / sc.timing.camera_every}
+
+
+def floor_estimate(res: dict[str, Any]) -> dict[str, float]:
+    """The work a MIL tick cannot skip, each part measured alone (no glue, warm caches), in
+    us per tick: plant, controller, the MAVLink encode + decode of ODOMETRY, of
+    HIL_ACTUATOR_CONTROLS, of the app's setpoints and of the telemetry at the rates of the
+    seed mission, and the camera frame + image processing spread over the camera period."""
+    c = res["codec"]
+    b = res["mil_tick_breakdown"]
+
+    def m(d: dict[str, Any]) -> float:
+        return d["median"]
+    parts = {
+        "plant step": m(res["plant_step"]),
+        "controller": m(res["controller_update"]),
+        "ODOMETRY encode + decode": m(c["odometry_encode_ours"]) + m(c["odometry_decode_ours"]),
+        "HIL_ACTUATOR_CONTROLS encode + decode": m(c["actuators_encode_ours"])
+        + m(c["actuators_decode_ours"]),
+        "setpoints encode + decode": b["setpoints_per_tick"] * (
+            m(c["setpoint_encode_ours"]) + m(c["setpoint_decode_ours"])),
+        "telemetry encode + decode": b["telemetry_per_tick"] * (
+            m(c["telemetry_encode_ours"]) + m(c["telemetry_decode_ours"])),
+        "render + image processing": b["frames_per_tick"] * (m(res["render"]) + m(res["ips"])),
+    }
+    parts["total"] = sum(parts.values())
+    parts["max real-time factor"] = 5000.0 / parts["total"]
+    return parts
