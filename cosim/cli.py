@@ -93,6 +93,9 @@ def _parser() -> argparse.ArgumentParser:
     r = add("run", help="fly one scenario")
     r.add_argument("scenario")
     r.add_argument("--mode", choices=("mil", "sil"), default="mil")
+    r.add_argument("--hil-transport", choices=("udp", "unix"), default="udp",
+                   help="SIL: the simulator link between the processes (unix: a Unix-domain "
+                        "socket, cheaper; the api and gcs links stay UDP; same results)")
     r.add_argument("--realtime", action="store_true", help="pace against the wall clock")
     r.add_argument("--speed", type=float, default=1.0, help="real-time speed factor (--realtime)")
     r.add_argument("--out", type=Path, help="run folder (default runs/<scenario>-<mode>)")
@@ -293,7 +296,10 @@ def _run(args) -> int:
               file=sys.stderr)
     out = args.out or Path("runs") / f"{sc.name}-{args.mode}"
     _check_out_dir(out, "--out")
+    if args.hil_transport != "udp" and args.mode != "sil":
+        raise ScenarioError("--hil-transport", args.hil_transport, "only with --mode sil")
     opts = RunOptions(mode=args.mode, realtime=args.realtime, speed=args.speed,
+                      hil_transport=args.hil_transport,
                       video=args.video, png_every=args.png_every, mcap=args.mcap,
                       progress=not args.quiet and sys.stderr.isatty(), out_dir=out)
     with claim_run_folder(out):

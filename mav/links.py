@@ -7,6 +7,7 @@ what makes MIL and SIL runs bit-identical.
 
 from __future__ import annotations
 
+import os
 import select
 import socket
 import time
@@ -95,7 +96,7 @@ class UdpLink:
             data, addr = self.sock.recvfrom(65535)
         except (BlockingIOError, ConnectionRefusedError, InterruptedError):
             return None
-        if not self._fixed_remote:
+        if not self._fixed_remote and addr:
             self.remote = addr
         return data
 
@@ -120,7 +121,7 @@ class UdpLink:
                 except ConnectionRefusedError:
                     return None
             if data is not None:
-                if not self._fixed_remote:
+                if not self._fixed_remote and addr:
                     self.remote = addr
                 return data
         if self._poller is None:
@@ -142,9 +143,45 @@ class UdpLink:
             return None
         finally:
             self.sock.setblocking(False)
-        if not self._fixed_remote:
+        if not self._fixed_remote and addr:
             self.remote = addr
         return data
 
     def close(self) -> None:
         self.sock.close()
+
+
+class UnixLink(UdpLink):
+    """A non-blocking Unix-domain datagram endpoint bound to the file `path`: the same
+    interface and semantics as `UdpLink` (`remote` a path; None: reply to the last sender),
+    for the simulator link between two processes of one machine, where it costs less per
+    datagram than loopback UDP (no IP/UDP layers in the kernel). The file is removed on
+    `close`. Linux and macOS; `path` must be short (108 bytes on Linux)."""
+
+    def __init__(self, path: str, remote: str | None = None) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+            self.sock.bind(path)
+        except OSError:
+            self.sock.close()
+            raise
+        self.sock.setblocking(False)
+        self.path = path
+        self.remote = remote
+        self._fixed_remote = remote is not None
+        self.dropped_sends = 0
+        self._poller = None
+
+    @property
+    def local_address(self) -> str:
+        return self.path
+
+    def close(self) -> None:
+        if self.sock.fileno() >= 0:
+            self.sock.close()
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
+

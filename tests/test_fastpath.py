@@ -6,6 +6,7 @@ SIL lockstep's spin-then-sleep HIL wait against sleeping at once."""
 from __future__ import annotations
 
 import math
+import os
 import random
 import struct
 from pathlib import Path
@@ -223,3 +224,46 @@ def test_sil_hil_wait_spinning_or_not_gives_the_same_run(spin_us):
     sil = run_scenario(sc, RunOptions(mode="sil", hil_spin_us=spin_us))
     assert sil.exit_reason == mil.exit_reason and sil.ticks == mil.ticks
     assert np.array_equal(mil.series, sil.series, equal_nan=True)
+
+
+def test_sil_over_a_unix_domain_hil_link_gives_the_same_run():
+    """Issue 16: the simulator link over a Unix-domain datagram socket (the api and gcs links
+    stay UDP): the same run as MIL bit for bit, every MAVLink byte of the tlog too, and the
+    socket files are gone afterwards."""
+    import glob
+    import tempfile
+
+    sc = load_scenario(SCEN / "mambo_seed_track.toml")
+    before = set(glob.glob(os.path.join(tempfile.gettempdir(), "cosim-hil-*")))
+    mil = run_scenario(sc, RunOptions(mode="mil"))
+    sil = run_scenario(sc, RunOptions(mode="sil", hil_transport="unix"))
+    assert sil.exit_reason == mil.exit_reason and sil.ticks == mil.ticks
+    assert np.array_equal(mil.series, sil.series, equal_nan=True)
+    assert mil.tlog.read() == sil.tlog.read()
+    assert sil.onboard_stats["rx_hil"] == sil.ticks >= 14000
+    assert set(glob.glob(os.path.join(tempfile.gettempdir(), "cosim-hil-*"))) == before
+    with pytest.raises(ValueError, match="hil_transport: got 'tcp'"):
+        run_scenario(sc, RunOptions(mode="sil", hil_transport="tcp"))
+
+
+def test_unix_link_behaves_as_the_udp_link(tmp_path):
+    """UnixLink: datagrams both ways, replies go to the last sender when no remote is fixed,
+    a send to nobody is a counted drop, recv_spin waits, close removes the socket file."""
+    from mav.links import UnixLink
+
+    a_path, b_path = str(tmp_path / "a"), str(tmp_path / "b")
+    b = UnixLink(b_path)                       # answers whoever sent last
+    a = UnixLink(a_path, remote=b_path)
+    assert b.recv() is None and a.local_address == a_path
+    b.send(b"early")                           # nobody has sent yet: dropped, counted
+    assert b.dropped_sends == 1
+    a.send(b"\xfd" * 300)
+    assert b.recv_spin(10_000_000, 1.0) == b"\xfd" * 300 and b.remote == a_path
+    b.send(b"back")
+    assert a.recv_spin(0, 1.0) == b"back"
+    a.close()
+    b.send(b"to a closed peer")                # the peer's file is gone: a counted drop
+    assert b.dropped_sends == 2 and not os.path.exists(a_path)
+    b.close()
+    b.close()                                  # idempotent
+    assert not os.path.exists(b_path)

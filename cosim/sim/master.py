@@ -184,6 +184,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     opts = opts or RunOptions()
     if opts.mode not in ("mil", "sil"):
         raise ValueError(f"mode: got {opts.mode!r}; allowed: mil, sil")
+    if opts.hil_transport not in ("udp", "unix"):
+        raise ValueError(f"hil_transport: got {opts.hil_transport!r}; allowed: udp, unix")
     run_dir, tmp = run_dir_for(opts)
     spool_tmp = tmp or tempfile.TemporaryDirectory(prefix="cosim-spool-")
     spool = SeriesSpool(Path(spool_tmp.name) / "series.f64")

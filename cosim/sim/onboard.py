@@ -5,6 +5,7 @@ GCS links (tapped into the run's tlog), `stats`, `close`; for `cosim sitl`, `res
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +15,7 @@ from cosim.plant.vehicles import get_vehicle
 from cosim.scenario.records import Scenario
 from cosim.sim.options import RunOptions
 from mav.airframe import Airframe
-from mav.links import MemoryLink, UdpLink
+from mav.links import MemoryLink, UdpLink, UnixLink
 
 
 class OnboardHandle:
@@ -30,6 +31,7 @@ class OnboardHandle:
         self.proc = None
         self._own: tuple = ()
         self.bound: dict[str, tuple[str, int]] = {}   # external links: their local addresses
+        self._sock_dir = None     # SIL over a Unix-domain HIL link: the sockets' folder
         self._stats0: dict[str, int] = {}             # counters of the stacks before a respawn
         vname = sc.vehicle.name
         if opts.mode == "mil":
@@ -84,13 +86,21 @@ class OnboardHandle:
             link.close()
         if self.proc is not None:
             self.proc.close()
+        if self._sock_dir is not None:
+            self._sock_dir.cleanup()
 
     def _start_sil(self, sc: Scenario, opts: RunOptions, tlog: Tlog, log_dir: Path,
                    sysid: int, origin: tuple[float, float, float] | None) -> None:
         from cosim.sim.sil import OnboardProcess
 
         vname = sc.vehicle.name
-        hil = UdpLink(("127.0.0.1", 0))
+        if opts.hil_transport == "unix":
+            # short paths in a private folder (a socket path has ~100 bytes at most)
+            self._sock_dir = tempfile.TemporaryDirectory(prefix="cosim-hil-")
+            vehicle_sock = os.path.join(self._sock_dir.name, "vehicle")
+            hil = UnixLink(os.path.join(self._sock_dir.name, "sim"), remote=vehicle_sock)
+        else:
+            hil = UdpLink(("127.0.0.1", 0))
         api = UdpLink(("127.0.0.1", 0))
         gcs = UdpLink(("127.0.0.1", 0))
         self._own = (hil, api, gcs)
@@ -106,6 +116,8 @@ class OnboardHandle:
             overrides += (f"--params={params}",)
         if sysid != 1:
             overrides += (f"--sysid={sysid}",)
+        if opts.hil_transport == "unix":
+            overrides += (f"--hil-unix={vehicle_sock}",)
         if origin is not None:
             overrides += ("--origin=" + ",".join(repr(float(v)) for v in origin),)
         spin_us = opts.hil_spin_us
@@ -119,7 +131,8 @@ class OnboardHandle:
         )
         ports = self.proc.ports
         for link, name in ((hil, "hil"), (api, "api"), (gcs, "gcs")):
-            link.remote = ("127.0.0.1", ports[name])
+            if ports[name]:           # UDP; a Unix-domain HIL link already has its peer
+                link.remote = ("127.0.0.1", ports[name])
             link._fixed_remote = True
         self._spin_ns = round(1000 * spin_us)
         self._hil_timeout_s = opts.hil_timeout_s
@@ -182,6 +195,8 @@ class OnboardHandle:
                 pass
         if self.proc is not None:
             self.proc.close()
+        if self._sock_dir is not None:
+            self._sock_dir.cleanup()
 
 
 def _param_file(sc: Scenario, log_dir: Path) -> str | None:

@@ -226,8 +226,6 @@ def bench_mission(mode: str, repeats: int, **opts: Any) -> dict[str, Any]:
     return d
 
 
-# (module, class, method, label, parent label or None): the parts of a MIL tick, timed by
-# wrapping the methods for one run (bench_tick_breakdown)
 @contextlib.contextmanager
 def _no_stepper() -> Iterator[None]:
     """Plants made inside the block step through ctypes (cosim/plant/fmu.py), as before the
@@ -259,6 +257,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["mission_mil"] = bench_mission("mil", mr)
     res["mission_sil"] = bench_mission("sil", mr)
     res["mission_sil_nospin"] = bench_mission("sil", mr, hil_spin_us=0.0)
+    res["mission_sil_unix"] = bench_mission("sil", mr, hil_transport="unix")
     with reference.python(), _no_stepper():   # the same missions as before issue 16
         res["mission_mil_python"] = bench_mission("mil", mr)
         res["mission_sil_python"] = bench_mission("sil", mr, hil_spin_us=0.0)
@@ -299,6 +298,7 @@ def format_report(res: dict[str, Any]) -> str:
     row("seed mission SIL (tick loop)", res["mission_sil"])
     row("seed mission SIL (end to end)", res["mission_sil"]["end_to_end"])
     row("  SIL, HIL wait without spinning", res["mission_sil_nospin"])
+    row("  SIL, HIL over a Unix socket", res["mission_sil_unix"])
     row("  MIL before (Python onboard)", res["mission_mil_python"])
     row("  SIL before (Python, no spin)", res["mission_sil_python"])
     row("controller, Python reference", res["controller_update"]["python_reference"])
@@ -309,7 +309,8 @@ def format_report(res: dict[str, Any]) -> str:
     lines.append(f"onboard fast path: {cu['implementation']}; now / before (same run): MIL "
                  f"{ratio('mission_mil', 'mission_mil_python'):.2f}x, SIL "
                  f"{ratio('mission_sil', 'mission_sil_python'):.2f}x (spinning alone "
-                 f"{ratio('mission_sil', 'mission_sil_nospin'):.2f}x), controller "
+                 f"{ratio('mission_sil', 'mission_sil_nospin'):.2f}x; Unix-socket HIL / UDP "
+                 f"{ratio('mission_sil_unix', 'mission_sil'):.2f}x), controller "
                  f"{cu['python_reference']['median'] / cu['median']:.1f}x")
     c = res["codec"]
     lines.append(f"ratios (same run): ODOMETRY encode pymavlink/ours "

@@ -9,6 +9,8 @@ from typing import Any
 
 from cosim.studies.bench_common import SEED, _per_call_us
 
+# (module, class, method, label, parent label or None): the parts of a MIL tick, timed by
+# wrapping the methods for one run (bench_tick_breakdown)
 _HIL = "HIL exchange (onboard)"
 _CTRL = "  onboard controller"
 _TICK_PARTS = (

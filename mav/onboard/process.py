@@ -46,6 +46,9 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hil-bind", type=_hostport, default=("127.0.0.1", 4560), metavar="HOST:PORT",
                    help="simulator link; answers whoever sent the ODOMETRY (default "
                         "127.0.0.1:4560; port 0 = any free port)")
+    p.add_argument("--hil-unix", metavar="PATH",
+                   help="simulator link on a Unix-domain datagram socket bound at PATH instead "
+                        "of UDP (--hil-bind is then unused; PORTS reports hil=0)")
     p.add_argument("--api-bind", type=_hostport, default=("127.0.0.1", 0), metavar="HOST:PORT",
                    help="offboard API link local address (default 127.0.0.1:0)")
     p.add_argument("--api-remote", type=_hostport, default=("127.0.0.1", 14540),
@@ -100,7 +103,7 @@ def _vehicle_with_overrides(parser, name: str, items: list[str]) -> Airframe:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of `python -m mav.onboard` and `cosim onboard`. Returns the exit code."""
-    from mav.links import UdpLink
+    from mav.links import UdpLink, UnixLink
 
     parser = _build_parser()
     args = parser.parse_args(argv)
@@ -130,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
     vehicle = _vehicle_with_overrides(parser, args.vehicle, args.vehicle_param)
     try:
-        hil = UdpLink(args.hil_bind)
+        hil = UnixLink(args.hil_unix) if args.hil_unix else UdpLink(args.hil_bind)
         api = UdpLink(args.api_bind, args.api_remote)
         gcs = UdpLink(args.gcs_bind, args.gcs_remote)
     except OSError as exc:
@@ -145,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     for w in onboard.warnings:
         print(f"onboard: {w}", file=sys.stderr)
-    print(f"PORTS hil={hil.local_address[1]} api={api.local_address[1]} "
+    print(f"PORTS hil={0 if args.hil_unix else hil.local_address[1]} api={api.local_address[1]} "
           f"gcs={gcs.local_address[1]}", flush=True)
 
     stop = []
