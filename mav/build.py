@@ -50,7 +50,11 @@ def _gcc() -> str:
 
 
 def source_hash(source: pathlib.Path = SOURCE) -> str:
+    """Of the source and the C files beside it (the ones it includes), flags, ABI and gcc."""
     h = hashlib.sha256(source.read_bytes())
+    for other in sorted(source.parent.glob("*.c")):
+        if other != source:
+            h.update(other.name.encode() + b"\0" + other.read_bytes())
     h.update(" ".join(CFLAGS + LIBS).encode())
     h.update((sysconfig.get_config_var("EXT_SUFFIX") or "").encode())
     out = subprocess.run([_gcc(), "--version"], capture_output=True, text=True, check=False)

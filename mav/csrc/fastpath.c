@@ -570,11 +570,16 @@ static PyObject *fp_check(PyObject *mod, PyObject *const *args, Py_ssize_t nargs
     return PyLong_FromLong(r);
 }
 
+#include "setpoint.c"
+
 static PyMethodDef module_methods[] = {
     {"frame", (PyCFunction)(void (*)(void))fp_frame, METH_FASTCALL,
      "frame(seq, sysid, compid, msgid, crc_extra, payload): an unsigned MAVLink 2 frame"},
     {"check", (PyCFunction)(void (*)(void))fp_check, METH_FASTCALL,
      "check(data, start, end, msgid, crc_extra): the payload length of a valid frame, or -1"},
+    {"setpoint_local_ned", (PyCFunction)(void (*)(void))fp_setpoint_local_ned, METH_FASTCALL,
+     "setpoint_local_ned(data, of, sysid, compid, max_pos, max_vel, max_yaw, max_rate): "
+     "apply an accepted LOCAL_NED offboard setpoint datagram (see setpoint.c)"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef fastpath_module = {
@@ -592,6 +597,8 @@ PyMODINIT_FUNC PyInit__fastpath(void)
         if ((p_names[i] = PyUnicode_InternFromString(P_NAMES[i])) == NULL)
             return NULL;
     if ((name_armed = PyUnicode_InternFromString("armed")) == NULL)
+        return NULL;
+    if (sp_init() < 0)
         return NULL;
     if (PyType_Ready(&CascadeType) < 0)
         return NULL;

@@ -12,13 +12,17 @@ import sys
 import traceback
 from collections.abc import Callable
 
-from mav import wire
+from mav import fastpath, wire
 from mav.onboard.defs import (
     DRAIN_MAX,
     FRAMES_MAX,
     REJECT_TEXT_EVERY_US,
     SIGNING_EPOCH_2015,
     SP_ID3,
+    SP_MAX_POS_M,
+    SP_MAX_VEL_MPS,
+    SP_MAX_YAW_RAD,
+    SP_MAX_YAW_RATE,
     M,
 )
 from mav.onboard.status import VehicleStatus
@@ -126,11 +130,17 @@ class LinkInput:
     """
 
     def __init__(self, vs: VehicleStatus, outbox: Outbox, handlers: dict[int, Callable],
-                 on_setpoint: Callable) -> None:
+                 on_setpoint: Callable, sysid: int = 1, compid: int = 1) -> None:
+        self.vs = vs
         self.stats = vs.stats
         self.outbox = outbox
         self.handlers = handlers
         self.on_setpoint = on_setpoint
+        # the compiled accept path of on_setpoint (mav/csrc/setpoint.c), or None
+        lib = fastpath.lib
+        self._fast_sp = lib.setpoint_local_ned if lib is not None else None
+        self._sp_args = (vs.of, sysid, compid, SP_MAX_POS_M, SP_MAX_VEL_MPS, SP_MAX_YAW_RAD,
+                         SP_MAX_YAW_RATE)
 
     def drain(self, ch: Chan) -> None:
         recv = ch.link.recv
@@ -162,6 +172,13 @@ class LinkInput:
         # SET_POSITION_TARGET_LOCAL_NED frame (what the loop below does with it, minus the loop)
         if (not ch.signed and n > 12 and data[0] == wire.MAGIC_V2 and data[7:10] == SP_ID3
                 and wire.frame_end(data, 0) == n):
+            fast = self._fast_sp
+            if fast is not None and fast(data, *self._sp_args):   # accepted and applied
+                ch.peer = (data[5], data[6])
+                vs = self.vs
+                vs.of_last_us = vs.t_us
+                self.stats["setpoints"] += 1
+                return
             f = wire.decode_fast(wire.SET_POSITION_TARGET_LOCAL_NED, data, 0, n)
             if f is None:
                 self.stats[ch.bad_key] += 1

@@ -124,7 +124,7 @@ class Onboard:
         handlers = self.commands.handlers(ofb.on_setpoint_msg, prm, man)
         handlers[M.MAVLINK_MSG_ID_HEARTBEAT] = self.failsafe.on_heartbeat
         handlers.update(ofb.handlers())          # SET_POSITION_TARGET_GLOBAL_INT, attitude
-        self.input = LinkInput(vs, out, handlers, ofb.on_setpoint)
+        self.input = LinkInput(vs, out, handlers, ofb.on_setpoint, cfg.sysid, cfg.compid)
         for ch, rates in zip(chans, (cfg.api_rates_hz, cfg.gcs_rates_hz), strict=True):
             for sname, msgid in STREAMS.items():
                 st = Stream(msgid, hz_to_us(rates.get(sname, 0.0)), tel.emitter(msgid))
