@@ -94,17 +94,24 @@ def build_extension(source: pathlib.Path, lib: pathlib.Path, force: bool = False
     return lib
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m mav.build",
-                                 description="Build the onboard fast path (mav/_fastpath).")
+def build_main(argv: list[str] | None, prog: str, description: str, source: pathlib.Path,
+               lib: pathlib.Path) -> int:
+    """The command line of a builder (`--force`): prints the library's path; exit 1 with the
+    reason when it cannot be built."""
+    ap = argparse.ArgumentParser(prog=prog, description=description)
     ap.add_argument("--force", action="store_true", help="rebuild even if up to date")
     args = ap.parse_args(argv)
     try:
-        print(build(force=args.force))
+        print(build_extension(source, lib, force=args.force))
     except BuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return build_main(argv, "python -m mav.build",
+                      "Build the onboard fast path (mav/_fastpath).", SOURCE, library_path())
 
 
 if __name__ == "__main__":

@@ -11,12 +11,10 @@ Examples::
 
 from __future__ import annotations
 
-import argparse
 import pathlib
-import sys
 import sysconfig
 
-from mav.build import BuildError, build_extension
+from mav.build import build_extension, build_main
 
 PACKAGE_DIR = pathlib.Path(__file__).resolve().parent
 SOURCE = PACKAGE_DIR / "csrc" / "fmi2step.c"
@@ -31,16 +29,8 @@ def build(force: bool = False) -> pathlib.Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m cosim.plant.build",
-                                 description="Build the FMI stepper (cosim/plant/_fmi2step).")
-    ap.add_argument("--force", action="store_true", help="rebuild even if up to date")
-    args = ap.parse_args(argv)
-    try:
-        print(build(force=args.force))
-    except BuildError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return build_main(argv, "python -m cosim.plant.build",
+                      "Build the FMI stepper (cosim/plant/_fmi2step).", SOURCE, library_path())
 
 
 if __name__ == "__main__":
