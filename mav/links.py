@@ -147,6 +147,24 @@ class UdpLink:
             self.remote = addr
         return data
 
+    def kernel_drops(self) -> int | None:
+        """Datagrams the kernel dropped for this socket since it was opened, mostly because
+        its receive buffer was full (a flood faster than the reader): the `drops` column of
+        Linux's /proc/net/udp, found by the socket's inode. None where that is not available
+        (another OS, a closed socket). Reads a /proc file: call it now and then (at exit),
+        not per tick."""
+        try:
+            inode = os.fstat(self.sock.fileno()).st_ino
+            with open("/proc/net/udp") as f:
+                next(f)                                  # the column names
+                for line in f:
+                    cols = line.split()
+                    if len(cols) > 12 and int(cols[9]) == inode:
+                        return int(cols[12])
+        except (OSError, ValueError, StopIteration):
+            pass
+        return None
+
     def close(self) -> None:
         self.sock.close()
 

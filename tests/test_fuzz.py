@@ -8,6 +8,7 @@ Bounded by a wall-clock budget per link (seeded, so a failure can be replayed wi
 from __future__ import annotations
 
 import math
+import os
 import random
 
 import pytest
@@ -182,6 +183,86 @@ def test_flood_is_bounded_per_tick():
     assert rig.ob.stats["rx_gcs"] == DRAIN_MAX and rig.ob.stats["drain_deferred"] == 1
     rig.tick(3)
     assert rig.ob.stats["rx_gcs"] == 3 * DRAIN_MAX
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/net/udp"), reason="Linux's /proc/net/udp")
+def test_kernel_drops_are_counted():
+    """What a full socket buffer sheds is counted: every datagram sent to the vehicle is
+    either handled (rx_gcs) or dropped by the kernel (dropped_kernel_gcs), none lost
+    uncounted; the other links' counters stay 0, a link in memory has none."""
+    import socket
+
+    from mav.hil import HilSimulatorCodec
+    from mav.links import UdpLink
+    from mav.onboard import Onboard, OnboardConfig
+
+    hil, api, gcs = UdpLink(), UdpLink(), UdpLink()
+    gcs.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)   # holds a few only
+    ob = Onboard(OnboardConfig(), hil, api, gcs)
+    sim = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    hb = wire.send_msg(M.MAVLink(None, 2, 1), M.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3))
+    codec = HilSimulatorCodec()
+    odo = (0.0, 0.0, 0.0, 1.0) + (0.0,) * 9
+    n = 3000
+    try:
+        for i in range(n):
+            sim.sendto(hb, gcs.local_address)
+            if i % 1000 == 999:              # a tick now and then drains what was queued
+                sim.sendto(codec.encode_odometry(i * 5, odo), hil.local_address)
+                assert ob.poll()
+        sim.sendto(codec.encode_odometry(n * 5, odo), hil.local_address)
+        assert ob.poll()
+        got = ob.count_kernel_drops()
+        st = ob.stats
+        assert st["rx_gcs"] + st["dropped_kernel_gcs"] == n
+        assert 0 < st["rx_gcs"] < n and st["drain_deferred"] == 0
+        assert got == {"dropped_kernel_hil": 0, "dropped_kernel_api": 0,
+                       "dropped_kernel_gcs": st["dropped_kernel_gcs"]}
+    finally:
+        sim.close()
+        for link in (hil, api, gcs):
+            link.close()
+    assert ob.count_kernel_drops() == {}                  # closed sockets: nothing to read
+    assert Rig(decode=False).ob.count_kernel_drops() == {}     # links in memory
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/net/udp"), reason="Linux's /proc/net/udp")
+def test_sitl_links_report_kernel_drops(tmp_path):
+    """`cosim sitl`'s vehicle (the stack in the master's process on UDP links): its stats,
+    read as the run closes its links, say what the GCS socket's full buffer dropped."""
+    import socket
+    from pathlib import Path
+
+    from cosim.outputs.tlog import Tlog
+    from cosim.scenario.parse import load_scenario
+    from cosim.sim.onboard import OnboardHandle
+    from cosim.sim.options import RunOptions
+    from mav.hil import HilSimulatorCodec
+    from mav.links import UdpLink
+
+    sc = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "mambo_hover.toml")
+    sinks = {name: UdpLink() for name in ("api", "gcs")}
+    ext = {name: (("127.0.0.1", 0), link.local_address) for name, link in sinks.items()}
+    h = OnboardHandle(sc, RunOptions(external_links=ext, sitl=True), Tlog(tmp_path / "t.tlog"),
+                      tmp_path)
+    codec = HilSimulatorCodec()
+    meas = (sc.start.n, sc.start.e, 0.0, 1.0) + (0.0,) * 9
+    hb = wire.send_msg(M.MAVLink(None, 255, 190), M.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+    flood = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    n = 30_000
+    try:
+        for _ in range(n):
+            flood.sendto(hb, h.bound["gcs"])
+        for k in range(100):                    # 256 a tick: everything queued is handled
+            h.exchange(codec.encode_odometry(k * 5000, meas))
+    finally:
+        flood.close()
+        h.close()
+        for link in sinks.values():
+            link.close()
+    st = h.stats()
+    assert st["dropped_kernel_gcs"] > 0 and st["rx_gcs"] + st["dropped_kernel_gcs"] == n
+    assert st["dropped_kernel_api"] == 0 and "dropped_kernel_hil" not in st   # HIL: in memory
 
 
 @pytest.mark.slow

@@ -188,6 +188,8 @@ class OnboardHandle:
         return dict(self.proc.stats)
 
     def close(self) -> None:
+        if self.proc is None and self._own:   # cosim sitl's UDP links, in this process:
+            self.onboard.count_kernel_drops()  # what their full buffers shed (SIL: at exit)
         for link in (self.hil, self.api, self.gcs, *self._own):
             try:
                 link.close()

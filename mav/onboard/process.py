@@ -196,6 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+        onboard.count_kernel_drops()      # what the sockets' full buffers shed, once
         for link in (hil, api, gcs):
             link.close()
         st = {k: v for k, v in onboard.stats.items() if v}

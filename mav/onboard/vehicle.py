@@ -234,6 +234,23 @@ class Onboard:
             ch.mav.signing.stream_timestamps = seen
         return new
 
+    def count_kernel_drops(self) -> dict[str, int]:
+        """Set `stats['dropped_kernel_<link>']` for each UDP link: datagrams the kernel
+        dropped since the socket was opened because its receive buffer was full (a flood
+        faster than the vehicle drains; Linux's /proc/net/udp, `UdpLink.kernel_drops`). Not
+        counted per tick (it reads a /proc file): the SIL process calls it as it exits. The
+        counts are the sockets' totals, so calling it again replaces them. Links without the
+        counter (in memory, other OSes) are left out. Returns what it set."""
+        got = {}
+        for name, link in (("hil", self._hil), ("api", self._api.link), ("gcs", self._gcs.link)):
+            while not hasattr(link, "kernel_drops") and hasattr(link, "inner"):
+                link = link.inner                # a tap or fault wrapper around the socket
+            n = link.kernel_drops() if hasattr(link, "kernel_drops") else None
+            if n is not None:
+                got["dropped_kernel_" + name] = n
+        self.stats.update(got)
+        return got
+
     def load_params(self, path: str) -> None:
         """Apply a parameter file; unknown names are noted in `warnings`, bad values raise."""
         self.parameters.load_file(path)
