@@ -60,7 +60,8 @@ image is a 16-bit PNG of millimetres along the optical axis (0 = nothing seen)."
 Without a visual_path, `cosim run` teaches by rendering into the run folder first.""",
     "bench": """examples:
   cosim bench                   full measurement (a few minutes), figures + runs/bench.json
-  cosim bench --quick           a short smoke run""",
+  cosim bench --quick           a short smoke run
+  cosim bench --flood           only SIL under a UDP flood (about a minute)""",
 }
 
 EPILOG = """examples:
@@ -182,6 +183,9 @@ def _parser() -> argparse.ArgumentParser:
     b = add("bench", help="measure the speed of every part")
     b.add_argument("--quick", action="store_true", help="fewer repeats (a smoke test)")
     b.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    b.add_argument("--flood", action="store_true",
+                   help="only the flood figure: the seed mission in SIL without and with "
+                        "70k datagrams/s on the vehicle's GCS port")
     return p
 
 
@@ -270,7 +274,7 @@ def _dispatch(args) -> int:
         if args.json is not None and args.json.is_dir():
             raise ScenarioError("--json", str(args.json), "a file path (this is a folder)")
 
-        return bench_main(quick=args.quick, json_path=args.json)
+        return bench_main(quick=args.quick, json_path=args.json, flood_only=args.flood)
     raise AssertionError(args.cmd)
 
 

@@ -30,7 +30,7 @@ def test_bench_quick_reports_every_figure(tmp_path):
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
     expected = ["plant_step", "controller_update", "udp_hil_roundtrip", "render", "ips",
-                "mission_mil", "mission_sil", "vision"]
+                "mission_mil", "mission_sil", "vision", "flood"]
     for key in expected:
         assert key in res, key
     figs = dict(_figures(res))
@@ -59,5 +59,6 @@ def test_bench_quick_reports_every_figure(tmp_path):
     assert floor["total"] < b["loop_us_per_tick"]
     # the report names every figure
     for label in ("plant step", "render 160x120 frame", "seed mission MIL (tick loop)",
-                  "seed mission SIL (end to end)", "MIL tick breakdown", "floor:"):
+                  "seed mission SIL (end to end)", "MIL tick breakdown", "floor:",
+                  "flood on the vehicle's gcs port"):
         assert label in r.stdout, label

@@ -18,8 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from cosim.studies.bench_common import ROOT, SEED, _per_call_us, _stat  # noqa: F401
+from cosim.studies.bench_flood import bench_flood, format_flood
 from cosim.studies.bench_tick import bench_tick_breakdown, floor_estimate
 from mav import fastpath, reference
+
+QUICK_FLOOD = {"t_final_s": 5.0, "flood_wall_s": 2.0, "realtime_s": 1.0}   # --quick: short
 
 
 def machine() -> dict[str, Any]:
@@ -264,6 +267,8 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["sil_over_mil_time"] = res["mission_mil"]["median"] / res["mission_sil"]["median"]
     res["mil_tick_breakdown"] = bench_tick_breakdown()
     res["floor_us_per_tick"] = floor_estimate(res)
+    # issue 14 item 9: SIL under a UDP flood, lockstep and real time (cosim/studies/bench_flood)
+    res["flood"] = bench_flood(**(QUICK_FLOOD if quick else {}))
     return res
 
 
@@ -334,13 +339,21 @@ def format_report(res: dict[str, Any]) -> str:
         if name != "max real-time factor":
             lines.append(f"  {name:<48s}{us:>8.2f}")
     lines.append(f"  => at best {f['max real-time factor']:.0f}x real time with no glue at all")
+    lines += format_flood(res["flood"])
     return "\n".join(lines)
 
 
-def main(quick: bool = False, json_path: Path | None = None) -> int:
-    res = run(quick)
-    print(format_report(res))
-    path = json_path or Path("runs") / "bench.json"
+def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = False) -> int:
+    if flood_only:     # the flood figure alone (issue 14 item 9)
+        res = {"machine": machine(), "quick": quick,
+               "flood": bench_flood(**(QUICK_FLOOD if quick else {}))}
+        m = res["machine"]
+        print(f"machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, {m['system']}")
+        print("\n".join(format_flood(res["flood"])))
+    else:
+        res = run(quick)
+        print(format_report(res))
+    path = json_path or Path("runs") / ("bench_flood.json" if flood_only else "bench.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(res, indent=2))
     print(f"figures written to {path}")
