@@ -61,7 +61,7 @@ Without a visual_path, `cosim run` teaches by rendering into the run folder firs
     "bench": """examples:
   cosim bench                   full measurement (a few minutes), figures + runs/bench.json
   cosim bench --quick           a short smoke run
-  cosim bench --flood           only SIL under a UDP flood (about a minute)""",
+  cosim bench --flood           only SIL under a UDP flood (1-2 minutes)""",
 }
 
 EPILOG = """examples:
