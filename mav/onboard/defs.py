@@ -80,7 +80,12 @@ LEG_SETTLE_US = 5_000_000   # us, a leg counts as reached this long after its re
 FORCE_DISARM_MAGIC = 21196
 REJECT_TEXT_EVERY_US = 1_000_000   # STATUSTEXT about rejected input at most this often per kind
 PARAM_BURST = 16            # PARAM_VALUEs per link per tick while a list is being sent
-DRAIN_MAX = 256             # datagrams handled per link per tick (bounded work under flood)
+# datagrams handled per link per tick (bounded work under flood; the rest waits in the socket
+# buffer and what overflows it is dropped by the kernel, counted as dropped_kernel_<link>).
+# 32 a tick is 6400 datagrams/s a link, far above any client's traffic, and at ~10 us each
+# (garbage, frames for other systems) 0.3 ms of a 5 ms tick; 256 made a flooded tick 9-12 ms
+# on a 2-core host (cosim bench --flood, README *Performance*)
+DRAIN_MAX = 32
 FRAMES_MAX = 32             # frames handled per datagram
 
 SIGNING_EPOCH_2024 = 1704067200.0   # s, Unix time of 2024-01-01: signing timestamps start here

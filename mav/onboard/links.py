@@ -27,6 +27,8 @@ from mav.onboard.defs import (
 )
 from mav.onboard.status import VehicleStatus
 
+_MAGIC2, _MAGIC1 = bytes([wire.MAGIC_V2]), bytes([wire.MAGIC_V1])
+
 
 class Stream:
     """One periodic telemetry message on one link."""
@@ -195,10 +197,9 @@ class LinkInput:
             if end < 0:
                 # garbage or truncated: count once and resync at the next magic byte
                 st[bad_key] += 1
-                j = i + 1
-                while j < n and data[j] != wire.MAGIC_V2 and data[j] != wire.MAGIC_V1:
-                    j += 1
-                i = j
+                a = data.find(_MAGIC2, i + 1)
+                b = data.find(_MAGIC1, i + 1)
+                i = n if a < 0 and b < 0 else (a if b < 0 or 0 <= a < b else b)
                 continue
             frames += 1
             msgid = wire.msgid_of(data, i)
