@@ -335,3 +335,4 @@ def test_compiled_setpoint_path_equals_the_python_one():
         assert pack(*fa) == pack(*fb), (k, data.hex())
         assert a.of_last_us == b.of_last_us and a.stats == b.stats, k
     assert fast.ob.stats["setpoints"] > 1000 and fast.ob.stats["rejected_setpoints"] > 500
+

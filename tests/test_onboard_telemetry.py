@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import random
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
@@ -246,3 +247,55 @@ def test_sys_status_geofence_bits_do_not_read_as_a_breach():
             assert ss.onboard_control_sensors_present & bit == 0
             assert ss.onboard_control_sensors_enabled & bit == 0
             assert ss.onboard_control_sensors_health & M.MAV_SYS_STATUS_PREARM_CHECK
+
+
+def test_stream_schedule_emits_as_the_plain_loop():
+    """Telemetry streams come off a heap (Telemetry._emit_due): the same streams at the same
+    ticks, in list order, as the loop over every stream it replaced, under random rate
+    changes (SET_MESSAGE_INTERVAL and REQUEST_DATA_STREAM set interval and next time, then
+    recompute_due)."""
+    from mav.onboard.links import Chan, Stream
+    from mav.onboard.telemetry import Telemetry
+
+    def plain_loop(ch, t, log):          # the reference: what publish did before the heap
+        due = 1 << 62
+        for s in ch.streams:
+            iv = s.interval_us
+            if iv > 0:
+                nxt = s.next_us
+                if t >= nxt:
+                    s.emit(ch)
+                    nxt += iv
+                    if nxt <= t:
+                        nxt = t + iv
+                    s.next_us = nxt
+                if nxt < due:
+                    due = nxt
+        ch.next_due = due
+
+    rng = random.Random(7)
+    rates = [5000, 20000, 20000, 100000, 200000, 1000000, 2000000, -1, 333333, 7000]
+    logs: dict[str, list] = {"heap": [], "loop": []}
+    chans = {}
+    for name in logs:
+        ch = Chan(name, None, None, {})
+        for i, iv in enumerate(rates):
+            ch.streams.append(Stream(i, iv, lambda c, i=i, log=logs[name]: log.append(i)))
+        chans[name] = ch
+    for k in range(40000):
+        t = k * 5000
+        if rng.random() < 0.003:          # a client changes a rate
+            i, iv = rng.randrange(len(rates)), rng.choice(rates + [1, 12345, 5000000])
+            for ch in chans.values():
+                ch.streams[i].interval_us, ch.streams[i].next_us = iv, t
+                ch.recompute_due()
+        for name, ch in chans.items():
+            if t >= ch.next_due:
+                logs[name].append(("t", t))
+                if name == "heap":
+                    Telemetry._emit_due(ch, t)
+                else:
+                    plain_loop(ch, t, logs[name])
+        a, b = chans["heap"], chans["loop"]
+        assert a.next_due == b.next_due, t
+    assert logs["heap"] == logs["loop"] and len(logs["heap"]) > 50000

@@ -8,6 +8,7 @@ and never delays the HIL answer.
 
 from __future__ import annotations
 
+import heapq
 import sys
 import traceback
 from collections.abc import Callable
@@ -47,7 +48,7 @@ class Chan:
     """One MAVLink link of the vehicle (api or gcs): codec state, streams, pending params."""
 
     __slots__ = ("name", "link", "mav", "streams", "by_msgid", "next_due", "param_queue",
-                 "signed", "peer", "stats", "tx_key", "rx_key", "bad_key")
+                 "signed", "peer", "stats", "tx_key", "rx_key", "bad_key", "schedule")
 
     def __init__(self, name: str, link, mav, stats: dict[str, int]) -> None:
         self.name = name
@@ -60,6 +61,9 @@ class Chan:
         self.streams: list[Stream] = []
         self.by_msgid: dict[int, Stream] = {}
         self.next_due = 0
+        # (next_us, index in streams) of the streams that are on, a heap: the streams due
+        # at a tick come off its top (Telemetry.publish); None: to be built
+        self.schedule: list[tuple[int, int]] | None = None
         self.param_queue: list[int] = []
         self.signed = False
         self.peer: tuple[int, int] | None = None   # (sysid, compid) of the last sender
@@ -69,8 +73,11 @@ class Chan:
         self.link.send(data)
 
     def recompute_due(self) -> None:
-        due = [s.next_us for s in self.streams if s.interval_us > 0]
-        self.next_due = min(due) if due else 1 << 62
+        """After a stream's interval or next time changed (or streams were added)."""
+        sched = [(s.next_us, i) for i, s in enumerate(self.streams) if s.interval_us > 0]
+        heapq.heapify(sched)
+        self.schedule = sched
+        self.next_due = sched[0][0] if sched else 1 << 62
 
 
 class Outbox:

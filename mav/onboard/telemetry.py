@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from heapq import heappop, heappush
 
 from mav import wire
 from mav.onboard.commander import Commander
@@ -122,20 +123,7 @@ class Telemetry:
             if vs.mission_now:
                 self.mission.emit_current(ch)
             if t >= ch.next_due:
-                due = 1 << 62
-                for s in ch.streams:
-                    iv = s.interval_us
-                    if iv > 0:
-                        nxt = s.next_us
-                        if t >= nxt:
-                            s.emit(ch)
-                            nxt += iv
-                            if nxt <= t:
-                                nxt = t + iv
-                            s.next_us = nxt
-                        if nxt < due:
-                            due = nxt
-                ch.next_due = due
+                self._emit_due(ch, t)
             q = ch.param_queue
             if q:
                 n = len(self.params.table)
@@ -144,6 +132,31 @@ class Telemetry:
                         self.params.send_value(ch, idx)
                 del q[:PARAM_BURST]
         vs.hb_now = vs.ext_now = vs.home_now = vs.mission_now = False
+
+    @staticmethod
+    def _emit_due(ch: Chan, t: int) -> None:
+        """The streams due at t, in the order of `ch.streams`; each then set to its next
+        time (one interval on, or one interval from now if it fell behind)."""
+        sched = ch.schedule
+        if sched is None:
+            ch.recompute_due()
+            sched = ch.schedule
+        due = []
+        while sched and sched[0][0] <= t:
+            due.append(heappop(sched)[1])
+        if len(due) > 1:
+            due.sort()
+        streams = ch.streams
+        for i in due:
+            s = streams[i]
+            s.emit(ch)
+            iv = s.interval_us
+            nxt = s.next_us + iv
+            if nxt <= t:
+                nxt = t + iv
+            s.next_us = nxt
+            heappush(sched, (nxt, i))
+        ch.next_due = sched[0][0] if sched else 1 << 62
 
     # ------------------------------------------------------------------ the messages
     def _time_boot_ms(self) -> int:
