@@ -55,6 +55,37 @@ class MemoryLink:
         self._inbox.clear()
 
 
+class SpinPolicy:
+    """Spin-wait only while it pays (lockstep HIL between two processes, wall time only).
+
+    Spinning for the other process's answer saves a sleep and a wake-up per tick when both
+    run on CPUs of their own; when the CPUs are shared (other jobs, a small machine) the spin
+    takes time from the very process it waits for. After each wait, `record(hit)` says whether
+    the answer came within the spin; over each window of `window` waits, if fewer than half
+    were hits, spinning stops for `backoff` waits and is then tried again. `ns` is the spin to
+    use now (0: do not spin)."""
+
+    __slots__ = ("spin_ns", "ns", "window", "backoff", "_n", "_hits", "_off")
+
+    def __init__(self, spin_ns: int, window: int = 200, backoff: int = 4000) -> None:
+        self.spin_ns = self.ns = max(0, int(spin_ns))
+        self.window, self.backoff = window, backoff
+        self._n = self._hits = self._off = 0
+
+    def record(self, hit: bool) -> None:
+        if self._off:                      # not spinning: count down to the next try
+            self._off -= 1
+            if not self._off:
+                self.ns = self.spin_ns
+            return
+        self._n += 1
+        self._hits += hit
+        if self._n >= self.window:
+            if 2 * self._hits < self._n and self.spin_ns:
+                self.ns, self._off = 0, self.backoff
+            self._n = self._hits = 0
+
+
 class UdpLink:
     """A non-blocking UDP endpoint.
 

@@ -336,3 +336,30 @@ def test_compiled_setpoint_path_equals_the_python_one():
         assert a.of_last_us == b.of_last_us and a.stats == b.stats, k
     assert fast.ob.stats["setpoints"] > 1000 and fast.ob.stats["rejected_setpoints"] > 500
 
+
+
+def test_spin_policy_stops_spinning_while_it_does_not_pay():
+    """SIL waits: spinning continues while most answers come within it; a window of mostly
+    misses (CPUs shared with other jobs) stops it for `backoff` waits, then it is tried
+    again; no spin asked, none ever."""
+    from mav.links import SpinPolicy
+
+    sp = SpinPolicy(200_000, window=10, backoff=30)
+    for _ in range(50):
+        sp.record(True)
+    assert sp.ns == 200_000
+    for k in range(10):                  # 4 hits of 10: under half
+        sp.record(k < 4)
+    assert sp.ns == 0
+    for _ in range(29):
+        sp.record(False)
+    assert sp.ns == 0
+    sp.record(False)
+    assert sp.ns == 200_000              # tried again
+    for k in range(10):                  # 5 of 10: keeps spinning
+        sp.record(k % 2 == 0)
+    assert sp.ns == 200_000
+    off = SpinPolicy(0)
+    for _ in range(500):
+        off.record(False)
+    assert off.ns == 0

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ from cosim.plant.vehicles import get_vehicle
 from cosim.scenario.records import Scenario
 from cosim.sim.options import RunOptions
 from mav.airframe import Airframe
-from mav.links import MemoryLink, UdpLink, UnixLink
+from mav.links import MemoryLink, SpinPolicy, UdpLink, UnixLink
 
 
 class OnboardHandle:
@@ -134,7 +135,7 @@ class OnboardHandle:
             if ports[name]:           # UDP; a Unix-domain HIL link already has its peer
                 link.remote = ("127.0.0.1", ports[name])
             link._fixed_remote = True
-        self._spin_ns = round(1000 * spin_us)
+        self._spin = SpinPolicy(round(1000 * spin_us))
         self._hil_timeout_s = opts.hil_timeout_s
         self.hil = hil
         self.api = TapLink(api, tlog)
@@ -157,7 +158,13 @@ class OnboardHandle:
                 raise ComponentError("onboard", "no HIL_ACTUATOR_CONTROLS answer")
             return ans
         try:
-            ans = self.hil.recv_spin(self._spin_ns, self._hil_timeout_s)
+            spin = self._spin
+            if spin.spin_ns:
+                t0 = time.perf_counter_ns()
+                ans = self.hil.recv_spin(spin.ns, self._hil_timeout_s)
+                spin.record(time.perf_counter_ns() - t0 <= spin.ns)
+            else:
+                ans = self.hil.recv_spin(0, self._hil_timeout_s)
         except OSError:
             ans = None
         if ans is None:

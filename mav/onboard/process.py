@@ -103,7 +103,7 @@ def _vehicle_with_overrides(parser, name: str, items: list[str]) -> Airframe:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of `python -m mav.onboard` and `cosim onboard`. Returns the exit code."""
-    from mav.links import UdpLink, UnixLink
+    from mav.links import SpinPolicy, UdpLink, UnixLink
 
     parser = _build_parser()
     args = parser.parse_args(argv)
@@ -166,18 +166,21 @@ def main(argv: list[str] | None = None) -> int:
     poller.register(hil.sock.fileno(), select.POLLIN)
     wait = poller.poll
     last_rx = time.monotonic()
-    spin_ns = round(1000 * args.hil_spin_us) if args.hil_spin_us > 0 else 0
+    spin = SpinPolicy(round(1000 * args.hil_spin_us) if args.hil_spin_us > 0 else 0)
     clock = time.perf_counter_ns
     try:
         while not stop:
-            if spin_ns:     # poll for the next tick's datagram before sleeping
-                deadline = clock() + spin_ns
+            if spin.ns:     # poll for the next tick's datagram before sleeping
+                deadline = clock() + spin.ns
                 got = onboard.poll()
                 while not got and clock() <= deadline:
                     got = onboard.poll()
+                spin.record(got)
                 if got:
                     last_rx = time.monotonic()
                     continue
+            elif spin.spin_ns:
+                spin.record(False)     # backing off: counts down to the next try
             try:
                 r = wait(100)
             except InterruptedError:
