@@ -162,8 +162,10 @@ def test_fast_renderer_matches_the_exact_ray_caster(view):
     # depth at the pixel centres: one ray per pixel
     depth = ReferenceRenderer(w, half(supersample=1)).render_with_depth((n, e, d), qq)[1]
     diff = np.abs(a.astype(int) - b.astype(int))
-    assert diff.mean() < 7.0
-    assert (diff.max(axis=2) > 48).mean() < 0.05
+    # measured at most 5.16 and 0.029 over the views (with the poster frames warped through
+    # their bounding boxes: 5.57 and 0.034; that defect is caught by the test below)
+    assert diff.mean() < 6.0
+    assert (diff.max(axis=2) > 48).mean() < 0.035
     assert not (a.sum(axis=2) == 0).any()          # inside a room: no background anywhere
     # depth: same surfaces, same distances (away from silhouettes)
     fd = cam.last_depth
@@ -171,6 +173,28 @@ def test_fast_renderer_matches_the_exact_ray_caster(view):
     assert ok.mean() > 0.99
     rel = np.abs(fd[ok] - depth[ok]) / depth[ok]
     assert np.median(rel) < 1e-3 and (rel > 0.05).mean() < 0.02
+
+
+@pytest.mark.parametrize("pose", [(3.0, 1.5, -1.6, -50.0), (3.8, -1.0, -2.0, 60.0)])
+def test_a_poster_frame_seen_obliquely_covers_its_polygon_only(pose):
+    """A one-colour frame (no picture: frame_m > half its height) is its polygon, as the ray
+    caster sees it, not the corners of its on-image bounding box: a 4x4-texel texture warped
+    through that box painted the wall there (frame pixels 1.2x / 2.1x the ray caster's,
+    mean difference 1.3 / 2.6 on these views; now ~1.04x / 1.03x and 0.2 / 0.1, the
+    polygon's edge pixels)."""
+    frame = (200, 40, 200)
+    w = room(room={"walls": {"kind": "plain", "rgb": [200, 190, 180]}},
+             poster=[{"name": "p", "wall": "north", "at": 0.0, "z": 1.3, "size": [1.0, 0.7],
+                      "frame_rgb": list(frame), "frame_m": 0.4}])
+    cfg = half()
+    n, e, d, yaw = pose
+    qq = q(yaw_deg=yaw, roll_deg=3, pitch_deg=-2)
+    a = FrontCamera(w, cfg).render((n, e, d), qq)
+    b = ReferenceRenderer(w, cfg).render((n, e, d), qq)
+    fa, fb = (np.abs(x.astype(int) - frame).max(axis=2) <= 20 for x in (a, b))
+    assert fb.sum() > 3000                                   # the frame is well in view
+    assert (fa ^ fb).sum() < 0.06 * fb.sum()                 # its edge pixels only
+    assert np.abs(a.astype(int) - b.astype(int)).mean() < 0.5
 
 
 def test_no_shimmer_when_the_vehicle_moves_one_millimetre():

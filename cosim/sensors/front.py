@@ -16,10 +16,12 @@ Renderers (``cosim/world/surfaces.py`` gives the scene as textured convex planar
   against the near plane (``near_m``) and the image borders in camera space (a wall 5 cm away
   is just a clipped polygon), and one ``cv2.warpPerspective`` of the polygon's bounding box
   (ROI) from the tile's texture slice through the plane-induced homography: straight into
-  the frame for the room and posters (ROI pixels that map outside the slice, i.e. the tile
-  plus a 2-texel apron, are left alone), through a mask of the projected polygon where the
-  edges must be exact (solids, near-clipped tiles); a one-colour solid face is that polygon
-  filled with its colour (the same pixels as warping a constant). Visibility by the
+  the frame for the room and the posters' pictures (ROI pixels that map outside the slice,
+  i.e. the tile plus a 2-texel apron, are left alone), through a mask of the projected
+  polygon where the edges must be exact (solids, near-clipped tiles). A one-colour surface
+  (a column, a poster frame, a plain wall) is that polygon filled with its colour (the same
+  pixels as warping a constant through the mask; its few texels span more than the surface,
+  so a warp through the ROI would paint past its edges). Visibility by the
   painter's order: the room (convex, seen from inside: no overlaps), then posters, then the
   solids far to near (each is convex and culled, so its faces do not overlap).
   Anti-aliasing: each surface has a texture pyramid (``cv2.pyrDown``) and each tile (at most
@@ -207,7 +209,10 @@ class FrontCamera:
         x0, y0, x1, y1 = box
         w, h = x1 - x0, y1 - y0
         roi = frame[y0:y1, x0:x1]
-        exact_edges = near_clipped or tile.surface.group >= 2
+        # masked or filled: solids, near-clipped tiles and one-colour surfaces (a poster
+        # frame's 4x4-texel slice reaches far past it: warped through the ROI, its colour
+        # would cover the wall in the ROI's corners)
+        exact_edges = near_clipped or tile.surface.group >= 2 or tile.plain is not None
         mask = pts = None
         if exact_edges or inv_z is not None:
             k, uv = poly
