@@ -146,9 +146,12 @@ def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
     if addr is None:
         n = workers or os.cpu_count() or 1
         # worker-saturation 1.0: a worker holds only the task it runs (none queued behind
-        # it), so a job that kills its worker does not take queued innocent jobs with it
+        # it), so a job that kills its worker does not take queued innocent jobs with it.
+        # No statistical profiler in the workers: it feeds the dashboard (none here) and keeps
+        # a call tree per second of work, 1000 of them, tens of MB per worker (issue 15).
         with dask.config.set({"distributed.scheduler.allowed-failures": 1,
-                              "distributed.scheduler.worker-saturation": 1.0}):
+                              "distributed.scheduler.worker-saturation": 1.0,
+                              "distributed.worker.profile.enabled": False}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                    dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
@@ -160,14 +163,20 @@ def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
                                 ) from None
     try:
         check_workers(client)
-        futs = client.map(fn, jobs, key=[f"cosim-run-{j.run_id}-{id(jobs)}" for j in jobs],
-                          retries=1, pure=False)
-        by_key = {f.key: j for f, j in zip(futs, jobs, strict=True)}
-        for f in as_completed(futs):
+        keys = [f"cosim-run-{j.run_id}-{id(jobs)}" for j in jobs]
+        by_key = dict(zip(keys, jobs, strict=True))
+        # no list of the futures: a future held by the client keeps its result (and its task
+        # record) in the worker's memory until the study ends, a few tens of KB per run
+        # (issue 15). Each one is released as soon as its row is taken.
+        for f in as_completed(client.map(fn, jobs, key=keys, retries=1, pure=False)):
+            job = by_key.pop(f.key)
             try:
-                yield f.result()
+                row = f.result()
             except Exception as exc:  # the worker died twice (KilledWorker) or the task broke
-                yield lost_row(by_key[f.key], exc)
+                row = lost_row(job, exc)
+            f.release()
+            del f
+            yield row
     finally:
         client.close()
         if cluster is not None:

@@ -1,6 +1,7 @@
 """Study throughput on this machine: missions per minute by executor and worker count.
 
     python -m cosim.studies.throughput [--runs 40] [--t-final 10]
+    python -m cosim.studies.throughput --memory [--runs 1000] [--t-final 10] [--workers 1]
 
 The same small Monte Carlo (the seed mission cut to `--t-final` s, wind and odometry noise
 drawn) runs serially, on the local process pool and on a local Dask cluster with 1 and 2
@@ -8,6 +9,10 @@ workers. Wall times include starting the pool or the cluster. Per-run overhead o
 (its wall time - the sum of the runs' own wall times / workers) / runs; Dask vs the pool =
 (Dask's wall time - the pool's) / runs, with the same number of workers. Run it on a quiet
 machine; it prints a Markdown table (and JSON with --json).
+
+`--memory`: one study on a local Dask cluster; the resident memory of each worker after its
+runs 1, 100, 500 and 1000 (from `runs.log`) and its growth per run after the 100th: flat
+memory per worker is issue 15's target.
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "mambo_seed_track
 VARY = ["wind.n_mps=uniform(0,0.3)", "sensors.odometry_noise.pos_std_m=uniform(0,0.005)"]
 
 
-def measure(executor: str, workers: int, runs: int, t_final: float) -> dict:
+def _study(executor: str, workers: int, runs: int, t_final: float):
+    """The small Monte Carlo; returns its stats and the lines of its runs.log."""
     sc = load_scenario(SCENARIO)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
@@ -37,7 +43,12 @@ def measure(executor: str, workers: int, runs: int, t_final: float) -> dict:
         table = ResultsTable(out / "results.csv", [j for j, _ in jobs[0].params])
         stats = run_study(jobs, table, executor=executor, workers=workers, progress=False,
                           log=out / "runs.log")
-        run_s = sum(json.loads(line)["wall_s"] for line in open(out / "runs.log"))
+        return stats, [json.loads(line) for line in open(out / "runs.log")]
+
+
+def measure(executor: str, workers: int, runs: int, t_final: float) -> dict:
+    stats, log = _study(executor, workers, runs, t_final)
+    run_s = sum(r["wall_s"] for r in log)
     ideal = run_s / workers
     return {"executor": executor, "workers": workers, "runs": runs, "failed": stats.failed,
             "wall_s": stats.wall_s, "missions_per_min": 60 * runs / stats.wall_s,
@@ -49,7 +60,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--runs", type=int, default=40)
     p.add_argument("--t-final", type=float, default=10.0, help="s of flight per mission")
     p.add_argument("--json", type=Path)
+    p.add_argument("--memory", action="store_true",
+                   help="resident memory per Dask worker over one study instead")
+    p.add_argument("--workers", type=int, default=1, help="with --memory")
     a = p.parse_args(argv)
+    if a.memory:
+        return memory(a.runs, a.t_final, a.workers)
     cases = [("serial", 1), ("local", 1), ("dask", 1), ("local", 2), ("dask", 2)]
     res = [measure(ex, w, a.runs, a.t_final) for ex, w in cases]
     base = res[0]["missions_per_min"]
@@ -70,6 +86,23 @@ def main(argv: list[str] | None = None) -> int:
     print()
     if a.json:
         a.json.write_text(json.dumps(res, indent=2) + "\n")
+    return 0
+
+
+def memory(runs: int, t_final: float, workers: int) -> int:
+    stats, log = _study("dask", workers, runs, t_final)
+    by_worker: dict[str, list[float]] = {}
+    for r in log:                       # finishing order = each worker's order
+        by_worker.setdefault(r["worker"], []).append(r["rss_mb"])
+    print(f"{runs} runs of the seed mission cut to {t_final:g} s on {workers} Dask worker(s), "
+          f"{stats.wall_s:.0f} s; resident memory of each worker after its n-th run (MB)\n")
+    print("| worker | runs | n=1 | n=100 | n=500 | n=1000 | last | KB/run after n=100 |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for w, rss in by_worker.items():
+        at = [f"{rss[n - 1]:.1f}" if n <= len(rss) else "" for n in (1, 100, 500, 1000)]
+        slope = (f"{(rss[-1] - rss[99]) * 1000 / (len(rss) - 100):.1f}" if len(rss) > 100
+                 else "")
+        print(f"| {w} | {len(rss)} | {' | '.join(at)} | {rss[-1]:.1f} | {slope} |")
     return 0
 
 
