@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import hashlib
 import io
 import os
@@ -83,7 +84,10 @@ def _gcc() -> str:
     return gcc
 
 
+@functools.cache
 def _gcc_version() -> str:
+    """gcc's version line, asked once per process (every Plant checks the build: a study's
+    worker would otherwise start `gcc --version` for each run)."""
     out = subprocess.run([_gcc(), "--version"], capture_output=True, text=True, check=False)
     return out.stdout.splitlines()[0] if out.stdout else ""
 
