@@ -96,7 +96,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--mode", choices=("mil", "sil"), default="mil")
     r.add_argument("--hil-transport", choices=("udp", "unix"), default="udp",
                    help="SIL: the simulator link between the processes (unix: a Unix-domain "
-                        "socket, cheaper; the api and gcs links stay UDP; same results)")
+                        "socket; the api and gcs links stay UDP; same results)")
     r.add_argument("--realtime", action="store_true", help="pace against the wall clock")
     r.add_argument("--speed", type=float, default=1.0, help="real-time speed factor (--realtime)")
     r.add_argument("--out", type=Path, help="run folder (default runs/<scenario>-<mode>)")

@@ -25,8 +25,9 @@ class RunOptions:
     # Results do not depend on it (lockstep), only the wall time and CPU use do.
     hil_spin_us: float | None = None
     # SIL: the simulator (HIL) link between the two processes: "udp" (loopback, as any MAVLink
-    # link) or "unix" (a Unix-domain datagram socket: cheaper per datagram; the api and gcs
-    # links stay UDP, as PX4 SITL's simulator link is TCP while its MAVLink links are UDP).
+    # link) or "unix" (a Unix-domain datagram socket; measured no faster in the seed mission).
+    # The api and gcs links stay UDP (as PX4 SITL's simulator link is TCP while its MAVLink
+    # links are UDP).
     # Results do not depend on it.
     hil_transport: str = "udp"
     app_override: Any = None          # an app object to use instead of the scenario's
