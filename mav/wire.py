@@ -87,6 +87,13 @@ GLOBAL_POSITION_INT = FastMsg(mavlink2.MAVLink_global_position_int_message)
 EXTENDED_SYS_STATE = FastMsg(mavlink2.MAVLink_extended_sys_state_message)
 POSITION_TARGET_LOCAL_NED = FastMsg(mavlink2.MAVLink_position_target_local_ned_message)
 VFR_HUD = FastMsg(mavlink2.MAVLink_vfr_hud_message)
+# telemetry streamed at <= 1 Hz by default, fast-packed too (pymavlink's message objects cost
+# 5-20 us each to build and pack; these layouts give the same bytes, tests/test_onboard_wire.py)
+BATTERY_STATUS = FastMsg(mavlink2.MAVLink_battery_status_message)
+GPS_RAW_INT = FastMsg(mavlink2.MAVLink_gps_raw_int_message)
+HOME_POSITION = FastMsg(mavlink2.MAVLink_home_position_message)
+HIGHRES_IMU = FastMsg(mavlink2.MAVLink_highres_imu_message)
+MISSION_CURRENT = FastMsg(mavlink2.MAVLink_mission_current_message)
 
 
 class _ProtocolVersionLayout:
@@ -112,7 +119,8 @@ FAST_BY_ID: dict[int, FastMsg] = {
     m.id: m
     for m in (ODOMETRY, HIL_ACTUATOR_CONTROLS, SET_POSITION_TARGET_LOCAL_NED, LOCAL_POSITION_NED,
               ATTITUDE, HEARTBEAT, SYS_STATUS, GLOBAL_POSITION_INT, EXTENDED_SYS_STATE,
-              POSITION_TARGET_LOCAL_NED, VFR_HUD)
+              POSITION_TARGET_LOCAL_NED, VFR_HUD, BATTERY_STATUS, GPS_RAW_INT, HOME_POSITION,
+              HIGHRES_IMU, MISSION_CURRENT)
 }
 
 # Field positions in the decoded (wire-order, arrays flattened) tuples.

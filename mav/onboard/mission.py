@@ -298,9 +298,8 @@ class Mission:
     # ------------------------------------------------------------------ telemetry
     def emit_current(self, ch: Chan) -> None:
         n = len(self.items)
-        ch.send(wire.send_msg(ch.mav, M.MAVLink_mission_current_message(
-            self.current if n else 0, n if n else 0xFFFF, self.state,
-            1 if self.vs.mode == MISSION else 0)))
+        ch.send(wire.pack(ch.mav, wire.MISSION_CURRENT, self.current if n else 0,
+                          n if n else 0xFFFF, self.state, 1 if self.vs.mode == MISSION else 0))
 
     def reached(self, seq: int) -> None:
         for ch in self.out.chans:

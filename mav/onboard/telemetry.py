@@ -49,6 +49,10 @@ GPS_COG_MIN_MPS = 0.2                # m/s: slower than this the course is unkno
 # PROTOCOL_VERSION: MAVLink 2 spoken, MAVLink 1 understood; no spec/library git hashes known
 PROTO_VERSION, PROTO_MIN, PROTO_MAX = 200, 100, 200
 _NO_HASH = (0,) * 16
+# BATTERY_STATUS: cells 2..10 not reported; charge state by the number of warnings given
+_NO_CELLS = (65535,) * 9
+_CHARGE_STATES = (M.MAV_BATTERY_CHARGE_STATE_OK, M.MAV_BATTERY_CHARGE_STATE_LOW,
+                  M.MAV_BATTERY_CHARGE_STATE_CRITICAL, M.MAV_BATTERY_CHARGE_STATE_EMERGENCY)
 # HIGHRES_IMU: fields_updated bits of xacc..zgyro (the only fields filled in)
 IMU_ACC_GYRO_BITS = 0x3F
 
@@ -207,8 +211,9 @@ class Telemetry:
             return
         hx, hy, hz = home
         lat, lon, alt = self.geo.to_int(hx, hy, hz)
-        ch.send(wire.send_msg(ch.mav, M.MAVLink_home_position_message(
-            lat, lon, alt, hx, hy, hz, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, self.vs.t_us)))
+        # wire order: lat, lon, alt, x, y, z, q[4], approach x, y, z, time_usec
+        ch.send(wire.pack(ch.mav, wire.HOME_POSITION, lat, lon, alt, hx, hy, hz, 1.0, 0.0, 0.0,
+                          0.0, 0.0, 0.0, 0.0, self.vs.t_us))
 
     def emit_extended_sys_state(self, ch: Chan) -> None:
         ch.send(wire.pack(ch.mav, wire.EXTENDED_SYS_STATE, M.MAV_VTOL_STATE_UNDEFINED,
@@ -232,18 +237,18 @@ class Telemetry:
     def emit_battery_status(self, ch: Chan) -> None:
         vs = self.vs
         b = vs.battery
-        cells = [wire.clamp_int(b.voltage * 1000.0, 0, 65534)] + [65535] * 9
-        ch.send(wire.send_msg(ch.mav, M.MAVLink_battery_status_message(
-            0, M.MAV_BATTERY_FUNCTION_ALL, M.MAV_BATTERY_TYPE_LIPO, 32767, cells,
-            wire.clamp_int(b.current * 100.0, 0, 32767),
-            wire.clamp_int(b.consumed_mah, 0, (1 << 31) - 1),
-            wire.clamp_int(b.energy_j / 100.0, 0, (1 << 31) - 1),
-            wire.clamp_int(100.0 * b.remaining, 0, 100),
-            wire.clamp_int(b.time_remaining_s(), 0, (1 << 31) - 1),
-            (M.MAV_BATTERY_CHARGE_STATE_OK, M.MAV_BATTERY_CHARGE_STATE_LOW,
-             M.MAV_BATTERY_CHARGE_STATE_CRITICAL,
-             M.MAV_BATTERY_CHARGE_STATE_EMERGENCY)[min(vs.bat_warned, 3)],
-            [0, 0, 0, 0], 0, 0)))
+        ci = wire.clamp_int
+        cell_mv = ci(b.voltage * 1000.0, 0, 65534)
+        # wire order: current_consumed, energy_consumed, temperature, voltages[10],
+        # current_battery, id, battery_function, type, battery_remaining, time_remaining,
+        # charge_state, voltages_ext[4], mode, fault_bitmask
+        ch.send(wire.pack(
+            ch.mav, wire.BATTERY_STATUS, ci(b.consumed_mah, 0, (1 << 31) - 1),
+            ci(b.energy_j / 100.0, 0, (1 << 31) - 1), 32767, cell_mv, *_NO_CELLS,
+            ci(b.current * 100.0, 0, 32767), 0, M.MAV_BATTERY_FUNCTION_ALL,
+            M.MAV_BATTERY_TYPE_LIPO, ci(100.0 * b.remaining, 0, 100),
+            ci(b.time_remaining_s(), 0, (1 << 31) - 1), _CHARGE_STATES[min(vs.bat_warned, 3)],
+            0, 0, 0, 0, 0, 0))
 
     def emit_vfr_hud(self, ch: Chan) -> None:
         s = self.vs.state
@@ -274,10 +279,12 @@ class Telemetry:
         gs = math.hypot(s.vx, s.vy)
         cog = 65535 if gs < GPS_COG_MIN_MPS else wire.clamp_int(
             math.degrees(math.atan2(s.vy, s.vx)) % 360.0 * 100.0, 0, 35999)
-        ch.send(wire.send_msg(ch.mav, M.MAVLink_gps_raw_int_message(
-            self.vs.t_us, M.GPS_FIX_TYPE_3D_FIX, lat, lon, alt, GPS_EPH, GPS_EPV,
-            wire.clamp_int(gs * 100.0, 0, 65534), cog, GPS_SATS, alt, GPS_H_ACC_MM,
-            GPS_V_ACC_MM, GPS_VEL_ACC_MMPS, 0, 0)))
+        # wire order: time_usec, lat, lon, alt, eph, epv, vel, cog, fix_type, satellites,
+        # alt_ellipsoid, h_acc, v_acc, vel_acc, hdg_acc, yaw
+        ch.send(wire.pack(ch.mav, wire.GPS_RAW_INT, self.vs.t_us, lat, lon, alt, GPS_EPH,
+                          GPS_EPV, wire.clamp_int(gs * 100.0, 0, 65534), cog,
+                          M.GPS_FIX_TYPE_3D_FIX, GPS_SATS, alt, GPS_H_ACC_MM, GPS_V_ACC_MM,
+                          GPS_VEL_ACC_MMPS, 0, 0))
 
     def emit_odometry(self, ch: Chan) -> None:
         """ODOMETRY as PX4 streams its estimator output (ODOMETRY.hpp): pose in LOCAL_NED,
@@ -307,6 +314,5 @@ class Telemetry:
             ax = ay = az = 0.0
         # world -> body: rotate by the conjugate of the body -> world quaternion
         fx, fy, fz = rotate_body_to_world(s.qw, -s.qx, -s.qy, -s.qz, ax, ay, az - self.g_mps2)
-        ch.send(wire.send_msg(ch.mav, M.MAVLink_highres_imu_message(
-            vs.t_us, fx, fy, fz, s.p, s.q, s.r, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-            IMU_ACC_GYRO_BITS, 0)))
+        ch.send(wire.pack(ch.mav, wire.HIGHRES_IMU, vs.t_us, fx, fy, fz, s.p, s.q, s.r, 0.0, 0.0,
+                          0.0, 0.0, 0.0, 0.0, 0.0, IMU_ACC_GYRO_BITS, 0))
