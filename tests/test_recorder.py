@@ -19,7 +19,7 @@ def test_spool_round_trips_bit_exact_and_memory_stays_one_block(tmp_path):
     spool = SeriesSpool(tmp_path / "s.f64")
     most_in_ram = 0
     for k, row in enumerate(ref):
-        spool.append(tuple(row.tolist()))
+        spool.append(spool.pack(*row.tolist()))
         most_in_ram = max(most_in_ram, len(spool.rows))
         if k & (CHUNK - 1) == CHUNK - 1:
             spool.flush()

@@ -192,7 +192,8 @@ class SitlVehicle:
             self.note = None
         if record:
             spool = self.spool
-            spool.append((t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2], NAN, NAN, NAN, 0))
+            spool.append(spool.pack(t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2], NAN, NAN, NAN,
+                                    0))
             if len(spool.rows) >= CHUNK:
                 spool.flush()
         vz = y[Y_VZ]

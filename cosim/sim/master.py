@@ -240,7 +240,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         measure, encode_odometry = sensor.measure, codec.encode_odometry
         encode_valid, encode_lost = codec.encode_odometry, codec.encode_odometry_lost
         exchange, decode_actuators = vehicle.exchange, codec.decode_actuators
-        drain_gcs, plant_step, record = vehicle.drain_gcs, plant.step, spool.append
+        drain_gcs, plant_step, record, row = vehicle.drain_gcs, plant.step, spool.append, spool.pack
         check_exit = monitor.check
         on_tick = app.on_tick if app is not None else None
         realtime, progress, png_every = opts.realtime, opts.progress, opts.png_every
@@ -294,8 +294,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                 if pi is None:
                     pi = phase_idx[ph] = len(phases)
                     phases.append(ph)
-                record((t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2],
-                        sp[0] + home_n, sp[1] + home_e, sp[2], pi))   # setpoints: local -> world
+                record(row(t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2],
+                           sp[0] + home_n, sp[1] + home_e, sp[2], pi))  # setpoints: local -> world
                 if k & FLUSH_MASK == FLUSH_MASK:
                     spool.flush()
                 # 6. the motor commands -> the plant, stepped to t_k+1

@@ -1,7 +1,7 @@
 """Recording a run without growing memory: per-tick rows spooled to disk, one chunk at a time.
 
-The tick loop appends one tuple per tick (`SeriesSpool.append`, a bound `list.append`) and calls
-`flush()` every `CHUNK` ticks: the rows become one float64 block written to a spool file, and
+The tick loop appends one packed float64 row per tick (`SeriesSpool.pack`, `.append`) and
+calls `flush()` every `CHUNK` ticks: the rows are written to a spool file as one block, and
 the list is emptied. Memory stays at one chunk whatever the mission length. A finished run's
 series (`SeriesFile`) is read back from the file: whole (a read-only memory map, for short runs
 and tests), by column, or block by block (what the outputs use, so a long run's report does not
@@ -10,6 +10,7 @@ pull the whole file into memory either).
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,12 +29,15 @@ READ_BLOCK = 8192          # rows per block when reading back (~2 MB)
 
 
 class SeriesSpool:
-    """Rows in, float64 blocks out to `path`; `append` is the per-tick call."""
+    """Rows in, float64 blocks out to `path`. The per-tick call is `append(pack(*values))`:
+    `pack` turns one row's `ncols` numbers into its float64 bytes in one C call (3x cheaper
+    than a tuple per row turned into an array at flush), `append` keeps them until `flush`."""
 
     def __init__(self, path: Path, ncols: int = len(SERIES_COLUMNS)) -> None:
         self.path = Path(path)
         self.ncols = ncols
-        self.rows: list[tuple] = []
+        self.pack = struct.Struct(f"<{ncols}d").pack
+        self.rows: list[bytes] = []
         self.append = self.rows.append
         self.ticks = 0                       # rows already written to the file
         self._f = open(self.path, "wb")  # noqa: SIM115 (closed in finish())
@@ -41,8 +45,7 @@ class SeriesSpool:
     def flush(self) -> None:
         rows = self.rows
         if rows:
-            self._f.write(np.array(rows, dtype=np.float64).reshape(len(rows), self.ncols)
-                          .tobytes())
+            self._f.write(b"".join(rows))
             self.ticks += len(rows)
             rows.clear()
 
