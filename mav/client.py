@@ -57,6 +57,8 @@ SIGNING_EPOCH_2024 = 1704067200.0
 
 
 # telemetry decoded by the fast codec (unsigned MAVLink 2); everything else goes to pymavlink
+_SP = wire.SET_POSITION_TARGET_LOCAL_NED
+_SP_PACK, _SP_ID, _SP_EXTRA = _SP.st.pack, _SP.id, _SP.crc_extra
 _FAST_RX: dict[int, wire.FastMsg] = {
     m.id: m for m in (wire.LOCAL_POSITION_NED, wire.ATTITUDE, wire.HEARTBEAT,
                       wire.EXTENDED_SYS_STATE, wire.GLOBAL_POSITION_INT,
@@ -380,10 +382,14 @@ class OffboardClient:
 
     def _setpoint(self, frame: int, mask: int, x: float, y: float, z: float, vx: float,
                   vy: float, vz: float, yaw: float, yaw_rate: float) -> None:
-        self._send(wire.encode_set_position_target_local_ned(
-            self.mav, int(self.t * 1000.0) & 0xFFFFFFFF, self.target_system,
-            self.target_component, frame, mask, x, y, z, vx, vy, vz, 0.0, 0.0, 0.0, yaw,
-            yaw_rate))
+        # wire.encode_set_position_target_local_ned, framed in one C call when compiled and
+        # the link does not sign
+        pl = _SP_PACK(int(self.t * 1000.0) & 0xFFFFFFFF, x, y, z, vx, vy, vz, 0.0, 0.0, 0.0, yaw,
+                      yaw_rate, mask, self.target_system, self.target_component, frame)
+        fo = wire._fp_frame_on
+        self.stats["tx"] += 1
+        self.link.send((fo is not None and fo(self.mav, _SP_ID, _SP_EXTRA, pl))
+                       or wire.frame(self.mav, wire.SET_POSITION_TARGET_LOCAL_NED, pl))
 
     def request_message(self, msgid: int) -> None:
         self.command_long(M.MAV_CMD_REQUEST_MESSAGE, float(msgid))

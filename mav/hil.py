@@ -22,6 +22,7 @@ INJECT_COMPID = mavlink2.MAV_COMP_ID_USER1   # the simulator's fault injector (o
 MAX_R_SCALE = 1000.0       # battery sag: the largest resistance factor the vehicle accepts
 MAX_V_DROP = 100.0         # V, battery sag: the largest fixed drop
 
+_ODO_ID, _ODO_EXTRA = wire.ODOMETRY.id, wire.ODOMETRY.crc_extra
 
 # ODOMETRY payload = time_usec and the 13 measured values, then a tail that is the same every
 # tick (covariances [NaN, 0, ...], frame ids, reset counter, estimator type, quality)
@@ -40,7 +41,10 @@ class HilSimulatorCodec:
         """m = (x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r), SI, NED/FRD. The same bytes as
         `wire.encode_odometry(mav, t_us, *m, estimator_type=1, quality=100)`, with the
         constant tail of the payload packed once."""
-        return wire.frame(self.mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL)
+        pl = _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL
+        fo = wire._fp_frame_on
+        return (fo is not None and fo(self.mav, _ODO_ID, _ODO_EXTRA, pl)) or wire.frame(
+            self.mav, wire.ODOMETRY, pl)
 
     def encode_odometry_lost(self, t_us: int, m: tuple[float, ...]) -> bytes:
         """The same with quality -1 (MAVLink: odometry has failed): the position and velocity

@@ -15,9 +15,10 @@ def python() -> Iterator[None]:
     """Run the Python reference instead of the compiled path inside the block: in this process
     (controllers made inside it, every frame encoded or checked) and in the onboard processes
     started inside it (MAV_FASTPATH=0). For back-to-back tests and the bench's before/after."""
-    saved = (fastpath.lib, wire._fp_frame, wire._fp_check, wire.decode_odometry,
-             wire.decode_hil_actuator_controls, os.environ.get("MAV_FASTPATH"))
-    fastpath.lib = wire._fp_frame = wire._fp_check = None
+    saved = (fastpath.lib, wire._fp_frame, wire._fp_check, wire._fp_frame_on,
+             wire.decode_odometry, wire.decode_hil_actuator_controls,
+             os.environ.get("MAV_FASTPATH"))
+    fastpath.lib = wire._fp_frame = wire._fp_check = wire._fp_frame_on = None
     wire.decode_odometry = wire._one_frame_decoder(wire.ODOMETRY, wire.ODOMETRY_USED)
     wire.decode_hil_actuator_controls = wire._one_frame_decoder(
         wire.HIL_ACTUATOR_CONTROLS, wire.HIL_ACTUATOR_CONTROLS_USED)
@@ -25,7 +26,7 @@ def python() -> Iterator[None]:
     try:
         yield
     finally:
-        (fastpath.lib, wire._fp_frame, wire._fp_check, wire.decode_odometry,
+        (fastpath.lib, wire._fp_frame, wire._fp_check, wire._fp_frame_on, wire.decode_odometry,
          wire.decode_hil_actuator_controls, env) = saved
         if env is None:
             os.environ.pop("MAV_FASTPATH", None)

@@ -56,6 +56,9 @@ crc16 = _mcrf4xx if _mcrf4xx is not None else _crc16_py
 # Python below (tests/test_fastpath.py); None: the Python path
 _fp_frame = fastpath.lib.frame if fastpath.lib is not None else None
 _fp_check = fastpath.lib.check if fastpath.lib is not None else None
+# frame(mav, m, payload) in one C call, for the per-tick senders: `frame_on(mav, m.id,
+# m.crc_extra, payload)` -> bytes, or None on a signing link (then call `frame`)
+_fp_frame_on = fastpath.lib.frame_on if fastpath.lib is not None else None
 
 
 class FastMsg:
@@ -137,6 +140,7 @@ _CRC = struct.Struct("<H")
 _SIGN_TS = struct.Struct("<BQ")
 # time_usec, flags, controls[0..3], controls[4..15] = 0 (pad bytes), mode
 _HIL_CTRL = struct.Struct("<QQ4f48xB")
+HIL_CTRL_PACK = _HIL_CTRL.pack
 assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
 
 

@@ -120,11 +120,13 @@ def _fly(name: str, fast: bool, mode: str = "mil"):
                                        ("mambo_seed_track", "sil")])
 def test_closed_loop_missions_identical_compiled_and_reference(name, mode):
     """The whole onboard stack compiled vs its Python reference (in SIL, the onboard process
-    runs the reference: MAV_FASTPATH=0): the same run, bit for bit."""
+    runs the reference: MAV_FASTPATH=0): the same run, bit for bit, and the same MAVLink
+    bytes (telemetry, setpoints) in the tlog."""
     ref, s_ref = _fly(name, fast=False, mode=mode)
     fast, s_fast = _fly(name, fast=True, mode=mode)
     assert ref.exit_reason == fast.exit_reason and ref.ticks == fast.ticks
     assert np.array_equal(ref.series, fast.series, equal_nan=True)
+    assert ref.tlog.read() == fast.tlog.read()       # every MAVLink byte on api and gcs
     def same(s):   # everything but the wall-clock figures
         return {k: v for k, v in s.items() if "wall" not in k and "real_time" not in k}
     assert same(s_ref) == same(s_fast)

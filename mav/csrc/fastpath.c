@@ -488,6 +488,35 @@ static inline uint16_t crc_acc(uint16_t crc, const uint8_t *p, Py_ssize_t n)
     return crc;
 }
 
+/* an unsigned MAVLink 2 frame of payload pl[0:n], trailing zero bytes trimmed (one kept) */
+static PyObject *frame_bytes(long seq, long sys, long comp, long msgid, uint8_t extra,
+                             const uint8_t *pl, Py_ssize_t n)
+{
+    Py_ssize_t plen = n;
+    while (plen > 1 && pl[plen - 1] == 0)
+        plen--;
+    PyObject *out = PyBytes_FromStringAndSize(NULL, HDR_V2 + plen + 2);
+    if (out == NULL)
+        return NULL;
+    uint8_t *b = (uint8_t *)PyBytes_AS_STRING(out);
+    b[0] = MAGIC_V2;
+    b[1] = (uint8_t)plen;
+    b[2] = 0;
+    b[3] = 0;
+    b[4] = (uint8_t)seq;
+    b[5] = (uint8_t)sys;
+    b[6] = (uint8_t)comp;
+    b[7] = (uint8_t)(msgid & 0xFF);
+    b[8] = (uint8_t)((msgid >> 8) & 0xFF);
+    b[9] = (uint8_t)((msgid >> 16) & 0xFF);
+    memcpy(b + HDR_V2, pl, (size_t)plen);
+    uint16_t crc = crc_acc(0xFFFF, b + 1, HDR_V2 - 1 + plen);
+    crc = crc_acc(crc, &extra, 1);
+    b[HDR_V2 + plen] = (uint8_t)(crc & 0xFF);
+    b[HDR_V2 + plen + 1] = (uint8_t)(crc >> 8);
+    return out;
+}
+
 /* frame(seq, sysid, compid, msgid, crc_extra, payload) -> bytes: an unsigned MAVLink 2 frame,
  * trailing zero bytes of the payload trimmed (at least one kept) */
 static PyObject *fp_frame(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
@@ -509,30 +538,7 @@ static PyObject *fp_frame(PyObject *mod, PyObject *const *args, Py_ssize_t nargs
         PyErr_SetString(PyExc_ValueError, "payload must be 1..255 bytes");
         return NULL;
     }
-    Py_ssize_t plen = n;
-    while (plen > 1 && pl[plen - 1] == 0)
-        plen--;
-    PyObject *out = PyBytes_FromStringAndSize(NULL, HDR_V2 + plen + 2);
-    if (out == NULL)
-        return NULL;
-    uint8_t *b = (uint8_t *)PyBytes_AS_STRING(out);
-    b[0] = MAGIC_V2;
-    b[1] = (uint8_t)plen;
-    b[2] = 0;
-    b[3] = 0;
-    b[4] = (uint8_t)v[0];
-    b[5] = (uint8_t)v[1];
-    b[6] = (uint8_t)v[2];
-    b[7] = (uint8_t)(v[3] & 0xFF);
-    b[8] = (uint8_t)((v[3] >> 8) & 0xFF);
-    b[9] = (uint8_t)((v[3] >> 16) & 0xFF);
-    memcpy(b + HDR_V2, pl, (size_t)plen);
-    uint16_t crc = crc_acc(0xFFFF, b + 1, HDR_V2 - 1 + plen);
-    uint8_t extra = (uint8_t)v[4];
-    crc = crc_acc(crc, &extra, 1);
-    b[HDR_V2 + plen] = (uint8_t)(crc & 0xFF);
-    b[HDR_V2 + plen + 1] = (uint8_t)(crc >> 8);
-    return out;
+    return frame_bytes(v[0], v[1], v[2], v[3], (uint8_t)v[4], pl, n);
 }
 
 /* check(data, start, end, msgid, crc_extra) -> payload length, or -1 unless data[start:end] is
@@ -571,6 +577,7 @@ static PyObject *fp_check(PyObject *mod, PyObject *const *args, Py_ssize_t nargs
 }
 
 #include "setpoint.c"
+#include "telemetry.c"
 
 static PyMethodDef module_methods[] = {
     {"frame", (PyCFunction)(void (*)(void))fp_frame, METH_FASTCALL,
@@ -580,6 +587,12 @@ static PyMethodDef module_methods[] = {
     {"setpoint_local_ned", (PyCFunction)(void (*)(void))fp_setpoint_local_ned, METH_FASTCALL,
      "setpoint_local_ned(data, of, sysid, compid, max_pos, max_vel, max_yaw, max_rate): "
      "apply an accepted LOCAL_NED offboard setpoint datagram (see setpoint.c)"},
+    {"frame_on", (PyCFunction)(void (*)(void))fp_frame_on, METH_FASTCALL,
+     "frame_on(mav, msgid, crc_extra, payload): wire.frame on a link that does not sign "
+     "(None if it signs)"},
+    {"state_msg", (PyCFunction)(void (*)(void))fp_state_msg, METH_FASTCALL,
+     "state_msg(kind, msgid, crc_extra, mav, state, time_boot_ms): ATTITUDE (0) or "
+     "LOCAL_POSITION_NED (1) of a VehicleState, framed on mav (see telemetry.c)"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef fastpath_module = {
@@ -598,7 +611,7 @@ PyMODINIT_FUNC PyInit__fastpath(void)
             return NULL;
     if ((name_armed = PyUnicode_InternFromString("armed")) == NULL)
         return NULL;
-    if (sp_init() < 0)
+    if (sp_init() < 0 || tm_init() < 0)
         return NULL;
     if (PyType_Ready(&CascadeType) < 0)
         return NULL;

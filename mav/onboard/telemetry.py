@@ -11,7 +11,7 @@ import math
 from collections.abc import Callable
 from heapq import heappop, heappush
 
-from mav import wire
+from mav import fastpath, wire
 from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     CAPABILITIES,
@@ -49,6 +49,9 @@ GPS_COG_MIN_MPS = 0.2                # m/s: slower than this the course is unkno
 # PROTOCOL_VERSION: MAVLink 2 spoken, MAVLink 1 understood; no spec/library git hashes known
 PROTO_VERSION, PROTO_MIN, PROTO_MAX = 200, 100, 200
 _NO_HASH = (0,) * 16
+# the compiled encoders' message ids and CRC_EXTRA bytes (fastpath.c, telemetry.c)
+_ATT_ID, _ATT_EXTRA = wire.ATTITUDE.id, wire.ATTITUDE.crc_extra
+_LPOS_ID, _LPOS_EXTRA = wire.LOCAL_POSITION_NED.id, wire.LOCAL_POSITION_NED.crc_extra
 # BATTERY_STATUS: cells 2..10 not reported; charge state by the number of warnings given
 _NO_CELLS = (65535,) * 9
 _CHARGE_STATES = (M.MAV_BATTERY_CHARGE_STATE_OK, M.MAV_BATTERY_CHARGE_STATE_LOW,
@@ -186,12 +189,24 @@ class Telemetry:
 
     def emit_attitude(self, ch: Chan) -> None:
         s = self.vs.state
+        fp = fastpath.lib
+        if fp is not None:   # the compiled encoder (telemetry.c); None on a signing link
+            data = fp.state_msg(0, _ATT_ID, _ATT_EXTRA, ch.mav, s, self._time_boot_ms())
+            if data is not None:
+                ch.send(data)
+                return
         roll, pitch, yaw = wire.euler_from_quat(s.qw, s.qx, s.qy, s.qz)
         ch.send(wire.encode_attitude(ch.mav, self._time_boot_ms(), roll, pitch, yaw,
                                      s.p, s.q, s.r))
 
     def emit_local_position(self, ch: Chan) -> None:
         s = self.vs.state
+        fp = fastpath.lib
+        if fp is not None:
+            data = fp.state_msg(1, _LPOS_ID, _LPOS_EXTRA, ch.mav, s, self._time_boot_ms())
+            if data is not None:
+                ch.send(data)
+                return
         ch.send(wire.encode_local_position_ned(ch.mav, self._time_boot_ms(), s.x, s.y, s.z,
                                                s.vx, s.vy, s.vz))
 

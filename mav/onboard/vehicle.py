@@ -40,6 +40,7 @@ from mav.onboard.defs import (
     MISSION,
     MODE_NAMES,
     OFFBOARD,
+    ON_GROUND,
     POSCTL,
     RTL,
     STREAMS,
@@ -60,6 +61,7 @@ from mav.onboard.telemetry import Telemetry
 from mav.types import VehicleState
 
 M = mavlink2
+_HIL_ID, _HIL_EXTRA = wire.HIL_ACTUATOR_CONTROLS.id, wire.HIL_ACTUATOR_CONTROLS.crc_extra
 
 STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
          "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "hil_ignored", "hil_bad_values",
@@ -316,7 +318,7 @@ class Onboard:
         self._step_modes(t_us)
         u = vs.u
         if vs.armed:
-            if self.commander.motors_idle():
+            if vs.landed_state == ON_GROUND and self.commander.motors_idle():
                 idle = vs.own["MOT_IDLE_RATIO"] * self.vehicle.u_hover
                 u[0] = u[1] = u[2] = u[3] = idle
             else:
@@ -329,9 +331,13 @@ class Onboard:
             vs.battery.step(dt_us * 1e-6, u[0], u[1], u[2], u[3])
         # 4. telemetry when due, then the HIL answer
         self.telemetry.publish(t_us)
-        self._hil.send(wire.encode_hil_actuator_controls(
-            self._hil_mav, t_us, u[0], u[1], u[2], u[3],
-            HIL_MODE_ARMED if vs.armed else HIL_MODE_DISARMED))
+        # HIL_ACTUATOR_CONTROLS (wire.encode_hil_actuator_controls, framed in one C call when
+        # compiled: the HIL link never signs)
+        pl = wire.HIL_CTRL_PACK(t_us, 1, u[0], u[1], u[2], u[3],
+                                HIL_MODE_ARMED if vs.armed else HIL_MODE_DISARMED)
+        fo = wire._fp_frame_on
+        self._hil.send((fo is not None and fo(self._hil_mav, _HIL_ID, _HIL_EXTRA, pl))
+                       or wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
         st["ticks"] += 1
         return True
 
@@ -372,15 +378,22 @@ class Onboard:
                 self.navigator.step_rtl(t)
             elif mode == MISSION:
                 self.mission.step(t)
-        self.mission.tick(t)
+        # each check below is called only when its own early return would not apply (the
+        # same tick either way, without a call per idle check)
+        if self.mission.up is not None:               # an upload in progress
+            self.mission.tick(t)
         fs = self.failsafe
-        fs.check_gcs(t)
-        fs.check_geofence()
+        if vs.gcs_last_us >= 0 and not vs.gcs_lost:
+            fs.check_gcs(t)
+        armed = vs.armed
+        if armed and vs.landed_state != ON_GROUND and vs.home is not None:
+            fs.check_geofence()
         if vs.pos_lost_us >= 0:
             fs.check_position(t)
         if vs.fs_active and mode == LOITER and t - vs.fs_t0 > vs.fail_act_us:
             self.failsafe.hold_expired()
-        self.navigator.detect_air_and_ground(t)
+        if armed and (vs.landed_state == ON_GROUND or vs.ground_since >= 0):
+            self.navigator.detect_air_and_ground(t)
         if vs.battery.used_mah > vs.bat_warn_mah:     # drawn + lost to a fault
             self.failsafe.battery_warning()
 

@@ -1,0 +1,187 @@
+/* The per-tick telemetry encoders, compiled (included by fastpath.c).
+ *
+ * ATTITUDE and LOCAL_POSITION_NED are most of what the vehicle streams (50 Hz each to the
+ * offboard app by default, 20 and 10 Hz to a ground station). In Python each is a state read,
+ * an Euler conversion, a struct pack and a framing call (mav/onboard/telemetry.py, the
+ * reference); here it is one call that reads the VehicleState and the link's MAVLink object
+ * (seq, srcSystem, srcComponent; seq advanced as `wire.frame` does) and returns the frame.
+ *
+ * Same bytes as the reference (tests/test_fastpath.py): the same double operations in the same
+ * order (ATTITUDE's Euler angles as wire.euler_from_quat, with its clamp of asin's argument,
+ * NaN -> -1), the same libm atan2/asin that Python's math module calls (with math.atan2's
+ * special values: py_atan2), and float fields
+ * packed by PyFloat_Pack4 as struct's "<f" does (a value too large for a float raises
+ * OverflowError, as struct.pack does). A signing link gets None: the reference signs.
+ */
+
+enum { TM_ATTITUDE = 0, TM_LOCAL_POSITION_NED = 1 };
+static PyObject *n_seq, *n_src_system, *n_src_component, *n_signing, *n_sign_outgoing;
+enum { T_QW, T_QX, T_QY, T_QZ, T_P, T_Q, T_R, T_X, T_Y, T_Z, T_VX, T_VY, T_VZ, T_N };
+static const char *T_NAMES[T_N] = {"qw", "qx", "qy", "qz", "p", "q", "r", "x", "y", "z",
+                                   "vx", "vy", "vz"};
+static PyObject *t_names[T_N];
+
+static int tm_init(void)
+{
+    for (int i = 0; i < T_N; i++)
+        if ((t_names[i] = PyUnicode_InternFromString(T_NAMES[i])) == NULL)
+            return -1;
+    n_seq = PyUnicode_InternFromString("seq");
+    n_src_system = PyUnicode_InternFromString("srcSystem");
+    n_src_component = PyUnicode_InternFromString("srcComponent");
+    n_signing = PyUnicode_InternFromString("signing");
+    n_sign_outgoing = PyUnicode_InternFromString("sign_outgoing");
+    if (!n_seq || !n_src_system || !n_src_component || !n_signing || !n_sign_outgoing)
+        return -1;
+    return 0;
+}
+
+static long get_long_attr(PyObject *o, PyObject *name)
+{
+    PyObject *v = PyObject_GetAttr(o, name);
+    if (v == NULL)
+        return -1;
+    long r = PyLong_AsLong(v);
+    Py_DECREF(v);
+    return r;
+}
+
+/* Python's math.atan2 (CPython's m_atan2): C99's special values, and a NaN argument gives
+ * the positive quiet NaN (libm may return the argument's NaN, sign included) */
+static double py_atan2(double y, double x)
+{
+    if (isnan(x) || isnan(y))
+        return (double)NAN;
+    if (isinf(y)) {
+        if (isinf(x))
+            return copysign(copysign(1.0, x) == 1.0 ? 0.25 * PI_ : 0.75 * PI_, y);
+        return copysign(0.5 * PI_, y);
+    }
+    if (isinf(x) || y == 0.0)
+        return copysign(copysign(1.0, x) == 1.0 ? 0.0 : PI_, y);
+    return atan2(y, x);
+}
+
+/* 1 if mav signs what it sends (then the Python reference frames it), 0 if not, -1 error */
+static int signs_outgoing(PyObject *mav)
+{
+    PyObject *sg = PyObject_GetAttr(mav, n_signing);
+    if (sg == NULL)
+        return -1;
+    PyObject *so = PyObject_GetAttr(sg, n_sign_outgoing);
+    Py_DECREF(sg);
+    if (so == NULL)
+        return -1;
+    int signing = PyObject_IsTrue(so);
+    Py_DECREF(so);
+    return signing;
+}
+
+/* the frame of payload pl[0:n] on mav (its seq, advanced as wire.frame does; its srcSystem and
+ * srcComponent) */
+static PyObject *frame_on(PyObject *mav, long msgid, uint8_t extra, const uint8_t *pl,
+                          Py_ssize_t n)
+{
+    long seq = get_long_attr(mav, n_seq);
+    if (seq == -1 && PyErr_Occurred())
+        return NULL;
+    long sys = get_long_attr(mav, n_src_system);
+    if (sys == -1 && PyErr_Occurred())
+        return NULL;
+    long comp = get_long_attr(mav, n_src_component);
+    if (comp == -1 && PyErr_Occurred())
+        return NULL;
+    PyObject *next = PyLong_FromLong((seq + 1) & 0xFF);
+    if (next == NULL)
+        return NULL;
+    int rc = PyObject_SetAttr(mav, n_seq, next);
+    Py_DECREF(next);
+    if (rc < 0)
+        return NULL;
+    return frame_bytes(seq, sys, comp, msgid, extra, pl, n);
+}
+
+/* frame_on(mav, msgid, crc_extra, payload) -> bytes | None: wire.frame(mav, ...) in one call
+ * for a link that does not sign (None if it does: the reference signs) */
+static PyObject *fp_frame_on(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 4 || !PyBytes_Check(args[3])) {
+        PyErr_SetString(PyExc_TypeError, "frame_on(mav, msgid, crc_extra, payload: bytes)");
+        return NULL;
+    }
+    long msgid = PyLong_AsLong(args[1]);
+    long extra = PyLong_AsLong(args[2]);
+    if (PyErr_Occurred())
+        return NULL;
+    Py_ssize_t n = PyBytes_GET_SIZE(args[3]);
+    if (n < 1 || n > 255) {
+        PyErr_SetString(PyExc_ValueError, "payload must be 1..255 bytes");
+        return NULL;
+    }
+    int signing = signs_outgoing(args[0]);
+    if (signing < 0)
+        return NULL;
+    if (signing)
+        Py_RETURN_NONE;
+    return frame_on(args[0], msgid, (uint8_t)extra, (const uint8_t *)PyBytes_AS_STRING(args[3]),
+                    n);
+}
+
+/* state_msg(kind, msgid, crc_extra, mav, state, time_boot_ms) -> bytes | None
+ * kind 0: ATTITUDE (time_boot_ms, roll, pitch, yaw, p, q, r); 1: LOCAL_POSITION_NED
+ * (time_boot_ms, x, y, z, vx, vy, vz). Both payloads are <I6f. */
+static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError,
+                        "state_msg(kind, msgid, crc_extra, mav, state, time_boot_ms)");
+        return NULL;
+    }
+    long kind = PyLong_AsLong(args[0]);
+    long msgid = PyLong_AsLong(args[1]);
+    long extra = PyLong_AsLong(args[2]);
+    unsigned long tboot = PyLong_AsUnsignedLong(args[5]);
+    if (PyErr_Occurred())
+        return NULL;
+    if (kind != TM_ATTITUDE && kind != TM_LOCAL_POSITION_NED) {
+        PyErr_SetString(PyExc_ValueError, "state_msg: kind must be 0 or 1");
+        return NULL;
+    }
+    if (tboot > 0xFFFFFFFFUL) {
+        PyErr_SetString(PyExc_OverflowError, "time_boot_ms out of range");
+        return NULL;
+    }
+    PyObject *mav = args[3];
+    int signing = signs_outgoing(mav);
+    if (signing < 0)
+        return NULL;
+    if (signing)
+        Py_RETURN_NONE;
+
+    double v[6];
+    if (kind == TM_ATTITUDE) {
+        double s[7];
+        if (read_floats(args[4], t_names + T_QW, 7, s) < 0)
+            return NULL;
+        const double qw = s[0], qx = s[1], qy = s[2], qz = s[3];
+        v[0] = py_atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy));
+        const double sp = 2.0 * (qw * qy - qz * qx);
+        v[1] = asin((-1.0 < sp && sp < 1.0) ? sp : (sp >= 1.0 ? 1.0 : -1.0));
+        v[2] = py_atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz));
+        v[3] = s[4];
+        v[4] = s[5];
+        v[5] = s[6];
+    } else if (read_floats(args[4], t_names + T_X, 6, v) < 0) {
+        return NULL;
+    }
+    uint8_t pl[28];
+    pl[0] = (uint8_t)(tboot & 0xFF);
+    pl[1] = (uint8_t)((tboot >> 8) & 0xFF);
+    pl[2] = (uint8_t)((tboot >> 16) & 0xFF);
+    pl[3] = (uint8_t)((tboot >> 24) & 0xFF);
+    for (int i = 0; i < 6; i++)
+        if (PyFloat_Pack4(v[i], pl + 4 + 4 * i, 1) < 0)
+            return NULL;
+
+    return frame_on(mav, msgid, (uint8_t)extra, pl, (Py_ssize_t)sizeof pl);
+}
