@@ -59,6 +59,9 @@ DEFAULTS: dict[str, Any] = {
 }
 
 
+# the phase names the master records, by mission state
+_PHASE = {s: s.value for s in MissionState}
+
 PRESETS = ("released", "paper", "general")
 
 # why the planner landed -> the app's outcome; only "marker" is its goal (a landing on what it
@@ -177,7 +180,7 @@ class LineFollowerApp:
         if seq.state == "flying":
             x_ref, y_ref, z_ref, action = self.logic.setpoint(t, c.position)
             st = self.logic.state
-            self.phase = st.value
+            self.phase = _PHASE[st]       # (Enum.value is a Python-level descriptor call)
             if st is MissionState.FOLLOWING and not self._following_logged:
                 self.events.append((t, "following"))
                 self._following_logged = True

@@ -386,7 +386,9 @@ class Onboard:
         if vs.gcs_last_us >= 0 and not vs.gcs_lost:
             fs.check_gcs(t)
         armed = vs.armed
-        if armed and vs.landed_state != ON_GROUND and vs.home is not None:
+        own = vs.own
+        if (armed and vs.landed_state != ON_GROUND and vs.home is not None
+                and (own["GF_MAX_HOR_DIST"] > 0.0 or own["GF_MAX_VER_DIST"] > 0.0)):
             fs.check_geofence()
         if vs.pos_lost_us >= 0:
             fs.check_position(t)
@@ -394,7 +396,8 @@ class Onboard:
             self.failsafe.hold_expired()
         if armed and (vs.landed_state == ON_GROUND or vs.ground_since >= 0):
             self.navigator.detect_air_and_ground(t)
-        if vs.battery.used_mah > vs.bat_warn_mah:     # drawn + lost to a fault
+        b = vs.battery
+        if b.consumed_mah + b.lost_mah > vs.bat_warn_mah:   # Battery.used_mah: drawn + lost
             self.failsafe.battery_warning()
 
     def _hil_not_odometry(self, data: bytes) -> None:
