@@ -14,6 +14,8 @@ import time
 from collections import deque
 from typing import Protocol
 
+from mav import fastpath
+
 
 class Link(Protocol):
     def send(self, data: bytes) -> None: ...
@@ -24,9 +26,11 @@ class Link(Protocol):
 
 
 class MemoryLink:
-    """One end of an in-memory datagram pipe. Create both ends with `MemoryLink.pair()`."""
+    """One end of an in-memory datagram pipe. Create both ends with `MemoryLink.pair()`, or
+    with `memory_pair()` for the compiled copy when it is built (the same contract:
+    mav/csrc/memlink.c)."""
 
-    __slots__ = ("_inbox", "_peer", "sent_bytes", "on_send")
+    __slots__ = ("_inbox", "_peer", "sent_bytes")
 
     def __init__(self) -> None:
         self._inbox: deque[bytes] = deque()
@@ -53,6 +57,19 @@ class MemoryLink:
 
     def close(self) -> None:
         self._inbox.clear()
+
+
+def memory_pair() -> tuple:
+    """Two connected in-memory link ends: the compiled MemoryLink when the fast path is built
+    and not disabled (`mav.fastpath`, `mav.reference.python()`), else the Python one."""
+    lib = fastpath.lib
+    return lib.MemoryLink.pair() if lib is not None else MemoryLink.pair()
+
+
+def memory_link():
+    """One unconnected end (nothing can be sent from it), compiled when built."""
+    lib = fastpath.lib
+    return lib.MemoryLink() if lib is not None else MemoryLink()
 
 
 class SpinPolicy:

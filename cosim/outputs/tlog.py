@@ -11,6 +11,8 @@ import shutil
 import struct
 from pathlib import Path
 
+from mav import fastpath
+
 _STAMP = struct.Struct(">Q")
 
 
@@ -71,6 +73,14 @@ class TapLink:
 
     def close(self) -> None:
         self.inner.close()
+
+
+def tap(inner, log: Tlog):
+    """A TapLink on `inner`: the compiled one when the onboard fast path is built and not
+    disabled (`mav._fastpath.TapLink`, mav/csrc/memlink.c: the same records, one C call per
+    datagram instead of three Python ones; tests/test_links_memory.py), else the class above."""
+    lib = fastpath.lib
+    return lib.TapLink(inner, log) if lib is not None else TapLink(inner, log)
 
 
 def read_tlog(path: Path) -> list[tuple[int, bytes]]:

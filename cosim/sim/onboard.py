@@ -11,12 +11,12 @@ from pathlib import Path
 from typing import Any
 
 from cosim.errors import ComponentError
-from cosim.outputs.tlog import TapLink, Tlog
+from cosim.outputs.tlog import Tlog, tap
 from cosim.plant.vehicles import get_vehicle
 from cosim.scenario.records import Scenario
 from cosim.sim.options import RunOptions
 from mav.airframe import Airframe
-from mav.links import MemoryLink, SpinPolicy, UdpLink, UnixLink
+from mav.links import SpinPolicy, UdpLink, UnixLink, memory_link, memory_pair
 
 
 class OnboardHandle:
@@ -38,9 +38,9 @@ class OnboardHandle:
         if opts.mode == "mil":
             from mav.onboard import Onboard, OnboardConfig
 
-            hil_m, hil_v = MemoryLink.pair()
+            hil_m, hil_v = memory_pair()
             if opts.external_links:
-                api_app = gcs_m = MemoryLink()  # nothing of the master's on these links
+                api_app = gcs_m = memory_link()  # nothing of the master's on these links
                 udp = []
                 try:
                     for name in ("api", "gcs"):
@@ -52,10 +52,10 @@ class OnboardHandle:
                                          ) from None
                 self.bound = {"api": udp[0].local_address, "gcs": udp[1].local_address}
                 # the outside clients' traffic goes straight to the vehicle: tapped there
-                api_v, gcs_v = TapLink(udp[0], tlog), TapLink(udp[1], tlog)
+                api_v, gcs_v = tap(udp[0], tlog), tap(udp[1], tlog)
             else:
-                api_app, api_v = MemoryLink.pair()
-                gcs_m, gcs_v = MemoryLink.pair()
+                api_app, api_v = memory_pair()
+                gcs_m, gcs_v = memory_pair()
             geo = {} if origin is None else dict(
                 zip(("origin_lat_deg", "origin_lon_deg", "origin_alt_m"), origin, strict=True))
             self.onboard = Onboard(OnboardConfig(vehicle=vname, sysid=sysid,
@@ -68,8 +68,8 @@ class OnboardHandle:
                 self.onboard.set_airframe(Airframe(name=vname, **sc.vehicle.fmu_parameters()))
             self.hil = hil_m
             self._hil_v = hil_v                  # the vehicle's end: datagrams still queued
-            self.api = TapLink(api_app, tlog)
-            self.gcs = TapLink(gcs_m, tlog)
+            self.api = tap(api_app, tlog)
+            self.gcs = tap(gcs_m, tlog)
         else:
             try:
                 self._start_sil(sc, opts, tlog, log_dir, sysid, origin)
@@ -138,8 +138,8 @@ class OnboardHandle:
         self._spin = SpinPolicy(round(1000 * spin_us))
         self._hil_timeout_s = opts.hil_timeout_s
         self.hil = hil
-        self.api = TapLink(api, tlog)
-        self.gcs = TapLink(gcs, tlog)
+        self.api = tap(api, tlog)
+        self.gcs = tap(gcs, tlog)
         self._own = ()
 
     def exchange(self, data: bytes) -> bytes:

@@ -15,6 +15,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <structmember.h>
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -578,6 +579,7 @@ static PyObject *fp_check(PyObject *mod, PyObject *const *args, Py_ssize_t nargs
 
 #include "setpoint.c"
 #include "telemetry.c"
+#include "memlink.c"
 
 static PyMethodDef module_methods[] = {
     {"frame", (PyCFunction)(void (*)(void))fp_frame, METH_FASTCALL,
@@ -615,9 +617,23 @@ PyMODINIT_FUNC PyInit__fastpath(void)
         return NULL;
     if (PyType_Ready(&CascadeType) < 0)
         return NULL;
+    if (PyType_Ready(&MemLinkType) < 0 || PyType_Ready(&TapType) < 0 || tap_init_names() < 0)
+        return NULL;
     PyObject *m = PyModule_Create(&fastpath_module);
     if (m == NULL)
         return NULL;
+    Py_INCREF(&MemLinkType);
+    if (PyModule_AddObject(m, "MemoryLink", (PyObject *)&MemLinkType) < 0) {
+        Py_DECREF(&MemLinkType);
+        Py_DECREF(m);
+        return NULL;
+    }
+    Py_INCREF(&TapType);
+    if (PyModule_AddObject(m, "TapLink", (PyObject *)&TapType) < 0) {
+        Py_DECREF(&TapType);
+        Py_DECREF(m);
+        return NULL;
+    }
     Py_INCREF(&CascadeType);
     if (PyModule_AddObject(m, "Cascade", (PyObject *)&CascadeType) < 0) {
         Py_DECREF(&CascadeType);
