@@ -20,6 +20,7 @@ Wire units live here and in `mav/` only: geodetic positions (degE7, mm), cm/s, c
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import struct
@@ -330,7 +331,14 @@ def _one_frame_decoder(m: FastMsg, used: struct.Struct):
             return unpack_from(data, HEADER_LEN_V2)
         return unpack(data[HEADER_LEN_V2:crc_at] + zeros[plen:used_len])
 
-    return decode if check is None else decode_compiled
+    if check is None:
+        return decode
+    lib = fastpath.lib
+    if lib is not None:
+        # decode_compiled in one C call, no Python frame (mav/csrc/decode.c)
+        return functools.partial(lib.unpack_one, decode, unpack_from, unpack, used_len, mid,
+                                 crc_extra)
+    return decode_compiled
 
 
 # ODOMETRY -> (time_usec, x, y, z, qw, qx, qy, qz, vx, vy, vz, rollspeed, pitchspeed, yawspeed,

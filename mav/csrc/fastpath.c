@@ -580,6 +580,7 @@ static PyObject *fp_check(PyObject *mod, PyObject *const *args, Py_ssize_t nargs
 #include "setpoint.c"
 #include "telemetry.c"
 #include "memlink.c"
+#include "decode.c"
 
 static PyMethodDef module_methods[] = {
     {"frame", (PyCFunction)(void (*)(void))fp_frame, METH_FASTCALL,
@@ -592,8 +593,11 @@ static PyMethodDef module_methods[] = {
     {"frame_on", (PyCFunction)(void (*)(void))fp_frame_on, METH_FASTCALL,
      "frame_on(mav, msgid, crc_extra, payload): wire.frame on a link that does not sign "
      "(None if it signs)"},
+    {"unpack_one", (PyCFunction)(void (*)(void))fp_unpack_one, METH_FASTCALL,
+     "unpack_one(fallback, unpack_from, unpack, used_len, msgid, crc_extra, data): "
+     "the leading fields of a one-frame datagram, or None (see decode.c)"},
     {"state_msg", (PyCFunction)(void (*)(void))fp_state_msg, METH_FASTCALL,
-     "state_msg(kind, msgid, crc_extra, mav, state, time_boot_ms): ATTITUDE (0) or "
+     "state_msg(kind, msgid, crc_extra, mav, state, t_us): ATTITUDE (0) or "
      "LOCAL_POSITION_NED (1) of a VehicleState, framed on mav (see telemetry.c)"},
     {NULL, NULL, 0, NULL}};
 
@@ -613,7 +617,7 @@ PyMODINIT_FUNC PyInit__fastpath(void)
             return NULL;
     if ((name_armed = PyUnicode_InternFromString("armed")) == NULL)
         return NULL;
-    if (sp_init() < 0 || tm_init() < 0)
+    if (sp_init() < 0 || tm_init() < 0 || (py_ten = PyLong_FromLong(HDR_V2)) == NULL)
         return NULL;
     if (PyType_Ready(&CascadeType) < 0)
         return NULL;

@@ -20,6 +20,7 @@ enum { T_QW, T_QX, T_QY, T_QZ, T_P, T_Q, T_R, T_X, T_Y, T_Z, T_VX, T_VY, T_VZ, T
 static const char *T_NAMES[T_N] = {"qw", "qx", "qy", "qz", "p", "q", "r", "x", "y", "z",
                                    "vx", "vy", "vz"};
 static PyObject *t_names[T_N];
+static PyObject *py_thousand, *py_u32_mask;
 
 static int tm_init(void)
 {
@@ -31,7 +32,10 @@ static int tm_init(void)
     n_src_component = PyUnicode_InternFromString("srcComponent");
     n_signing = PyUnicode_InternFromString("signing");
     n_sign_outgoing = PyUnicode_InternFromString("sign_outgoing");
-    if (!n_seq || !n_src_system || !n_src_component || !n_signing || !n_sign_outgoing)
+    py_thousand = PyLong_FromLong(1000);
+    py_u32_mask = PyLong_FromUnsignedLong(0xFFFFFFFFUL);
+    if (!n_seq || !n_src_system || !n_src_component || !n_signing || !n_sign_outgoing ||
+        !py_thousand || !py_u32_mask)
         return -1;
     return 0;
 }
@@ -127,20 +131,32 @@ static PyObject *fp_frame_on(PyObject *mod, PyObject *const *args, Py_ssize_t na
                     n);
 }
 
-/* state_msg(kind, msgid, crc_extra, mav, state, time_boot_ms) -> bytes | None
+/* state_msg(kind, msgid, crc_extra, mav, state, t_us) -> bytes | None, stamped
+ * time_boot_ms = (t_us // 1000) & 0xFFFFFFFF (the vehicle clock, us)
  * kind 0: ATTITUDE (time_boot_ms, roll, pitch, yaw, p, q, r); 1: LOCAL_POSITION_NED
  * (time_boot_ms, x, y, z, vx, vy, vz). Both payloads are <I6f. */
 static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
 {
     if (nargs != 6) {
         PyErr_SetString(PyExc_TypeError,
-                        "state_msg(kind, msgid, crc_extra, mav, state, time_boot_ms)");
+                        "state_msg(kind, msgid, crc_extra, mav, state, t_us)");
         return NULL;
     }
     long kind = PyLong_AsLong(args[0]);
     long msgid = PyLong_AsLong(args[1]);
     long extra = PyLong_AsLong(args[2]);
-    unsigned long tboot = PyLong_AsUnsignedLong(args[5]);
+    if (PyErr_Occurred())
+        return NULL;
+    /* time_boot_ms = (t_us // 1000) & 0xFFFFFFFF, with Python's integer semantics */
+    PyObject *q = PyNumber_FloorDivide(args[5], py_thousand);
+    if (q == NULL)
+        return NULL;
+    PyObject *w = PyNumber_And(q, py_u32_mask);
+    Py_DECREF(q);
+    if (w == NULL)
+        return NULL;
+    unsigned long tboot = PyLong_AsUnsignedLong(w);
+    Py_DECREF(w);
     if (PyErr_Occurred())
         return NULL;
     if (kind != TM_ATTITUDE && kind != TM_LOCAL_POSITION_NED) {

@@ -151,11 +151,15 @@ class LinkInput:
         self._sp_args = (vs.of, sysid, compid, SP_MAX_POS_M, SP_MAX_VEL_MPS, SP_MAX_YAW_RAD,
                          SP_MAX_YAW_RATE)
 
-    def drain(self, ch: Chan) -> None:
+    def drain(self, ch: Chan, data: bytes | None = None) -> None:
+        """Handle what is queued on ch's link (at most DRAIN_MAX datagrams). `data`: the first
+        datagram when the caller has already received it (the vehicle's tick looks first, so
+        an idle link costs no call here)."""
         recv = ch.link.recv
-        data = recv()
-        if data is None:           # the common case: nothing arrived since the last tick
-            return
+        if data is None:
+            data = recv()
+            if data is None:       # the common case: nothing arrived since the last tick
+                return
         st = self.stats
         rx_key = ch.rx_key
         if ch.signed:

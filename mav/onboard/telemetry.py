@@ -191,7 +191,7 @@ class Telemetry:
         s = self.vs.state
         fp = fastpath.lib
         if fp is not None:   # the compiled encoder (telemetry.c); None on a signing link
-            data = fp.state_msg(0, _ATT_ID, _ATT_EXTRA, ch.mav, s, self._time_boot_ms())
+            data = fp.state_msg(0, _ATT_ID, _ATT_EXTRA, ch.mav, s, self.vs.t_us)
             if data is not None:
                 ch.send(data)
                 return
@@ -203,7 +203,7 @@ class Telemetry:
         s = self.vs.state
         fp = fastpath.lib
         if fp is not None:
-            data = fp.state_msg(1, _LPOS_ID, _LPOS_EXTRA, ch.mav, s, self._time_boot_ms())
+            data = fp.state_msg(1, _LPOS_ID, _LPOS_EXTRA, ch.mav, s, self.vs.t_us)
             if data is not None:
                 ch.send(data)
                 return

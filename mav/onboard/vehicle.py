@@ -286,9 +286,13 @@ class Onboard:
             # vehicle's first position; every position it handles is relative to it
             self.origin = (x, y)
         # 1. the offboard and GCS links, at the clock of the previous tick
-        drain = self.input.drain
-        drain(self._api)
-        drain(self._gcs)
+        api, gcs = self._api, self._gcs
+        data = api.link.recv()
+        if data is not None:
+            self.input.drain(api, data)
+        data = gcs.link.recv()
+        if data is not None:
+            self.input.drain(gcs, data)
         # 2. clock and estimator (ground truth from ODOMETRY)
         dt_us = t_us - vs.t_us
         vs.t_us = t_us
