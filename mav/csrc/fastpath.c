@@ -581,6 +581,7 @@ static PyObject *fp_check(PyObject *mod, PyObject *const *args, Py_ssize_t nargs
 #include "telemetry.c"
 #include "memlink.c"
 #include "decode.c"
+#include "battery.c"
 
 static PyMethodDef module_methods[] = {
     {"frame", (PyCFunction)(void (*)(void))fp_frame, METH_FASTCALL,
@@ -593,6 +594,8 @@ static PyMethodDef module_methods[] = {
     {"frame_on", (PyCFunction)(void (*)(void))fp_frame_on, METH_FASTCALL,
      "frame_on(mav, msgid, crc_extra, payload): wire.frame on a link that does not sign "
      "(None if it signs)"},
+    {"battery_step", (PyCFunction)(void (*)(void))fp_battery_step, METH_FASTCALL,
+     "battery_step(battery, dt, u1, u2, u3, u4): Battery.step compiled (see battery.c)"},
     {"unpack_one", (PyCFunction)(void (*)(void))fp_unpack_one, METH_FASTCALL,
      "unpack_one(fallback, unpack_from, unpack, used_len, msgid, crc_extra, data): "
      "the leading fields of a one-frame datagram, or None (see decode.c)"},
@@ -617,7 +620,7 @@ PyMODINIT_FUNC PyInit__fastpath(void)
             return NULL;
     if ((name_armed = PyUnicode_InternFromString("armed")) == NULL)
         return NULL;
-    if (sp_init() < 0 || tm_init() < 0 || (py_ten = PyLong_FromLong(HDR_V2)) == NULL)
+    if (sp_init() < 0 || tm_init() < 0 || bat_init() < 0 || (py_ten = PyLong_FromLong(HDR_V2)) == NULL)
         return NULL;
     if (PyType_Ready(&CascadeType) < 0)
         return NULL;

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mav import wire
+from mav import fastpath, wire
 from mav.airframe import Airframe, get_airframe
 from mav.battery import BATTERIES, Battery
 from mav.onboard.commander import Commander
@@ -331,10 +331,17 @@ class Onboard:
                 vs.ctrl.update(self._blind(s, sp) if lost else s, sp, u)
         else:
             u[0] = u[1] = u[2] = u[3] = 0.0
-        if dt_us > 0:
-            vs.battery.step(dt_us * 1e-6, u[0], u[1], u[2], u[3])
-        # 4. telemetry when due, then the HIL answer
-        self.telemetry.publish(t_us)
+        if dt_us > 0:   # Battery.step, compiled when built (battery.c)
+            fp = fastpath.lib
+            if fp is not None:
+                fp.battery_step(vs.battery, dt_us * 1e-6, u[0], u[1], u[2], u[3])
+            else:
+                vs.battery.step(dt_us * 1e-6, u[0], u[1], u[2], u[3])
+        # 4. telemetry when due (Telemetry.publish's own first test, here: most ticks have
+        # nothing due), then the HIL answer
+        if (t_us >= api.next_due or t_us >= gcs.next_due or api.param_queue or gcs.param_queue
+                or vs.hb_now or vs.ext_now or vs.home_now or vs.mission_now):
+            self.telemetry.publish(t_us)
         # HIL_ACTUATOR_CONTROLS (wire.encode_hil_actuator_controls, framed in one C call when
         # compiled: the HIL link never signs)
         pl = wire.HIL_CTRL_PACK(t_us, 1, u[0], u[1], u[2], u[3],
