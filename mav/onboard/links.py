@@ -183,22 +183,23 @@ class LinkInput:
         n = len(data)
         # the 200 Hz case first: a datagram that is one unsigned-link MAVLink 2
         # SET_POSITION_TARGET_LOCAL_NED frame (what the loop below does with it, minus the loop)
-        if (not ch.signed and n > 12 and data[0] == wire.MAGIC_V2 and data[7:10] == SP_ID3
-                and wire.frame_end(data, 0) == n):
+        if not ch.signed and n > 12 and data[0] == wire.MAGIC_V2 and data[7:10] == SP_ID3:
             fast = self._fast_sp
+            # (it accepts only a datagram that is exactly one valid frame)
             if fast is not None and fast(data, *self._sp_args):   # accepted and applied
                 ch.peer = (data[5], data[6])
                 vs = self.vs
                 vs.of_last_us = vs.t_us
                 self.stats["setpoints"] += 1
                 return
-            f = wire.decode_fast(wire.SET_POSITION_TARGET_LOCAL_NED, data, 0, n)
-            if f is None:
-                self.stats[ch.bad_key] += 1
-            else:
-                ch.peer = (data[5], data[6])
-                self.on_setpoint(ch, f)
-            return
+            if wire.frame_end(data, 0) == n:
+                f = wire.decode_fast(wire.SET_POSITION_TARGET_LOCAL_NED, data, 0, n)
+                if f is None:
+                    self.stats[ch.bad_key] += 1
+                else:
+                    ch.peer = (data[5], data[6])
+                    self.on_setpoint(ch, f)
+                return
         st = self.stats
         i = 0
         frames = 0
