@@ -32,7 +32,7 @@ from typing import NamedTuple
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mav import wire
+from mav import fastpath, wire
 
 M = mavlink2
 NAN = math.nan
@@ -122,6 +122,10 @@ class OffboardClient:
         # telemetry with a fast decoder (mav/wire.py): handlers take the fields in wire order;
         # not when signed (the fast codec does not check signatures)
         self._fast_rx = None if self.signed else _FAST_RX
+        # a datagram that is one such frame, decoded in one C call (no Python frame) when the
+        # fast path is built; None: the loop in _datagram does it all
+        self._fast_one = (None if self.signed or fastpath.lib is None else
+                          {mid: wire.one_frame_decoder(m, m.st) for mid, m in _FAST_RX.items()})
         self._fast_handlers = {
             M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._on_local_position,
             M.MAVLINK_MSG_ID_ATTITUDE: self._on_attitude,
@@ -160,6 +164,16 @@ class OffboardClient:
 
     def _datagram(self, data: bytes) -> int:
         st = self.stats
+        one = self._fast_one
+        if one is not None and len(data) > 11 and data[0] == wire.MAGIC_V2:
+            msgid = data[7] | data[8] << 8 | data[9] << 16
+            dec = one.get(msgid)
+            f = dec(data) if dec is not None else None
+            if f is not None:      # exactly one valid frame: what the loop below would do
+                st["rx"] += 1
+                if data[5] == self.target_system:
+                    self._fast_handlers[msgid](f, data[6])
+                return 1
         n = 0
         i, size = 0, len(data)
         fast = self._fast_rx

@@ -19,8 +19,8 @@ def python() -> Iterator[None]:
              wire.decode_odometry, wire.decode_hil_actuator_controls,
              os.environ.get("MAV_FASTPATH"))
     fastpath.lib = wire._fp_frame = wire._fp_check = wire._fp_frame_on = None
-    wire.decode_odometry = wire._one_frame_decoder(wire.ODOMETRY, wire.ODOMETRY_USED)
-    wire.decode_hil_actuator_controls = wire._one_frame_decoder(
+    wire.decode_odometry = wire.one_frame_decoder(wire.ODOMETRY, wire.ODOMETRY_USED)
+    wire.decode_hil_actuator_controls = wire.one_frame_decoder(
         wire.HIL_ACTUATOR_CONTROLS, wire.HIL_ACTUATOR_CONTROLS_USED)
     os.environ["MAV_FASTPATH"] = "0"
     try:

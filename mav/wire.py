@@ -294,10 +294,10 @@ def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | N
     return m.st.unpack(data[i + HEADER_LEN_V2:crc_at] + m.zeros[plen:])
 
 
-def _one_frame_decoder(m: FastMsg, used: struct.Struct):
+def one_frame_decoder(m: FastMsg, used: struct.Struct):
     """A decoder for a datagram holding exactly one frame of `m`: the leading fields that
     `used` unpacks (same offsets as m's payload), or None. Same checks and values as
-    `decode_fast(m, ...)` on those fields; for the per-tick HIL paths, which need only them."""
+    `decode_fast(m, ...)` on those fields (`used = m.st`: all of them); for the per-tick paths."""
     id3, extra, zeros, used_len = m.id3, m.extra, m.zeros, used.size
     unpack, unpack_from = used.unpack, used.unpack_from
 
@@ -346,12 +346,12 @@ def _one_frame_decoder(m: FastMsg, used: struct.Struct):
 # the onboard stack does not use, are skipped (the onboard stack's per-tick HIL input).
 # quality (int8): -1 the estimate has failed, 0 unknown, 1..100 worst..best (MAVLink).
 ODOMETRY_USED = struct.Struct("<Q13f168xBB2xb")
-decode_odometry = _one_frame_decoder(ODOMETRY, ODOMETRY_USED)
+decode_odometry = one_frame_decoder(ODOMETRY, ODOMETRY_USED)
 
 # HIL_ACTUATOR_CONTROLS -> (time_usec, controls[0..3]): the four motors the simulator applies
 # (the simulator's per-tick HIL input).
 HIL_ACTUATOR_CONTROLS_USED = struct.Struct("<Q8x4f")
-decode_hil_actuator_controls = _one_frame_decoder(HIL_ACTUATOR_CONTROLS,
+decode_hil_actuator_controls = one_frame_decoder(HIL_ACTUATOR_CONTROLS,
                                                   HIL_ACTUATOR_CONTROLS_USED)
 
 

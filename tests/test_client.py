@@ -203,21 +203,22 @@ def test_fast_telemetry_decode_matches_pymavlink(tmp_path):
     path = tmp_path / "f.tlog"
     res.tlog.write(path)
     records = read_tlog(path)
-    fast_link, slow_link = MemoryLink.pair()[0], MemoryLink.pair()[0]
-    fast, slow = OffboardClient(fast_link), OffboardClient(slow_link)
-    slow._fast_rx = None
+    fast, loop, slow = (OffboardClient(MemoryLink.pair()[0]) for _ in range(3))
+    assert fast._fast_one is not None            # one-frame datagrams in one C call
+    loop._fast_one = None                         # the fast codec's frame loop
+    slow._fast_rx = slow._fast_one = None         # pymavlink
     attrs = ("heartbeat_seen", "armed", "mode", "custom_mode", "system_status", "landed_state",
              "position", "velocity", "attitude", "rates", "global_position", "home",
              "position_target", "battery", "stats")
     kinds = set()
     for t_us, data in records:
         kinds.add(wire.msgid_of(data))
-        for c in (fast, slow):
+        for c in (fast, loop, slow):
             c.t = t_us * 1e-6
             c._datagram(data)
         for a in attrs:
-            va, vb = getattr(fast, a), getattr(slow, a)
-            assert repr(va) == repr(vb), (a, t_us, va, vb)
+            va, vb, vc = getattr(fast, a), getattr(loop, a), getattr(slow, a)
+            assert repr(va) == repr(vb) == repr(vc), (a, t_us, va, vb, vc)
     assert {M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_SYS_STATUS,
             M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
             M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED} <= kinds

@@ -194,7 +194,7 @@ def test_compiled_frame_checks_give_the_same_verdicts(monkeypatch):
     hil = HilSimulatorCodec()
     with monkeypatch.context() as mp:
         mp.setattr(wire, "_fp_check", None)
-        py_odo = wire._one_frame_decoder(wire.ODOMETRY, struct.Struct("<Q13f168xBB2xb"))
+        py_odo = wire.one_frame_decoder(wire.ODOMETRY, struct.Struct("<Q13f168xBB2xb"))
     c_odo = wire.decode_odometry
     for k in range(3000):
         vals = tuple(rng.uniform(-5, 5) for _ in range(13))

@@ -134,8 +134,8 @@ def test_compiled_hil_decoders_are_the_reference(monkeypatch):
     assert isinstance(wire.decode_hil_actuator_controls, functools.partial)
     with monkeypatch.context() as mp:
         mp.setattr(wire, "_fp_check", None)
-        py = {"odo": wire._one_frame_decoder(wire.ODOMETRY, wire.ODOMETRY_USED),
-              "act": wire._one_frame_decoder(wire.HIL_ACTUATOR_CONTROLS,
+        py = {"odo": wire.one_frame_decoder(wire.ODOMETRY, wire.ODOMETRY_USED),
+              "act": wire.one_frame_decoder(wire.HIL_ACTUATOR_CONTROLS,
                                              wire.HIL_ACTUATOR_CONTROLS_USED)}
     c = {"odo": wire.decode_odometry, "act": wire.decode_hil_actuator_controls}
     rng = random.Random(5)
