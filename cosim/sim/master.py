@@ -37,6 +37,7 @@ from cosim.sim.exits import ExitMonitor, ExitReason
 from cosim.sim.onboard import OnboardHandle
 from cosim.sim.options import RunOptions
 from cosim.sim.recorder import SERIES_COLUMNS, SeriesFile, SeriesSpool
+from mav import wire
 from mav.hil import HilSimulatorCodec
 
 __all__ = ["ExitReason", "RunOptions", "RunResult", "SERIES_COLUMNS", "run_scenario"]
@@ -239,7 +240,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         # the per-tick calls as locals (one lookup each per run, not per tick)
         measure, encode_odometry = sensor.measure, codec.encode_odometry
         encode_valid, encode_lost = codec.encode_odometry, codec.encode_odometry_lost
-        exchange, decode_actuators = vehicle.exchange, codec.decode_actuators
+        # (HilSimulatorCodec.decode_actuators without its Python frame: None is checked here)
+        exchange, decode_actuators = vehicle.exchange, wire.decode_hil_actuator_controls
         drain_gcs, plant_step, record, row = vehicle.drain_gcs, plant.step, spool.append, spool.pack
         check_exit = monitor.check
         on_tick = app.on_tick if app is not None else None
@@ -279,7 +281,11 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                     on_tick(t)
                 # 5. HIL exchange: ODOMETRY out, HIL_ACTUATOR_CONTROLS stamped t_k back
                 stage = "onboard"
-                t_ans, u1, u2, u3, u4 = decode_actuators(exchange(encode_odometry(t_us, meas)))
+                ans = exchange(encode_odometry(t_us, meas))
+                act = decode_actuators(ans)
+                if act is None:
+                    raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(ans)} bytes)")
+                t_ans, u1, u2, u3, u4 = act
                 if t_ans != t_us:
                     raise ComponentError("onboard",
                                          f"HIL answer stamped {t_ans} us for {t_us} us")
