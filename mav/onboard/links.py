@@ -164,6 +164,10 @@ class LinkInput:
         rx_key = ch.rx_key
         if ch.signed:
             self.outbox.sync_signing(ch)
+            fast = None
+        else:   # the 200 Hz case: one SET_POSITION_TARGET_LOCAL_NED frame the C path accepts
+            fast = self._fast_sp
+        vs = self.vs
         for n in range(DRAIN_MAX):
             if n:
                 data = recv()
@@ -171,6 +175,14 @@ class LinkInput:
                     return
             st[rx_key] += 1
             try:
+                # (it accepts only a datagram that is exactly one valid frame, and applies it;
+                # anything else is handle_datagram's)
+                if (fast is not None and data[7:10] == SP_ID3 and data[0] == wire.MAGIC_V2
+                        and fast(data, *self._sp_args)):
+                    ch.peer = (data[5], data[6])
+                    vs.of_last_us = vs.t_us
+                    st["setpoints"] += 1
+                    continue
                 self.handle_datagram(ch, data)
             except Exception:   # a handler bug must not take the vehicle down: count it
                 st[ch.bad_key] += 1
@@ -181,17 +193,9 @@ class LinkInput:
 
     def handle_datagram(self, ch: Chan, data: bytes) -> None:
         n = len(data)
-        # the 200 Hz case first: a datagram that is one unsigned-link MAVLink 2
-        # SET_POSITION_TARGET_LOCAL_NED frame (what the loop below does with it, minus the loop)
+        # a datagram that is one unsigned-link MAVLink 2 SET_POSITION_TARGET_LOCAL_NED frame
+        # (what the loop below does with it, minus the loop; `drain` tried the C path first)
         if not ch.signed and n > 12 and data[0] == wire.MAGIC_V2 and data[7:10] == SP_ID3:
-            fast = self._fast_sp
-            # (it accepts only a datagram that is exactly one valid frame)
-            if fast is not None and fast(data, *self._sp_args):   # accepted and applied
-                ch.peer = (data[5], data[6])
-                vs = self.vs
-                vs.of_last_us = vs.t_us
-                self.stats["setpoints"] += 1
-                return
             if wire.frame_end(data, 0) == n:
                 f = wire.decode_fast(wire.SET_POSITION_TARGET_LOCAL_NED, data, 0, n)
                 if f is None:
