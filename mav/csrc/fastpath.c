@@ -578,8 +578,8 @@ static PyObject *fp_check(PyObject *mod, PyObject *const *args, Py_ssize_t nargs
 }
 
 #include "setpoint.c"
-#include "telemetry.c"
 #include "memlink.c"
+#include "telemetry.c"
 #include "decode.c"
 #include "battery.c"
 
@@ -599,6 +599,9 @@ static PyMethodDef module_methods[] = {
     {"unpack_one", (PyCFunction)(void (*)(void))fp_unpack_one, METH_FASTCALL,
      "unpack_one(fallback, unpack_from, unpack, used_len, msgid, crc_extra, data): "
      "the leading fields of a one-frame datagram, or None (see decode.c)"},
+    {"emit_state", (PyCFunction)(void (*)(void))fp_emit_state, METH_FASTCALL,
+     "emit_state(kind, msgid, crc_extra, fallback, vs, ch): a state stream's emit and send "
+     "(see telemetry.c)"},
     {"state_msg", (PyCFunction)(void (*)(void))fp_state_msg, METH_FASTCALL,
      "state_msg(kind, msgid, crc_extra, mav, state, t_us): ATTITUDE (0) or "
      "LOCAL_POSITION_NED (1) of a VehicleState, framed on mav (see telemetry.c)"},

@@ -20,7 +20,8 @@ enum { T_QW, T_QX, T_QY, T_QZ, T_P, T_Q, T_R, T_X, T_Y, T_Z, T_VX, T_VY, T_VZ, T
 static const char *T_NAMES[T_N] = {"qw", "qx", "qy", "qz", "p", "q", "r", "x", "y", "z",
                                    "vx", "vy", "vz"};
 static PyObject *t_names[T_N];
-static PyObject *py_thousand, *py_u32_mask;
+static PyObject *py_thousand, *py_u32_mask, *py_one;
+static PyObject *n_state, *n_mav, *n_stats, *n_tx_key, *n_link;
 
 static int tm_init(void)
 {
@@ -33,6 +34,14 @@ static int tm_init(void)
     n_signing = PyUnicode_InternFromString("signing");
     n_sign_outgoing = PyUnicode_InternFromString("sign_outgoing");
     py_thousand = PyLong_FromLong(1000);
+    py_one = PyLong_FromLong(1);
+    n_state = PyUnicode_InternFromString("state");
+    n_mav = PyUnicode_InternFromString("mav");
+    n_stats = PyUnicode_InternFromString("stats");
+    n_tx_key = PyUnicode_InternFromString("tx_key");
+    n_link = PyUnicode_InternFromString("link");
+    if (!py_one || !n_state || !n_mav || !n_stats || !n_tx_key || !n_link)
+        return -1;
     py_u32_mask = PyLong_FromUnsignedLong(0xFFFFFFFFUL);
     if (!n_seq || !n_src_system || !n_src_component || !n_signing || !n_sign_outgoing ||
         !py_thousand || !py_u32_mask)
@@ -131,24 +140,14 @@ static PyObject *fp_frame_on(PyObject *mod, PyObject *const *args, Py_ssize_t na
                     n);
 }
 
-/* state_msg(kind, msgid, crc_extra, mav, state, t_us) -> bytes | None, stamped
- * time_boot_ms = (t_us // 1000) & 0xFFFFFFFF (the vehicle clock, us)
- * kind 0: ATTITUDE (time_boot_ms, roll, pitch, yaw, p, q, r); 1: LOCAL_POSITION_NED
- * (time_boot_ms, x, y, z, vx, vy, vz). Both payloads are <I6f. */
-static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+/* ATTITUDE (kind 0: time_boot_ms, roll, pitch, yaw, p, q, r) or LOCAL_POSITION_NED (kind 1:
+ * time_boot_ms, x, y, z, vx, vy, vz) of `state` framed on `mav`, both payloads <I6f, stamped
+ * time_boot_ms = (t_us // 1000) & 0xFFFFFFFF (the vehicle clock, us). None on a signing link. */
+static PyObject *state_msg(long kind, long msgid, long extra, PyObject *mav, PyObject *state,
+                           PyObject *t_us)
 {
-    if (nargs != 6) {
-        PyErr_SetString(PyExc_TypeError,
-                        "state_msg(kind, msgid, crc_extra, mav, state, t_us)");
-        return NULL;
-    }
-    long kind = PyLong_AsLong(args[0]);
-    long msgid = PyLong_AsLong(args[1]);
-    long extra = PyLong_AsLong(args[2]);
-    if (PyErr_Occurred())
-        return NULL;
-    /* time_boot_ms = (t_us // 1000) & 0xFFFFFFFF, with Python's integer semantics */
-    PyObject *q = PyNumber_FloorDivide(args[5], py_thousand);
+    /* time_boot_ms with Python's integer semantics */
+    PyObject *q = PyNumber_FloorDivide(t_us, py_thousand);
     if (q == NULL)
         return NULL;
     PyObject *w = PyNumber_And(q, py_u32_mask);
@@ -163,11 +162,6 @@ static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t n
         PyErr_SetString(PyExc_ValueError, "state_msg: kind must be 0 or 1");
         return NULL;
     }
-    if (tboot > 0xFFFFFFFFUL) {
-        PyErr_SetString(PyExc_OverflowError, "time_boot_ms out of range");
-        return NULL;
-    }
-    PyObject *mav = args[3];
     int signing = signs_outgoing(mav);
     if (signing < 0)
         return NULL;
@@ -177,7 +171,7 @@ static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t n
     double v[6];
     if (kind == TM_ATTITUDE) {
         double s[7];
-        if (read_floats(args[4], t_names + T_QW, 7, s) < 0)
+        if (read_floats(state, t_names + T_QW, 7, s) < 0)
             return NULL;
         const double qw = s[0], qx = s[1], qy = s[2], qz = s[3];
         v[0] = py_atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy));
@@ -187,7 +181,7 @@ static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t n
         v[3] = s[4];
         v[4] = s[5];
         v[5] = s[6];
-    } else if (read_floats(args[4], t_names + T_X, 6, v) < 0) {
+    } else if (read_floats(state, t_names + T_X, 6, v) < 0) {
         return NULL;
     }
     uint8_t pl[28];
@@ -198,6 +192,69 @@ static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t n
     for (int i = 0; i < 6; i++)
         if (PyFloat_Pack4(v[i], pl + 4 + 4 * i, 1) < 0)
             return NULL;
-
     return frame_on(mav, msgid, (uint8_t)extra, pl, (Py_ssize_t)sizeof pl);
+}
+
+/* state_msg(kind, msgid, crc_extra, mav, state, t_us) -> bytes | None (see above) */
+static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError,
+                        "state_msg(kind, msgid, crc_extra, mav, state, t_us)");
+        return NULL;
+    }
+    long kind = PyLong_AsLong(args[0]);
+    long msgid = PyLong_AsLong(args[1]);
+    long extra = PyLong_AsLong(args[2]);
+    if (PyErr_Occurred())
+        return NULL;
+    return state_msg(kind, msgid, extra, args[3], args[4], args[5]);
+}
+
+/* emit_state(kind, msgid, crc_extra, fallback, vs, ch) -> None: a periodic stream's emit
+ * (Telemetry.emit_attitude / emit_local_position, then Chan.send) in one call, bound with
+ * functools.partial to all but `ch`: the message of vs.state at vs.t_us on ch.mav, counted in
+ * ch.stats[ch.tx_key] and sent on ch.link. A signing link: fallback(ch) (the Python emitter). */
+static PyObject *fp_emit_state(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "emit_state(kind, msgid, crc_extra, fallback, vs, ch)");
+        return NULL;
+    }
+    long kind = PyLong_AsLong(args[0]);
+    long msgid = PyLong_AsLong(args[1]);
+    long extra = PyLong_AsLong(args[2]);
+    if (PyErr_Occurred())
+        return NULL;
+    PyObject *vs = args[4], *ch = args[5];
+    PyObject *state = PyObject_GetAttr(vs, n_state);
+    if (state == NULL)
+        return NULL;
+    PyObject *t_us = PyObject_GetAttr(vs, n_t_us);
+    PyObject *mav = t_us ? PyObject_GetAttr(ch, n_mav) : NULL;
+    PyObject *data = mav ? state_msg(kind, msgid, extra, mav, state, t_us) : NULL;
+    Py_DECREF(state);
+    Py_XDECREF(t_us);
+    Py_XDECREF(mav);
+    if (data == NULL)
+        return NULL;
+    if (data == Py_None) {
+        Py_DECREF(data);
+        return PyObject_CallOneArg(args[3], ch);
+    }
+    /* Chan.send: stats[tx_key] += 1; link.send(data) */
+    PyObject *stats = PyObject_GetAttr(ch, n_stats);
+    PyObject *key = stats ? PyObject_GetAttr(ch, n_tx_key) : NULL;
+    PyObject *old = key ? PyObject_GetItem(stats, key) : NULL;
+    PyObject *inc = old ? PyNumber_Add(old, py_one) : NULL;
+    int rc = inc ? PyObject_SetItem(stats, key, inc) : -1;
+    Py_XDECREF(stats);
+    Py_XDECREF(key);
+    Py_XDECREF(old);
+    Py_XDECREF(inc);
+    PyObject *link = rc < 0 ? NULL : PyObject_GetAttr(ch, n_link);
+    PyObject *r = link ? PyObject_CallMethodOneArg(link, n_send, data) : NULL;
+    Py_XDECREF(link);
+    Py_DECREF(data);
+    return r;
 }

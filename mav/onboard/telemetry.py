@@ -7,6 +7,7 @@ periodic stream) add it to `defs.STREAMS` with default rates in `defs.API_RATES_
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from heapq import heappop, heappush
@@ -52,6 +53,8 @@ _NO_HASH = (0,) * 16
 # the compiled encoders' message ids and CRC_EXTRA bytes (fastpath.c, telemetry.c)
 _ATT_ID, _ATT_EXTRA = wire.ATTITUDE.id, wire.ATTITUDE.crc_extra
 _LPOS_ID, _LPOS_EXTRA = wire.LOCAL_POSITION_NED.id, wire.LOCAL_POSITION_NED.crc_extra
+_STATE_KIND = {wire.ATTITUDE.id: (0, wire.ATTITUDE),
+               wire.LOCAL_POSITION_NED.id: (1, wire.LOCAL_POSITION_NED)}
 # BATTERY_STATUS: cells 2..10 not reported; charge state by the number of warnings given
 _NO_CELLS = (65535,) * 9
 _CHARGE_STATES = (M.MAV_BATTERY_CHARGE_STATE_OK, M.MAV_BATTERY_CHARGE_STATE_LOW,
@@ -99,6 +102,17 @@ class Telemetry:
 
     def emitter(self, msgid: int) -> Callable[[Chan], None] | None:
         return self._emitters.get(msgid)
+
+    def stream_emitter(self, msgid: int) -> Callable[[Chan], None] | None:
+        """What a periodic stream calls: the emitter, or for ATTITUDE and LOCAL_POSITION_NED
+        (most of what is streamed) its compiled copy with the send (telemetry.c `emit_state`:
+        the same bytes and counts, the Python emitter on a signing link) when built."""
+        py = self._emitters.get(msgid)
+        fp = fastpath.lib
+        if fp is None or msgid not in _STATE_KIND:
+            return py
+        kind, m = _STATE_KIND[msgid]
+        return functools.partial(fp.emit_state, kind, m.id, m.crc_extra, py, self.vs)
 
     def request_message(self, msgid: int) -> tuple[int, int | None]:
         """MAV_CMD_REQUEST_MESSAGE: (result, the message id to send after the ACK or None)."""

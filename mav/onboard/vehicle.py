@@ -129,7 +129,7 @@ class Onboard:
         self.input = LinkInput(vs, out, handlers, ofb.on_setpoint, cfg.sysid, cfg.compid)
         for ch, rates in zip(chans, (cfg.api_rates_hz, cfg.gcs_rates_hz), strict=True):
             for sname, msgid in STREAMS.items():
-                st = Stream(msgid, hz_to_us(rates.get(sname, 0.0)), tel.emitter(msgid))
+                st = Stream(msgid, hz_to_us(rates.get(sname, 0.0)), tel.stream_emitter(msgid))
                 ch.streams.append(st)
                 ch.by_msgid[msgid] = st
 
