@@ -242,7 +242,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         encode_valid, encode_lost = codec.encode_odometry, codec.encode_odometry_lost
         # (HilSimulatorCodec.decode_actuators without its Python frame: None is checked here)
         exchange, decode_actuators = vehicle.exchange, wire.decode_hil_actuator_controls
-        drain_gcs, plant_step, record, row = vehicle.drain_gcs, plant.step, spool.append, spool.pack
+        plant_step, record, row = plant.step, spool.append, spool.pack
+        # OnboardHandle.drain_gcs inline (the GCS tap stays the same object; a fault hook
+        # replaces what it wraps)
+        gcs_recv = vehicle.gcs.recv
         check_exit = monitor.check
         on_tick = app.on_tick if app is not None else None
         realtime, progress, png_every = opts.realtime, opts.progress, opts.png_every
@@ -289,7 +292,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                 if t_ans != t_us:
                     raise ComponentError("onboard",
                                          f"HIL answer stamped {t_ans} us for {t_us} us")
-                drain_gcs()
+                while gcs_recv() is not None:   # the master's GCS end: into the tlog
+                    pass
                 # 7a. record the tick (state at t_k, commands held over [t_k, t_k+1))
                 if app is not None:
                     sp = app.setpoint
