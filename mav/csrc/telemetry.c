@@ -195,6 +195,14 @@ static PyObject *state_msg(long kind, long msgid, long extra, PyObject *mav, PyO
     return frame_on(mav, msgid, (uint8_t)extra, pl, (Py_ssize_t)sizeof pl);
 }
 
+/* the (kind, msgid, crc_extra) arguments */
+static int three_longs(PyObject *const *args, long *k)
+{
+    for (int i = 0; i < 3; i++)
+        k[i] = PyLong_AsLong(args[i]);
+    return PyErr_Occurred() ? -1 : 0;
+}
+
 /* state_msg(kind, msgid, crc_extra, mav, state, t_us) -> bytes | None (see above) */
 static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
 {
@@ -203,12 +211,10 @@ static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t n
                         "state_msg(kind, msgid, crc_extra, mav, state, t_us)");
         return NULL;
     }
-    long kind = PyLong_AsLong(args[0]);
-    long msgid = PyLong_AsLong(args[1]);
-    long extra = PyLong_AsLong(args[2]);
-    if (PyErr_Occurred())
+    long k[3];
+    if (three_longs(args, k) < 0)
         return NULL;
-    return state_msg(kind, msgid, extra, args[3], args[4], args[5]);
+    return state_msg(k[0], k[1], k[2], args[3], args[4], args[5]);
 }
 
 /* emit_state(kind, msgid, crc_extra, fallback, vs, ch) -> None: a periodic stream's emit
@@ -221,11 +227,10 @@ static PyObject *fp_emit_state(PyObject *mod, PyObject *const *args, Py_ssize_t 
         PyErr_SetString(PyExc_TypeError, "emit_state(kind, msgid, crc_extra, fallback, vs, ch)");
         return NULL;
     }
-    long kind = PyLong_AsLong(args[0]);
-    long msgid = PyLong_AsLong(args[1]);
-    long extra = PyLong_AsLong(args[2]);
-    if (PyErr_Occurred())
+    long k[3];
+    if (three_longs(args, k) < 0)
         return NULL;
+    const long kind = k[0], msgid = k[1], extra = k[2];
     PyObject *vs = args[4], *ch = args[5];
     PyObject *state = PyObject_GetAttr(vs, n_state);
     if (state == NULL)
