@@ -1,4 +1,5 @@
-"""Build the onboard fast path (`mav/csrc/fastpath.c` -> `mav/_fastpath*.so`):
+"""Build the onboard fast path (`mav/csrc/fastpath.c`, which includes the other `csrc/*.c`,
+-> `mav/_fastpath*.so`):
 ``python -m mav.build`` (the install step runs it, as it builds the FMU).
 
 A CPython extension compiled with gcc against this interpreter's headers, with the flags that

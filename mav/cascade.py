@@ -139,7 +139,7 @@ class QuadCascade:
                  fast: bool | None = None):
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
-        # the compiled tick (mav/csrc/fastpath.c) when built; `fast` False forces the Python
+        # the compiled tick (mav/csrc/cascade.c) when built; `fast` False forces the Python
         # reference below, True requires the compiled one
         if fast is None:
             fast = fastpath.lib is not None
@@ -270,7 +270,7 @@ class QuadCascade:
         """One control tick: state estimate + setpoint -> motor commands u1..u4 in out[0:4].
 
         The readable model and the reference: with the fast path built, instances run the
-        compiled copy of this method (mav/csrc/fastpath.c), tested bit-identical to it.
+        compiled copy of this method (mav/csrc/cascade.c), tested bit-identical to it.
 
         The state must be finite (the estimator's job); a NaN still never reaches the motors
         (the commands are clipped NaN-safe into [0, 1])."""

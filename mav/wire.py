@@ -53,7 +53,7 @@ def _crc16_py(data: bytes, crc: int = 0xFFFF) -> int:
 
 crc16 = _mcrf4xx if _mcrf4xx is not None else _crc16_py
 
-# the compiled framing and frame checks (mav/csrc/fastpath.c), same bytes and verdicts as the
+# the compiled framing and frame checks (mav/csrc/framing.c), same bytes and verdicts as the
 # Python below (tests/test_fastpath.py); None: the Python path
 _fp_frame = fastpath.lib.frame if fastpath.lib is not None else None
 _fp_check = fastpath.lib.check if fastpath.lib is not None else None

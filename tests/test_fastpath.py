@@ -1,4 +1,4 @@
-"""The fast paths against their references: the compiled onboard code (mav/csrc/fastpath.c)
+"""The fast paths against their references: the compiled onboard code (mav/csrc/*.c)
 against its Python reference (mav/cascade.py, mav/wire.py), bit-identical tick by tick on
 random inputs and on closed-loop missions (the Simulink model-vs-generated-code check); the
 SIL lockstep's spin-then-sleep HIL wait against sleeping at once."""
