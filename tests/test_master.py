@@ -247,15 +247,15 @@ def test_cli_video_pngs_and_tune(tmp_path):
 
 def test_fmu_error_is_named_and_outputs_kept(tmp_path, monkeypatch):
     """A NaN motor command reaches the real FMU, which rejects it with fmi2Error."""
-    import mav.hil as hil
+    from mav import wire
 
-    orig = hil.HilSimulatorCodec.decode_actuators
+    orig = wire.decode_hil_actuator_controls     # the master's decoder of the HIL answer
 
-    def poisoned(self, data):
-        t, u1, u2, u3, u4 = orig(self, data)
+    def poisoned(data):
+        t, u1, u2, u3, u4 = orig(data)
         return (t, float("nan"), u2, u3, u4) if t >= 1_500_000 else (t, u1, u2, u3, u4)
 
-    monkeypatch.setattr(hil.HilSimulatorCodec, "decode_actuators", poisoned)
+    monkeypatch.setattr(wire, "decode_hil_actuator_controls", poisoned)
     res = run_scenario(load_scenario(SQUARE), RunOptions())
     assert res.exit_reason is ExitReason.COMPONENT_ERROR
     assert res.message.startswith("plant:") and "u1" in res.message
