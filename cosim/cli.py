@@ -61,7 +61,9 @@ Without a visual_path, `cosim run` teaches by rendering into the run folder firs
     "bench": """examples:
   cosim bench                   full measurement (a few minutes), figures + runs/bench.json
   cosim bench --quick           a short smoke run
-  cosim bench --flood           only SIL under a UDP flood (1-2 minutes)""",
+  cosim bench --flood           only SIL under a UDP flood (1-2 minutes)
+  cosim bench --instructions    instructions per MIL tick, compiled vs Python reference
+                                (needs Valgrind; 5-8 minutes; noise-free on a shared host)""",
 }
 
 EPILOG = """examples:
@@ -186,6 +188,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--flood", action="store_true",
                    help="only the flood figure: the seed mission in SIL without and with "
                         "70k datagrams/s on the vehicle's GCS port")
+    b.add_argument("--instructions", action="store_true",
+                   help="only the work per MIL tick in CPU instructions (Valgrind's "
+                        "cachegrind), compiled and Python reference, and their ratio")
     return p
 
 
@@ -274,7 +279,8 @@ def _dispatch(args) -> int:
         if args.json is not None and args.json.is_dir():
             raise ScenarioError("--json", str(args.json), "a file path (this is a folder)")
 
-        return bench_main(quick=args.quick, json_path=args.json, flood_only=args.flood)
+        return bench_main(quick=args.quick, json_path=args.json, flood_only=args.flood,
+                          instructions=args.instructions)
     raise AssertionError(args.cmd)
 
 

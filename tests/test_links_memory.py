@@ -112,3 +112,22 @@ def test_compiled_tap_link_logs_as_the_reference(tmp_path):
         out[name] = (got, log.count, log.read(), t.inner is not None)
     assert out["c"] == out["py"]
     assert out["c"][1] > 2000
+
+
+@pytest.mark.skipif(C is None, reason="needs the compiled fast path (python -m mav.build)")
+def test_compiled_tap_link_without_its_parts_raises_not_crashes(tmp_path):
+    from cosim.outputs.tlog import Tlog
+
+    T = fastpath.lib.TapLink
+    bare = T.__new__(T)
+    for call in (lambda: bare.send(b"x"), bare.recv, bare.close):
+        with pytest.raises(AttributeError):
+            call()
+    log = Tlog(tmp_path / "t.tlog")
+    t = T(MemoryLink.pair()[0], log)
+    del t.inner
+    with pytest.raises(AttributeError):
+        t.send(b"x")
+    with pytest.raises(TypeError):
+        T(1)
+    log.close()

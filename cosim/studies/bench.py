@@ -13,6 +13,7 @@ import json
 import math
 import os
 import platform
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -343,7 +344,22 @@ def format_report(res: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = False) -> int:
+def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = False,
+         instructions: bool = False) -> int:
+    if instructions:   # instructions per tick, now and before (bench_instr.py)
+        from cosim.studies.bench_instr import ToolMissing, bench_instructions, format_instructions
+
+        try:
+            res = {"machine": machine(), "instructions": bench_instructions()}
+        except ToolMissing as exc:
+            print(f"cosim bench: {exc}", file=sys.stderr)
+            return 2
+        print("\n".join(format_instructions(res["instructions"])))
+        path = json_path or Path("runs") / "bench_instructions.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(res, indent=2))
+        print(f"figures written to {path}")
+        return 0
     if flood_only:     # the flood figure alone (issue 14 item 9)
         res = {"machine": machine(), "quick": quick,
                "flood": bench_flood(**(QUICK_FLOOD if quick else {}))}

@@ -309,15 +309,27 @@ static int tap_add(Tap *self, PyObject *data)
     return rc;
 }
 
+/* inner or log deleted (`del tap.inner`) or never set (TapLink.__new__ alone) */
+static int tap_ready(Tap *self)
+{
+    if (self->inner == NULL || self->log == NULL) {
+        PyErr_SetString(PyExc_AttributeError, "TapLink: no inner link or no log");
+        return -1;
+    }
+    return 0;
+}
+
 static PyObject *tap_send(Tap *self, PyObject *data)
 {
-    if (tap_add(self, data) < 0)
+    if (tap_ready(self) < 0 || tap_add(self, data) < 0)
         return NULL;
     return PyObject_CallMethodOneArg(self->inner, n_send, data);
 }
 
 static PyObject *tap_recv(Tap *self, PyObject *unused)
 {
+    if (tap_ready(self) < 0)
+        return NULL;
     PyObject *data = PyObject_CallMethodNoArgs(self->inner, n_recv);
     if (data == NULL || data == Py_None)
         return data;
@@ -330,6 +342,8 @@ static PyObject *tap_recv(Tap *self, PyObject *unused)
 
 static PyObject *tap_close(Tap *self, PyObject *unused)
 {
+    if (tap_ready(self) < 0)
+        return NULL;
     return PyObject_CallMethodNoArgs(self->inner, n_close);
 }
 

@@ -1,0 +1,66 @@
+"""`cosim bench --instructions` (cosim/studies/bench_instr.py): the cachegrind summary parse,
+the per-tick arithmetic and the variants' environments through a stand-in `valgrind`
+executable (the real one is a system tool CI may lack), and the error without Valgrind."""
+
+from __future__ import annotations
+
+import stat
+import sys
+from pathlib import Path
+
+import pytest
+
+from cosim.studies import bench, bench_instr
+
+FAKE = """#!{python}
+# a stand-in for valgrind: checks the arguments cosim passes, answers like cachegrind
+import os, sys
+args = sys.argv[1:]
+assert args[0] == "--tool=cachegrind" and args[1] == "--cache-sim=no", args
+assert args[2].startswith("--cachegrind-out-file="), args
+assert args[3] == {python!r} and args[4] == "-c", args
+runs = int(args[-1])
+before = os.environ.get("MAV_FASTPATH") == "0" and os.environ.get("COSIM_FMI2STEP") == "0"
+per_tick = 600 if before else 250
+print("ticks 1000")
+print(f"==42== I   refs:      {{1_000_000 + runs * 1000 * per_tick:,}}", file=sys.stderr)
+"""
+
+
+def test_parse_irefs():
+    text = "==1== \n==1== I   refs:      4,395,895,132\n==1== other\n"
+    assert bench_instr.parse_irefs(text) == 4_395_895_132
+    with pytest.raises(ValueError):
+        bench_instr.parse_irefs("no summary here")
+
+
+def test_instructions_per_tick_from_two_processes_per_variant(tmp_path, monkeypatch):
+    fake = tmp_path / "valgrind"
+    fake.write_text(FAKE.format(python=sys.executable))
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.delenv("MAV_FASTPATH", raising=False)     # "now" runs as installed
+    monkeypatch.delenv("COSIM_FMI2STEP", raising=False)
+    res = bench_instr.bench_instructions(valgrind=str(fake))
+    assert res["now"]["per_tick"] == 250 and res["before"]["per_tick"] == 600
+    assert res["before_over_now"] == pytest.approx(2.4)
+    assert res["now"]["ticks"] == 1000
+    lines = bench_instr.format_instructions(res)
+    assert "0.2k" in lines[1] and "0.6k" in lines[2] and "2.40x" in lines[3]
+
+
+def test_a_failing_count_is_reported(tmp_path):
+    fake = tmp_path / "valgrind"
+    fake.write_text(f"#!{sys.executable}\nimport sys\nprint('boom', file=sys.stderr)\n"
+                    "sys.exit(3)\n")
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    with pytest.raises(RuntimeError, match="boom"):
+        bench_instr.bench_instructions(valgrind=str(fake))
+
+
+def test_without_valgrind_the_bench_says_what_to_install(monkeypatch, capsys, tmp_path):
+    monkeypatch.setattr(bench_instr.shutil, "which", lambda name: None)
+    rc = bench.main(instructions=True, json_path=Path(tmp_path) / "i.json")
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "valgrind is not on PATH" in err and "apt-get install valgrind" in err
+    assert not (tmp_path / "i.json").exists()
