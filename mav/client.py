@@ -276,9 +276,11 @@ class OffboardClient:
     def _on_target(self, f: tuple, compid: int) -> None:
         # time_boot_ms, x, y, z, vx, vy, vz, afx, afy, afz, yaw, yaw_rate, type_mask, frame
         m = f[12]
-        vals = (f[1], f[2], f[3], f[4], f[5], f[6], f[10], f[11])
-        bits = (1, 2, 4, 8, 16, 32, _IGN_YAW, _IGN_YAW_RATE)
-        self.position_target = tuple(NAN if m & b else v for v, b in zip(vals, bits, strict=True))
+        self.position_target = (NAN if m & 1 else f[1], NAN if m & 2 else f[2],
+                                NAN if m & 4 else f[3], NAN if m & 8 else f[4],
+                                NAN if m & 16 else f[5], NAN if m & 32 else f[6],
+                                NAN if m & _IGN_YAW else f[10],
+                                NAN if m & _IGN_YAW_RATE else f[11])
 
     def _on_sys_status(self, f: tuple, compid: int) -> None:
         # voltage_battery (mV), current_battery (cA), battery_remaining (%): fields 4, 5, 12
