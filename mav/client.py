@@ -403,9 +403,8 @@ class OffboardClient:
         pl = _SP_PACK(int(self.t * 1000.0) & 0xFFFFFFFF, x, y, z, vx, vy, vz, 0.0, 0.0, 0.0, yaw,
                       yaw_rate, mask, self.target_system, self.target_component, frame)
         fo = wire._fp_frame_on
-        self.stats["tx"] += 1
-        self.link.send((fo is not None and fo(self.mav, _SP_ID, _SP_EXTRA, pl))
-                       or wire.frame(self.mav, wire.SET_POSITION_TARGET_LOCAL_NED, pl))
+        self._send((fo is not None and fo(self.mav, _SP_ID, _SP_EXTRA, pl))
+                   or wire.frame(self.mav, wire.SET_POSITION_TARGET_LOCAL_NED, pl))
 
     def request_message(self, msgid: int) -> None:
         self.command_long(M.MAV_CMD_REQUEST_MESSAGE, float(msgid))
