@@ -139,11 +139,23 @@ class UdpLink:
         except (BlockingIOError, ConnectionRefusedError, OSError):
             self.dropped_sends += 1
 
+    _inet = True             # an AF_INET socket: the compiled receive applies (udp.c)
+
     def recv(self) -> bytes | None:
-        try:
-            data, addr = self.sock.recvfrom(65535)
-        except (BlockingIOError, ConnectionRefusedError, InterruptedError):
-            return None
+        lib = fastpath.lib if self._inet else None
+        if lib is not None:   # the same answer without raising when nothing waits (udp.c)
+            try:
+                got = lib.udp_recv(self.sock.fileno())
+            except ConnectionRefusedError:
+                return None
+            if got is None:
+                return None
+            data, addr = got
+        else:
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except (BlockingIOError, ConnectionRefusedError, InterruptedError):
+                return None
         if not self._fixed_remote and addr:
             self.remote = addr
         return data
@@ -155,7 +167,22 @@ class UdpLink:
         Spinning first saves the sleep and wake-up of a lockstep exchange when the answer
         comes within the spin (two processes on two CPUs); it costs CPU while it waits."""
         recv = self.sock.recvfrom
-        if spin_ns > 0:
+        lib = fastpath.lib if self._inet else None
+        if spin_ns > 0 and lib is not None:   # udp.c: no exception per empty poll
+            clock, fd, urecv = time.perf_counter_ns, self.sock.fileno(), lib.udp_recv
+            deadline = clock() + spin_ns
+            try:
+                got = urecv(fd)
+                while got is None and clock() <= deadline:
+                    got = urecv(fd)
+            except ConnectionRefusedError:
+                return None
+            if got is not None:
+                data, addr = got
+                if not self._fixed_remote and addr:
+                    self.remote = addr
+                return data
+        elif spin_ns > 0:
             clock = time.perf_counter_ns
             deadline = clock() + spin_ns
             while True:
@@ -224,6 +251,8 @@ class UnixLink(UdpLink):
     kernel; in the seed mission it measured no faster than loopback UDP: README, Performance).
     The file is removed on `close`. Linux and macOS; `path` must be short (108 bytes on
     Linux)."""
+
+    _inet = False            # socket.recvfrom's own path (udp.c handles AF_INET only)
 
     def __init__(self, path: str, remote: str | None = None) -> None:
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)

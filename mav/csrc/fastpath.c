@@ -6,8 +6,9 @@
  * (mav/README.md lists them): cascade.c the controller, framing.c the MAVLink 2 framing and
  * checks, setpoint.c the offboard setpoint accept path, memlink.c the in-memory link and tlog
  * tap, telemetry.c the state telemetry, decode.c the one-frame decoders, battery.c the battery
- * step. Compiled with -O2 -ffp-contract=off and no fast-math (mav/build.py) so every double
- * operation rounds as Python's does.
+ * step, udp.c a UDP receive without an exception when nothing waits. Compiled with -O2
+ * -ffp-contract=off and no fast-math (mav/build.py) so every double operation rounds as
+ * Python's does.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -23,6 +24,7 @@
 #include "telemetry.c"
 #include "decode.c"
 #include "battery.c"
+#include "udp.c"
 
 static PyMethodDef module_methods[] = {
     {"frame", (PyCFunction)(void (*)(void))fp_frame, METH_FASTCALL,
@@ -37,6 +39,8 @@ static PyMethodDef module_methods[] = {
      "(None if it signs)"},
     {"battery_step", (PyCFunction)(void (*)(void))fp_battery_step, METH_FASTCALL,
      "battery_step(battery, dt, u1, u2, u3, u4): Battery.step compiled (see battery.c)"},
+    {"udp_recv", (PyCFunction)fp_udp_recv, METH_O,
+     "udp_recv(fd): (data, (host, port)) of one waiting datagram, or None (see udp.c)"},
     {"unpack_one", (PyCFunction)(void (*)(void))fp_unpack_one, METH_FASTCALL,
      "unpack_one(fallback, unpack_from, unpack, used_len, msgid, crc_extra, data): "
      "the leading fields of a one-frame datagram, or None (see decode.c)"},
