@@ -276,6 +276,8 @@ def _dispatch(args) -> int:
     if args.cmd == "bench":
         from cosim.studies.bench import main as bench_main
 
+        if args.instructions and args.flood:
+            raise ScenarioError("bench", "--instructions --flood", "one of the two")
         if args.json is not None and args.json.is_dir():
             raise ScenarioError("--json", str(args.json), "a file path (this is a folder)")
 

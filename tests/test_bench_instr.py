@@ -64,3 +64,10 @@ def test_without_valgrind_the_bench_says_what_to_install(monkeypatch, capsys, tm
     err = capsys.readouterr().err
     assert "valgrind is not on PATH" in err and "apt-get install valgrind" in err
     assert not (tmp_path / "i.json").exists()
+
+
+def test_instructions_and_flood_together_are_refused(capsys):
+    from cosim.cli import main
+
+    assert main(["bench", "--instructions", "--flood"]) == 2
+    assert "--instructions --flood" in capsys.readouterr().err

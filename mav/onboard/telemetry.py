@@ -125,13 +125,10 @@ class Telemetry:
 
     # ------------------------------------------------------------------ per tick
     def publish(self, t: int) -> None:
-        """Everything due at t on each link: event messages, streams, queued PARAM_VALUEs."""
+        """Everything due at t on each link: event messages, streams, queued PARAM_VALUEs.
+        The vehicle's tick calls it only when something is (its test of next_due, the param
+        queues and the event flags, vehicle.py); with nothing due it would send nothing."""
         vs = self.vs
-        api, gcs = self.chans
-        if (t < api.next_due and t < gcs.next_due and not api.param_queue
-                and not gcs.param_queue
-                and not (vs.hb_now or vs.ext_now or vs.home_now or vs.mission_now)):
-            return
         for ch in self.chans:
             if ch.signed:
                 self.out.sync_signing(ch)
