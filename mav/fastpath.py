@@ -4,11 +4,11 @@ mav.build``), or None.
 `lib` is the extension module when it is built and not disabled; the parts that have a
 compiled form (the controller, `mav.cascade`; MAVLink framing, frame checks and one-frame
 decoders, `mav.wire`; the offboard setpoint path; the state telemetry; the battery step; the
-in-memory link and tlog tap; the UDP receive: mav/README.md lists the C files) use it then
-and their Python reference otherwise, with bit-identical results (tests/test_fastpath*.py,
-tests/test_links_memory.py, tests/test_links_udp.py). Set the environment variable
-``MAV_FASTPATH=0`` to run the Python reference (read at import: set it before starting), or
-`mav.reference.python()` in-process.
+in-memory link and tlog tap; the UDP receive; the vehicle's tick: mav/README.md lists the C
+files) use it then and their Python reference otherwise, with bit-identical results
+(tests/test_fastpath*.py, tests/test_links_memory.py, tests/test_links_udp.py,
+tests/test_tick.py). Set the environment variable ``MAV_FASTPATH=0`` to run the Python
+reference (read at import: set it before starting), or `mav.reference.python()` in-process.
 """
 
 from __future__ import annotations

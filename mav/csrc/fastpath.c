@@ -6,7 +6,8 @@
  * (mav/README.md lists them): cascade.c the controller, framing.c the MAVLink 2 framing and
  * checks, setpoint.c the offboard setpoint accept path, memlink.c the in-memory link and tlog
  * tap, telemetry.c the state telemetry, decode.c the one-frame decoders, battery.c the battery
- * step, udp.c a UDP receive without an exception when nothing waits. Compiled with -O2
+ * step, udp.c a UDP receive without an exception when nothing waits, tick.c and tick_run.c
+ * the vehicle's tick (Onboard.poll) in one call. Compiled with -O2
  * -ffp-contract=off and no fast-math (mav/build.py) so every double operation rounds as
  * Python's does.
  */
@@ -25,6 +26,8 @@
 #include "decode.c"
 #include "battery.c"
 #include "udp.c"
+#include "tick.c"
+#include "tick_run.c"
 
 static PyMethodDef module_methods[] = {
     {"frame", (PyCFunction)(void (*)(void))fp_frame, METH_FASTCALL,
@@ -70,7 +73,7 @@ PyMODINIT_FUNC PyInit__fastpath(void)
         return NULL;
     if (sp_init() < 0 || tm_init() < 0 || bat_init() < 0 || (py_ten = PyLong_FromLong(HDR_V2)) == NULL)
         return NULL;
-    if (PyType_Ready(&CascadeType) < 0)
+    if (PyType_Ready(&CascadeType) < 0 || PyType_Ready(&TickType) < 0 || tick_init_names() < 0)
         return NULL;
     if (PyType_Ready(&MemLinkType) < 0 || PyType_Ready(&TapType) < 0 || tap_init_names() < 0)
         return NULL;
@@ -86,6 +89,12 @@ PyMODINIT_FUNC PyInit__fastpath(void)
     Py_INCREF(&TapType);
     if (PyModule_AddObject(m, "TapLink", (PyObject *)&TapType) < 0) {
         Py_DECREF(&TapType);
+        Py_DECREF(m);
+        return NULL;
+    }
+    Py_INCREF(&TickType);
+    if (PyModule_AddObject(m, "Tick", (PyObject *)&TickType) < 0) {
+        Py_DECREF(&TickType);
         Py_DECREF(m);
         return NULL;
     }

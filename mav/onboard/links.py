@@ -151,10 +151,12 @@ class LinkInput:
         self._sp_args = (vs.of, sysid, compid, SP_MAX_POS_M, SP_MAX_VEL_MPS, SP_MAX_YAW_RAD,
                          SP_MAX_YAW_RATE)
 
-    def drain(self, ch: Chan, data: bytes | None = None) -> None:
+    def drain(self, ch: Chan, data: bytes | None = None, first: int = 0) -> None:
         """Handle what is queued on ch's link (at most DRAIN_MAX datagrams). `data`: the first
         datagram when the caller has already received it (the vehicle's tick looks first, so
-        an idle link costs no call here)."""
+        an idle link costs no call here). `first`: how many of this drain's datagrams the
+        caller has already handled (the compiled tick applies the accepted setpoints itself
+        and hands the first other datagram here, mav/csrc/tick.c)."""
         recv = ch.link.recv
         if data is None:
             data = recv()
@@ -168,8 +170,8 @@ class LinkInput:
         else:   # the 200 Hz case: one SET_POSITION_TARGET_LOCAL_NED frame the C path accepts
             fast = self._fast_sp
         vs = self.vs
-        for n in range(DRAIN_MAX):
-            if n:
+        for n in range(first, DRAIN_MAX):
+            if n > first:
                 data = recv()
                 if data is None:
                     return

@@ -80,6 +80,8 @@ class Onboard:
     `warnings` (parameter-file notes), `status` (the shared VehicleStatus record).
     """
 
+    compiled_tick = True     # use mav/csrc/tick.c for `poll` when the extension is loaded
+
     def __init__(self, config: OnboardConfig, hil, api, gcs, *, controller=None) -> None:
         self.cfg = cfg = config
         self._hil = hil
@@ -150,6 +152,11 @@ class Onboard:
         if cfg.param_file:
             prm.load_file(cfg.param_file)
         prm.apply()
+        # the tick compiled (mav/csrc/tick.c: `poll` below, statement for statement), when the
+        # extension is loaded and `compiled_tick` is on (tests turn it off to compare)
+        fp = fastpath.lib
+        if fp is not None and self.compiled_tick:
+            self.poll = fp.Tick(self).run
 
     # ------------------------------------------------------------------ public helpers
     @property
