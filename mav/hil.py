@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import math
 import struct
+from functools import partial
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mav import wire
+from mav import fastpath, wire
 
 SIM_SYSID = 250
 SIM_COMPID = mavlink2.MAV_COMP_ID_SYSTEM_CONTROL
@@ -36,6 +37,10 @@ _ODO_TAIL_LOST = _ODO_TAIL[:-1] + struct.pack("<b", -1)     # quality -1: the es
 class HilSimulatorCodec:
     def __init__(self) -> None:
         self.mav = mavlink2.MAVLink(None, srcSystem=SIM_SYSID, srcComponent=SIM_COMPID)
+        fp = fastpath.lib
+        if fp is not None:   # the same bytes in one C call (mav/csrc/hilsim.c), this as fallback
+            self.encode_odometry = partial(fp.odometry_frame, self.encode_odometry, self.mav,
+                                           _ODO_ID, _ODO_EXTRA, _ODO_TAIL)
 
     def encode_odometry(self, t_us: int, m: tuple[float, ...]) -> bytes:
         """m = (x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r), SI, NED/FRD. The same bytes as

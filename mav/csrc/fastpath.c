@@ -7,7 +7,8 @@
  * checks, setpoint.c the offboard setpoint accept path, memlink.c the in-memory link and tlog
  * tap, telemetry.c the state telemetry, decode.c the one-frame decoders, battery.c the battery
  * step, udp.c a UDP receive without an exception when nothing waits, tick.c and tick_run.c
- * the vehicle's tick (Onboard.poll) in one call. Compiled with -O2
+ * the vehicle's tick (Onboard.poll) in one call, hilsim.c the simulator's ODOMETRY. Compiled
+ * with -O2
  * -ffp-contract=off and no fast-math (mav/build.py) so every double operation rounds as
  * Python's does.
  */
@@ -26,6 +27,7 @@
 #include "decode.c"
 #include "battery.c"
 #include "udp.c"
+#include "hilsim.c"
 #include "tick.c"
 #include "tick_run.c"
 
@@ -47,6 +49,9 @@ static PyMethodDef module_methods[] = {
     {"unpack_one", (PyCFunction)(void (*)(void))fp_unpack_one, METH_FASTCALL,
      "unpack_one(fallback, unpack_from, unpack, used_len, msgid, crc_extra, data): "
      "the leading fields of a one-frame datagram, or None (see decode.c)"},
+    {"odometry_frame", (PyCFunction)(void (*)(void))fp_odometry_frame, METH_FASTCALL,
+     "odometry_frame(fallback, mav, msgid, crc_extra, tail, t_us, m): the simulator's "
+     "ODOMETRY frame (see hilsim.c)"},
     {"emit_state", (PyCFunction)(void (*)(void))fp_emit_state, METH_FASTCALL,
      "emit_state(kind, msgid, crc_extra, fallback, vs, ch): a state stream's emit and send "
      "(see telemetry.c)"},
