@@ -153,10 +153,23 @@ class OffboardClient:
                 sg.timestamp = ts
         n = 0
         recv = self.link.recv
+        one = self._fast_one
         while True:
             data = recv()
             if data is None:
                 break
+            # a datagram that is exactly one valid frame of a fast-decoded message, decoded in
+            # one C call (what _datagram's loop would do with it); anything else: _datagram
+            if one is not None and len(data) > 11 and data[0] == wire.MAGIC_V2:
+                msgid = data[7] | data[8] << 8 | data[9] << 16
+                dec = one.get(msgid)
+                f = dec(data) if dec is not None else None
+                if f is not None:
+                    self.stats["rx"] += 1
+                    n += 1
+                    if data[5] == self.target_system:
+                        self._fast_handlers[msgid](f, data[6])
+                    continue
             n += self._datagram(data)
         if t >= self._next_hb:          # heartbeat_due(t), inline on the per-tick path
             self.send_heartbeat(t)
@@ -164,16 +177,6 @@ class OffboardClient:
 
     def _datagram(self, data: bytes) -> int:
         st = self.stats
-        one = self._fast_one
-        if one is not None and len(data) > 11 and data[0] == wire.MAGIC_V2:
-            msgid = data[7] | data[8] << 8 | data[9] << 16
-            dec = one.get(msgid)
-            f = dec(data) if dec is not None else None
-            if f is not None:      # exactly one valid frame: what the loop below would do
-                st["rx"] += 1
-                if data[5] == self.target_system:
-                    self._fast_handlers[msgid](f, data[6])
-                return 1
         n = 0
         i, size = 0, len(data)
         fast = self._fast_rx

@@ -203,7 +203,8 @@ def test_fast_telemetry_decode_matches_pymavlink(tmp_path):
     path = tmp_path / "f.tlog"
     res.tlog.write(path)
     records = read_tlog(path)
-    fast, loop, slow = (OffboardClient(MemoryLink.pair()[0]) for _ in range(3))
+    pairs = [MemoryLink.pair() for _ in range(3)]
+    fast, loop, slow = (OffboardClient(a) for a, _ in pairs)
     assert fast._fast_one is not None            # one-frame datagrams in one C call
     loop._fast_one = None                         # the fast codec's frame loop
     slow._fast_rx = slow._fast_one = None         # pymavlink
@@ -213,9 +214,9 @@ def test_fast_telemetry_decode_matches_pymavlink(tmp_path):
     kinds = set()
     for t_us, data in records:
         kinds.add(wire.msgid_of(data))
-        for c in (fast, loop, slow):
-            c.t = t_us * 1e-6
-            c._datagram(data)
+        for c, (_, peer) in zip((fast, loop, slow), pairs, strict=True):
+            peer.send(data)
+            c.poll(t_us * 1e-6)
         for a in attrs:
             va, vb, vc = getattr(fast, a), getattr(loop, a), getattr(slow, a)
             assert repr(va) == repr(vb) == repr(vc), (a, t_us, va, vb, vc)

@@ -228,3 +228,64 @@ def test_random_sessions_identical_compiled_tick_and_reference(seed, gcs_key, mo
     assert any(fs for m, armed, fs in twin.modes), twin.modes
     if gcs_key:
         assert ob._gcs.signed and ob._api.signed
+
+
+# ------------------------------------------------------------------ MIL's exchange in one call
+class _Sim:
+    def __init__(self, answers):
+        self.sent, self.answers = [], list(answers)
+
+    def send(self, data):
+        self.sent.append(data)
+
+    def recv(self):
+        return self.answers.pop(0) if self.answers else None
+
+
+def _reference_exchange(sim, poll, pending, data):
+    """cosim.sim.onboard.OnboardHandle.exchange's MIL loop, unwrapped."""
+    sim.send(data)
+    while not poll() and pending():
+        pass
+    return sim.recv()
+
+
+@pytest.mark.parametrize("polls,queued", [([True], []), ([False, False, True], [1, 1]),
+                                          ([False, 0, None], [2, True, 0]), ([False], [0])])
+def test_mil_exchange_is_the_reference_loop(polls, queued):
+    got = []
+    for ex in (fastpath.lib.mil_exchange, _reference_exchange):
+        calls = []
+        p, q = list(polls), list(queued)
+
+        def poll(p=p, calls=calls):
+            calls.append("poll")
+            return p.pop(0)
+
+        def pending(q=q, calls=calls):
+            calls.append("pending")
+            return q.pop(0)
+        sim = _Sim([b"answer"])
+        got.append((ex(sim, poll, pending, b"odo"), sim.sent, calls))
+    assert got[0] == got[1]
+
+
+def test_mil_exchange_passes_a_failure_on_and_the_master_names_it(monkeypatch):
+    def boom():
+        raise RuntimeError("boom")
+    with pytest.raises(RuntimeError, match="boom"):
+        fastpath.lib.mil_exchange(_Sim([]), boom, lambda: 0, b"odo")
+    sc = load_scenario("scenarios/scripted_square.toml")
+    messages = []
+    for compiled in (True, False):     # the C exchange, and the handle's Python exchange
+        if not compiled:
+            monkeypatch.setattr(fastpath, "lib", None)
+        monkeypatch.setattr(vehicle_mod.Onboard, "compiled_tick", False)
+        monkeypatch.setattr(vehicle_mod.Onboard, "poll", lambda self: boom())
+        r1 = run_scenario(sc, RunOptions(mode="mil"))
+        monkeypatch.setattr(vehicle_mod.Onboard, "poll", lambda self: self._hil.recv() and False)
+        r2 = run_scenario(sc, RunOptions(mode="mil"))
+        messages.append((r1.exit_reason, r1.message, r2.exit_reason, r2.message))
+    assert messages[0] == messages[1]
+    assert messages[0][1] == "onboard: RuntimeError: boom"
+    assert messages[0][3] == "onboard: no HIL_ACTUATOR_CONTROLS answer"

@@ -241,7 +241,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         measure, encode_odometry = sensor.measure, codec.encode_odometry
         encode_valid, encode_lost = codec.encode_odometry, codec.encode_odometry_lost
         # (HilSimulatorCodec.decode_actuators without its Python frame: None is checked here)
-        exchange, decode_actuators = vehicle.exchange, wire.decode_hil_actuator_controls
+        exchange, decode_actuators = vehicle.exchange_call(), wire.decode_hil_actuator_controls
         plant_step, record, row = plant.step, spool.append, spool.pack
         # OnboardHandle.drain_gcs inline (the GCS tap stays the same object; a fault hook
         # replaces what it wraps)
@@ -285,6 +285,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                 # 5. HIL exchange: ODOMETRY out, HIL_ACTUATOR_CONTROLS stamped t_k back
                 stage = "onboard"
                 ans = exchange(encode_odometry(t_us, meas))
+                if ans is None:
+                    raise ComponentError("onboard", "no HIL_ACTUATOR_CONTROLS answer")
                 act = decode_actuators(ans)
                 if act is None:
                     raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(ans)} bytes)")

@@ -52,6 +52,9 @@ static PyMethodDef module_methods[] = {
     {"odometry_frame", (PyCFunction)(void (*)(void))fp_odometry_frame, METH_FASTCALL,
      "odometry_frame(fallback, mav, msgid, crc_extra, tail, t_us, m): the simulator's "
      "ODOMETRY frame (see hilsim.c)"},
+    {"mil_exchange", (PyCFunction)(void (*)(void))fp_mil_exchange, METH_FASTCALL,
+     "mil_exchange(sim, poll, pending, data): one lockstep HIL exchange in memory "
+     "(see hilsim.c)"},
     {"emit_state", (PyCFunction)(void (*)(void))fp_emit_state, METH_FASTCALL,
      "emit_state(kind, msgid, crc_extra, fallback, vs, ch): a state stream's emit and send "
      "(see telemetry.c)"},

@@ -1,4 +1,7 @@
-/* The simulator's ODOMETRY, compiled (included by fastpath.c). The reference is
+/* The simulator's side of the HIL link, compiled (included by fastpath.c): its ODOMETRY and
+ * MIL's lockstep exchange (below).
+ *
+ * The ODOMETRY's reference is
  * mav.hil.HilSimulatorCodec.encode_odometry: the payload is struct "<Q13f" of (t_us, *m) and
  * the constant tail, framed on the simulator's MAVLink object as wire.frame does.
  *
@@ -48,4 +51,43 @@ static PyObject *fp_odometry_frame(PyObject *mod, PyObject *const *args, Py_ssiz
             return NULL;
     memcpy(pl + ODO_HEAD, PyBytes_AS_STRING(args[4]), (size_t)tail);
     return frame_on(args[1], msgid, (uint8_t)extra, pl, ODO_HEAD + tail);
+}
+
+/* mil_exchange(sim, poll, pending, data) -> bytes | None: one lockstep HIL exchange over an
+ * in-memory pair, as cosim's OnboardHandle.exchange does it in MIL (the reference):
+ * sim.send(data), then poll() until it handles a tick or nothing is queued at the vehicle's
+ * end (`pending()`), then the answer, sim.recv() (None if there was none). Exceptions are the
+ * reference's, unwrapped: its caller names them. */
+static PyObject *n_send_, *n_recv_;
+
+static PyObject *fp_mil_exchange(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "mil_exchange(sim, poll, pending, data)");
+        return NULL;
+    }
+    if (n_send_ == NULL && ((n_send_ = PyUnicode_InternFromString("send")) == NULL ||
+                            (n_recv_ = PyUnicode_InternFromString("recv")) == NULL))
+        return NULL;
+    PyObject *r = PyObject_CallMethodOneArg(args[0], n_send_, args[3]);
+    if (r == NULL)
+        return NULL;
+    Py_DECREF(r);
+    for (;;) {
+        r = PyObject_CallNoArgs(args[1]);
+        int done = r ? PyObject_IsTrue(r) : -1;
+        Py_XDECREF(r);
+        if (done < 0)
+            return NULL;
+        if (done)
+            break;
+        r = PyObject_CallNoArgs(args[2]);
+        int more = r ? PyObject_IsTrue(r) : -1;
+        Py_XDECREF(r);
+        if (more < 0)
+            return NULL;
+        if (!more)
+            break;
+    }
+    return PyObject_CallMethodNoArgs(args[0], n_recv_);
 }
