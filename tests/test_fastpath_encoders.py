@@ -222,6 +222,17 @@ def test_compiled_stream_emit_sends_and_counts_as_the_reference():
             assert out[0] == out[1] and out[0][0] is not None and out[0][3] == {"tx_api": 5}
 
 
+def _odometry_both(fast, ref, t_us, m) -> bool:
+    """Both codecs' answer (bytes, or the error's type and text) is the same."""
+    got = []
+    for codec in (fast, ref):
+        try:
+            got.append(codec.encode_odometry(t_us, m))
+        except Exception as exc:
+            got.append((type(exc), str(exc)))
+    return got[0] == got[1]
+
+
 def test_compiled_odometry_encoder_is_the_reference():
     """The simulator's ODOMETRY (mav/csrc/hilsim.c) against HilSimulatorCodec's Python
     encoder: same bytes and seq on random values; the reference's answer (or error) for what
@@ -241,24 +252,12 @@ def test_compiled_odometry_encoder_is_the_reference():
         m = tuple(_value(rng) for _ in range(13))
         if rng.random() < 0.05:
             m = m[:12] + (F32_MAX * 2,)       # too large for a float: struct's OverflowError
-        got = []
-        for codec in (fast, ref):
-            try:
-                got.append(codec.encode_odometry(t_us, m))
-            except Exception as exc:
-                got.append((type(exc), str(exc)))
-        assert got[0] == got[1], (t_us, m)
+        assert _odometry_both(fast, ref, t_us, m)
         assert fast.mav.seq == ref.mav.seq
     odd = [(-1, (0.0,) * 13), (1 << 64, (0.0,) * 13), (5, [0.5] * 13), (5, (1,) * 13),
            (5, tuple(np.float32(0.25) for _ in range(13))), (5, (0.0,) * 12), (5.0, (0.0,) * 13)]
     for t_us, m in odd:
-        got = []
-        for codec in (fast, ref):
-            try:
-                got.append(codec.encode_odometry(t_us, m))
-            except Exception as exc:
-                got.append((type(exc), str(exc)))
-        assert got[0] == got[1], (t_us, m)
+        assert _odometry_both(fast, ref, t_us, m)
     sg = fast.mav.signing                # a signing simulator: the reference frames it
     sg.secret_key, sg.sign_outgoing, sg.link_id, sg.timestamp = b"s" * 32, True, 1, 1
     rsg = ref.mav.signing

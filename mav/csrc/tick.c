@@ -311,6 +311,18 @@ done:
     return rc;
 }
 
+/* `t - o.since > o.limit` with Python ints: 1, 0 or -1 */
+static int elapsed_over(PyObject *o, PyObject *t, int since, int limit)
+{
+    PyObject *t0 = attr(o, since), *lim = t0 ? attr(o, limit) : NULL;
+    PyObject *dt = lim ? PyNumber_Subtract(t, t0) : NULL;
+    int over = dt ? PyObject_RichCompareBool(dt, lim, Py_GT) : -1;
+    Py_XDECREF(t0);
+    Py_XDECREF(lim);
+    Py_XDECREF(dt);
+    return over;
+}
+
 /* Onboard._step_modes(t) */
 static int tick_modes(Tick *self, PyObject *t)
 {
@@ -320,12 +332,7 @@ static int tick_modes(Tick *self, PyObject *t)
     if (attr_long(vs, K_mode, &mode) < 0)
         return -1;
     if (mode == c[C_OFFBOARD]) {
-        PyObject *last = attr(vs, K_of_last_us), *loss = last ? attr(vs, K_of_loss_us) : NULL;
-        PyObject *dt = loss ? PyNumber_Subtract(t, last) : NULL;
-        int late = dt ? PyObject_RichCompareBool(dt, loss, Py_GT) : -1;
-        Py_XDECREF(last);
-        Py_XDECREF(loss);
-        Py_XDECREF(dt);
+        int late = elapsed_over(vs, t, K_of_last_us, K_of_loss_us);
         if (late < 0)
             return -1;
         if (late) {
@@ -405,12 +412,7 @@ static int tick_modes(Tick *self, PyObject *t)
     if (fs < 0)
         return -1;
     if (fs && mode == c[C_LOITER]) {
-        PyObject *t0 = attr(vs, K_fs_t0), *lim = t0 ? attr(vs, K_fail_act_us) : NULL;
-        PyObject *dt = lim ? PyNumber_Subtract(t, t0) : NULL;
-        int over = dt ? PyObject_RichCompareBool(dt, lim, Py_GT) : -1;
-        Py_XDECREF(t0);
-        Py_XDECREF(lim);
-        Py_XDECREF(dt);
+        int over = elapsed_over(vs, t, K_fs_t0, K_fail_act_us);
         if (over < 0 || (over && call_part(veh, K_failsafe, K_hold_expired, NULL) < 0))
             return -1;
     }
