@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from functools import partial
+from types import MethodType
 from typing import NamedTuple
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -126,6 +128,12 @@ class OffboardClient:
         # fast path is built; None: the loop in _datagram does it all
         self._fast_one = (None if self.signed or fastpath.lib is None else
                           {mid: wire.one_frame_decoder(m, m.st) for mid, m in _FAST_RX.items()})
+        # the position setpoint in one C call (mav/csrc/client.c; the method below is its
+        # reference and fallback), unless a subclass has its own
+        fp = fastpath.lib
+        if fp is not None and type(self).set_position_target is _SET_POSITION_TARGET:
+            self.set_position_target = partial(fp.client_setpoint,
+                                               MethodType(_SET_POSITION_TARGET, self), self)
         self._fast_handlers = {
             M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._on_local_position,
             M.MAVLINK_MSG_ID_ATTITUDE: self._on_attitude,
@@ -428,3 +436,6 @@ class OffboardClient:
         """PARAM_REQUEST_LIST: the vehicle streams every PARAM_VALUE into `params`."""
         self._send_msg(M.MAVLink_param_request_list_message(self.target_system,
                                                              self.target_component))
+
+
+_SET_POSITION_TARGET = OffboardClient.set_position_target   # the reference of client.c

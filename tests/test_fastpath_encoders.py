@@ -264,3 +264,65 @@ def test_compiled_odometry_encoder_is_the_reference():
     rsg.secret_key, rsg.sign_outgoing, rsg.link_id, rsg.timestamp = b"s" * 32, True, 1, 1
     m = (0.5,) * 13
     assert fast.encode_odometry(7, m) == ref.encode_odometry(7, m)
+
+
+class _Link:
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def send(self, data: bytes) -> None:
+        self.sent.append(data)
+
+
+def test_compiled_client_setpoint_is_the_reference():
+    """OffboardClient.set_position_target compiled (mav/csrc/client.c) against its Python
+    method: the same bytes, seq and tx count on random setpoints, and the reference's answer
+    (or error, with nothing sent) for what the compiled path hands back: keywords, ints,
+    numpy floats, a clock that is not finite, targets out of range, a signing client."""
+    import numpy as np
+
+    from mav.client import OffboardClient
+
+    fast = OffboardClient(_Link())
+    assert isinstance(fast.set_position_target, functools.partial)
+    with reference.python():
+        ref = OffboardClient(_Link())
+    assert "set_position_target" not in ref.__dict__
+
+    def both(args, kw, t):
+        got = []
+        for c in (fast, ref):
+            c.t = t
+            try:
+                c.set_position_target(*args, **kw)
+                got.append(c.link.sent[-1])
+            except Exception as exc:
+                got.append((type(exc), str(exc)))
+            got.append((c.mav.seq, c.stats["tx"], len(c.link.sent)))
+        return got[:2] == got[2:]
+
+    rng = random.Random(5)
+    for k in range(3000):
+        args = tuple(_value(rng) for _ in range(rng.randrange(3, 9)))
+        if rng.random() < 0.03:
+            args = args[:2] + (F32_MAX * 4,) + args[3:]
+        t = rng.choice([k * 0.005, -k * 0.005, 5e6, rng.uniform(0, 1e7)])
+        assert both(args, {}, t), (args, t)
+    odd = [((1.0, 2.0, -1.0), {"yaw": 0.5}, 1.0), ((1, 2, -1), {}, 1.0),
+           ((np.float64(1.5), 2.0, -1.0, np.float64(0.1)), {}, 1.0),
+           ((np.float32(1.5), 2.0, -1.0), {}, 1.0), ((1.0, 2.0, -1.0), {}, math.nan),
+           ((1.0, 2.0, -1.0), {}, math.inf), ((1.0, 2.0, -1.0), {}, 3),
+           ((1.0, 2.0, -1.0), {}, 1e17), ((1.0, 2.0), {}, 1.0)]
+    for args, kw, t in odd:
+        assert both(args, kw, t), (args, kw, t)
+    for name, bad in (("target_system", 300), ("target_component", -1),
+                      ("target_system", 1.0)):
+        for c in (fast, ref):
+            setattr(c, name, bad)
+        assert both((1.0, 2.0, -1.0), {}, 1.0), (name, bad)
+        for c in (fast, ref):
+            setattr(c, name, 1)
+    for c in (fast, ref):                   # a signing client: the reference frames it
+        sg = c.mav.signing
+        sg.secret_key, sg.sign_outgoing, sg.link_id, sg.timestamp = b"s" * 32, True, 1, 1
+    assert both((1.0, 2.0, -1.0, 0.3), {}, 1.0)

@@ -14,14 +14,14 @@ from cosim.studies.bench_common import SEED, _per_call_us
 # tick looks up at run or call time (the compiled battery step and HIL answer decoder)
 _HIL = "HIL exchange (onboard)"
 _CTRL = "  onboard controller"
+_SETPOINT = "  setpoint encode+send"
 _TICK_PARTS = (
     ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None),
     ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None),
     ("mav.client", "OffboardClient", "poll", "  client poll (telemetry in)", "app on_tick"),
-    ("mav.client", "OffboardClient", "_setpoint", "  setpoint encode+send",
-     "app on_tick"),
+    ("mav.client", "OffboardClient", "_setpoint", _SETPOINT, "app on_tick"),
     ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None),
     ("cosim.sim.onboard", "OnboardHandle", "exchange_call", "HIL exchange (onboard)", None),
     ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL),
@@ -33,6 +33,15 @@ _TICK_PARTS = (
     ("mav.wire", None, "decode_hil_actuator_controls", "HIL_ACTUATOR_CONTROLS decode", None),
     ("cosim.plant.fmu", "Plant", "step", "plant step", None),
 )
+
+
+def _timing_attr(setup: Callable, attr: str, timed: Callable, label: str) -> Callable:
+    """A set-up method that then times the instance attribute `attr` it bound, if any."""
+    def wrapper(self: Any, *a: Any, **kw: Any) -> None:
+        setup(self, *a, **kw)
+        if attr in self.__dict__:
+            setattr(self, attr, timed(self.__dict__[attr], label))
+    return wrapper
 
 
 def _timed_result(fn: Callable, timed: Callable, label: str) -> Callable:
@@ -94,36 +103,21 @@ def bench_tick_breakdown() -> dict[str, Any]:
                 setattr(c, meth, _timed_result(orig, timed, label))
             else:
                 setattr(c, meth, timed(orig, label))
-        # the compiled controller is an instance attribute (mav/fastpath.py): time it there
-        from mav.cascade import QuadCascade
-        init = QuadCascade.__dict__["__init__"]
-        saved.append((QuadCascade, "__init__", init))
-
-        def init_timed(self, *a: Any, **kw: Any) -> None:
-            init(self, *a, **kw)
-            if "update" in self.__dict__:
-                self.update = timed(self.update, _CTRL)
-        QuadCascade.__init__ = init_timed
-        # so is the compiled FMI stepper (cosim/plant/fmu.py: Plant.step bound to it)
+        # the compiled parts bound as instance attributes when their object is set up (the
+        # controller, mav/fastpath.py; the FMI stepper, cosim/plant/fmu.py; the ODOMETRY
+        # encoder, mav/hil.py; the client's setpoint, mav/client.py): timed there
         from cosim.plant.fmu import Plant
-        use = Plant.__dict__["_use_stepper"]
-        saved.append((Plant, "_use_stepper", use))
-
-        def use_timed(self, *a: Any, **kw: Any) -> None:
-            use(self, *a, **kw)
-            if "step" in self.__dict__:
-                self.step = timed(self.step, "plant step")
-        Plant._use_stepper = use_timed
-        # and the compiled ODOMETRY encoder (mav/hil.py: an instance attribute)
+        from mav.cascade import QuadCascade
+        from mav.client import OffboardClient
         from mav.hil import HilSimulatorCodec
-        hinit = HilSimulatorCodec.__dict__["__init__"]
-        saved.append((HilSimulatorCodec, "__init__", hinit))
-
-        def hinit_timed(self, *a: Any, **kw: Any) -> None:
-            hinit(self, *a, **kw)
-            if "encode_odometry" in self.__dict__:
-                self.encode_odometry = timed(self.encode_odometry, "ODOMETRY encode")
-        HilSimulatorCodec.__init__ = hinit_timed
+        for c, setup, attr, label in (
+                (QuadCascade, "__init__", "update", _CTRL),
+                (Plant, "_use_stepper", "step", "plant step"),
+                (HilSimulatorCodec, "__init__", "encode_odometry", "ODOMETRY encode"),
+                (OffboardClient, "__init__", "set_position_target", _SETPOINT)):
+            orig = c.__dict__[setup]
+            saved.append((c, setup, orig))
+            setattr(c, setup, _timing_attr(orig, attr, timed, label))
         res = run_scenario(load_scenario(SEED), RunOptions(mode="mil"))
     finally:
         for c, meth, orig in reversed(saved):

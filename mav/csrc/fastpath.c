@@ -7,8 +7,8 @@
  * checks, setpoint.c the offboard setpoint accept path, memlink.c the in-memory link and tlog
  * tap, telemetry.c the state telemetry, decode.c the one-frame decoders, battery.c the battery
  * step, udp.c a UDP receive without an exception when nothing waits, tick.c and tick_run.c
- * the vehicle's tick (Onboard.poll) in one call, hilsim.c the simulator's ODOMETRY. Compiled
- * with -O2
+ * the vehicle's tick (Onboard.poll) in one call, hilsim.c the simulator's ODOMETRY and MIL
+ * exchange, client.c the offboard client's position setpoint. Compiled with -O2
  * -ffp-contract=off and no fast-math (mav/build.py) so every double operation rounds as
  * Python's does.
  */
@@ -30,6 +30,7 @@
 #include "hilsim.c"
 #include "tick.c"
 #include "tick_run.c"
+#include "client.c"
 
 static PyMethodDef module_methods[] = {
     {"frame", (PyCFunction)(void (*)(void))fp_frame, METH_FASTCALL,
@@ -55,6 +56,10 @@ static PyMethodDef module_methods[] = {
     {"mil_exchange", (PyCFunction)(void (*)(void))fp_mil_exchange, METH_FASTCALL,
      "mil_exchange(sim, poll, pending, data): one lockstep HIL exchange in memory "
      "(see hilsim.c)"},
+    {"client_setpoint", (PyCFunction)(void (*)(void))fp_client_setpoint,
+     METH_FASTCALL | METH_KEYWORDS,
+     "client_setpoint(fallback, client, x, y, z, yaw, vx, vy, vz, yaw_rate): "
+     "OffboardClient.set_position_target compiled (see client.c)"},
     {"emit_state", (PyCFunction)(void (*)(void))fp_emit_state, METH_FASTCALL,
      "emit_state(kind, msgid, crc_extra, fallback, vs, ch): a state stream's emit and send "
      "(see telemetry.c)"},
