@@ -67,7 +67,10 @@ STATUS = ("t_us", "dt_us", "v_prev", "have_state", "armed", "mode", "landed_stat
 def _snapshot(ob) -> tuple:
     vs = ob.status
     b = vs.battery
-    return (tuple(getattr(vs.state, k) for k in STATE),
+    chans = tuple((ch.next_due, list(ch.param_queue), ch.peer,
+                   [(st.msgid, st.interval_us, st.next_us) for st in ch.streams])
+                  for ch in (ob._api, ob._gcs))
+    return (chans, tuple(getattr(vs.state, k) for k in STATE),
             tuple(repr(getattr(vs, k)) for k in STATUS),
             repr((b.consumed_mah, b.energy_j, b.current)), ob.origin, dict(ob.stats))
 
@@ -187,6 +190,14 @@ def _script(twin: Twin, rng: random.Random, n_ticks: int, key: bytes | None) -> 
             cmd(rng.choice(["api", "gcs"]), M.MAV_CMD_DO_SET_MODE, 1.0, float(main), float(sub))
         if k > 300 and rng.random() < 0.003:
             cmd("gcs", M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+        if rng.random() < 0.01:     # stream rates changed, streams off and back, params
+            msgid = rng.choice([30, 32, 33, 24, 1, 74, 85, 147, 245, 105])
+            hz = rng.choice([-1.0, 0.0, 1.0, 7.0, 50.0, 400.0])
+            cmd(rng.choice(["api", "gcs"]), M.MAV_CMD_SET_MESSAGE_INTERVAL, float(msgid),
+                1e6 / hz if hz > 0 else hz)
+        if rng.random() < 0.002:
+            twin.send("gcs", wire.send_msg(mav["gcs"], M.MAVLink_param_request_list_message(
+                1, 1)))
         if gcs_beat and k % 200 == 0:
             twin.send("gcs", wire.send_msg(mav["gcs"], M.MAVLink_heartbeat_message(
                 M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)))

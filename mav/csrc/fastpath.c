@@ -6,9 +6,9 @@
  * (mav/README.md lists them): cascade.c the controller, framing.c the MAVLink 2 framing and
  * checks, setpoint.c the offboard setpoint accept path, memlink.c the in-memory link and tlog
  * tap, telemetry.c the state telemetry, decode.c the one-frame decoders, battery.c the battery
- * step, udp.c a UDP receive without an exception when nothing waits, tick.c and tick_run.c
- * the vehicle's tick (Onboard.poll) in one call, hilsim.c the simulator's ODOMETRY and MIL
- * exchange, client.c the offboard client's position setpoint. Compiled with -O2
+ * step, udp.c a UDP receive without an exception when nothing waits, tick.c, tick_tel.c and
+ * tick_run.c the vehicle's tick (Onboard.poll) in one call, hilsim.c the simulator's ODOMETRY
+ * and MIL exchange, client.c the offboard client's position setpoint. Compiled with -O2
  * -ffp-contract=off and no fast-math (mav/build.py) so every double operation rounds as
  * Python's does.
  */
@@ -29,6 +29,7 @@
 #include "udp.c"
 #include "hilsim.c"
 #include "tick.c"
+#include "tick_tel.c"
 #include "tick_run.c"
 #include "client.c"
 

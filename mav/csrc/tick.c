@@ -29,7 +29,8 @@ enum {
     K_check_gcs, K_home, K_GF_MAX_HOR_DIST, K_GF_MAX_VER_DIST, K_check_geofence,
     K_check_position, K_fs_active, K_fs_t0, K_fail_act_us, K_hold_expired, K_ground_since,
     K_detect_air_and_ground, K_consumed_mah, K_lost_mah, K_bat_warn_mah, K_battery_warning,
-    K_signed, K_rx_key, K_peer, K_setpoints, K_rotate, K_drain_deferred, K_N
+    K_signed, K_rx_key, K_peer, K_setpoints, K_rotate, K_drain_deferred, K_schedule,
+    K_recompute_due, K_streams, K_emit, K_interval_us, K_next_us, K_N
 };
 static const char *K_STR[K_N] = {
     "recv", "send", "rx_hil", "decode_odometry", "_hil_not_odometry", "hil_bad_values",
@@ -44,7 +45,8 @@ static const char *K_STR[K_N] = {
     "check_gcs", "home", "GF_MAX_HOR_DIST", "GF_MAX_VER_DIST", "check_geofence",
     "check_position", "fs_active", "fs_t0", "fail_act_us", "hold_expired", "ground_since",
     "detect_air_and_ground", "consumed_mah", "lost_mah", "bat_warn_mah", "battery_warning",
-    "signed", "rx_key", "peer", "setpoints", "rotate_body_to_world", "drain_deferred"};
+    "signed", "rx_key", "peer", "setpoints", "rotate_body_to_world", "drain_deferred",
+    "schedule", "recompute_due", "streams", "emit", "interval_us", "next_us"};
 static PyObject *K[K_N];
 static PyObject *py_micro;       /* 1e-6 */
 static PyObject *py_zero_f;      /* 0.0 */
@@ -70,7 +72,7 @@ static const char *C_STR[C_N] = {"POSCTL", "TAKEOFF", "LOITER", "LAND", "OFFBOAR
                                  "HIL_MODE_ARMED", "HIL_MODE_DISARMED", "DRAIN_MAX"};
 
 enum { R_VEH, R_VS, R_STATS, R_HIL, R_API, R_GCS, R_INPUT, R_HILMAV, R_SPARGS, R_WIRE, R_DEFS,
-       R_N };
+       R_HEAPPOP, R_HEAPPUSH, R_NEVER, R_N };
 
 typedef struct {
     PyObject_HEAD
@@ -201,6 +203,15 @@ static PyObject *tick_new(PyTypeObject *type, PyObject *args, PyObject *kw)
         PyErr_SetString(PyExc_TypeError, "Tick: LinkInput._sp_args must be a 7-tuple");
         goto fail;
     }
+    PyObject *hq = PyImport_ImportModule("heapq");    /* telemetry.py's heappop, heappush */
+    if (hq == NULL)
+        goto fail;
+    self->r[R_HEAPPOP] = PyObject_GetAttrString(hq, "heappop");
+    self->r[R_HEAPPUSH] = PyObject_GetAttrString(hq, "heappush");
+    Py_DECREF(hq);
+    if (self->r[R_HEAPPOP] == NULL || self->r[R_HEAPPUSH] == NULL ||
+        (self->r[R_NEVER] = PyLong_FromLongLong(1LL << 62)) == NULL)
+        goto fail;
     if ((self->r[R_WIRE] = PyImport_ImportModule("mav.wire")) == NULL ||
         (self->r[R_DEFS] = PyImport_ImportModule("mav.onboard.defs")) == NULL)
         goto fail;

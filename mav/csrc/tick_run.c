@@ -325,7 +325,7 @@ static PyObject *tick_odometry(Tick *self, PyObject *od)
         goto done;
     /* 4. telemetry when due, then the HIL answer */
     int due = tick_due(self, t_us);
-    if (due < 0 || (due && call_part(veh, K_telemetry, K_publish, t_us) < 0))
+    if (due < 0 || (due && tick_publish(self, t_us) < 0))
         goto done;
     {
         int arm = attr_true(vs, K_armed);
