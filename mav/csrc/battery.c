@@ -21,7 +21,7 @@ static int bat_init(void)
 
 static int get_double(PyObject *o, PyObject *name, double *out)
 {
-    PyObject *v = PyObject_GetAttr(o, name);
+    PyObject *v = fast_getattr(o, name);
     if (v == NULL)
         return -1;
     *out = PyFloat_AsDouble(v);
@@ -34,7 +34,7 @@ static int set_double(PyObject *o, PyObject *name, double x)
     PyObject *v = PyFloat_FromDouble(x);
     if (v == NULL)
         return -1;
-    int rc = PyObject_SetAttr(o, name, v);
+    int rc = fast_setattr(o, name, v);
     Py_DECREF(v);
     return rc;
 }
@@ -57,7 +57,7 @@ static PyObject *fp_battery_step(PyObject *mod, PyObject *const *args, Py_ssize_
     }
     PyObject *bat = args[0];
     const double dt = a[0], u1 = a[1], u2 = a[2], u3 = a[3], u4 = a[4];
-    PyObject *p = PyObject_GetAttr(bat, n_p);
+    PyObject *p = fast_getattr(bat, n_p);
     if (p == NULL)
         return NULL;
     double i_av, k_motor, consumed, energy, v_last;

@@ -62,7 +62,7 @@ static double py_mod(double a, double b)
 static int read_floats(PyObject *obj, PyObject **names, int n, double *out)
 {
     for (int i = 0; i < n; i++) {
-        PyObject *v = PyObject_GetAttr(obj, names[i]);
+        PyObject *v = fast_getattr(obj, names[i]);
         if (v == NULL)
             return -1;
         double d = PyFloat_CheckExact(v) ? PyFloat_AS_DOUBLE(v) : PyFloat_AsDouble(v);
@@ -173,7 +173,7 @@ static PyObject *Cascade_update(Cascade *c, PyObject *const *args, Py_ssize_t na
         return NULL;
     }
     PyObject *so = args[0], *spo = args[1], *out = args[2];
-    PyObject *a = PyObject_GetAttr(spo, name_armed);
+    PyObject *a = fast_getattr(spo, name_armed);
     if (a == NULL)
         return NULL;
     int armed = PyObject_IsTrue(a);

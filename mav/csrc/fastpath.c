@@ -3,7 +3,8 @@
  *
  * One translation unit: this file is the module (its method table and init); the parts are
  * included below, each beside its Python reference and tested back to back with it
- * (mav/README.md lists them): cascade.c the controller, framing.c the MAVLink 2 framing and
+ * (mav/README.md lists them): slots.c attribute access by cached slot offset (used by the
+ * others), cascade.c the controller, framing.c the MAVLink 2 framing and
  * checks, setpoint.c the offboard setpoint accept path, memlink.c the in-memory link and tlog
  * tap, telemetry.c the state telemetry, decode.c the one-frame decoders, battery.c the battery
  * step, udp.c a UDP receive without an exception when nothing waits, tick.c, tick_tel.c and
@@ -19,6 +20,7 @@
 #include <stdint.h>
 #include <string.h>
 
+#include "slots.c"
 #include "cascade.c"
 #include "framing.c"
 #include "setpoint.c"

@@ -98,7 +98,7 @@ static PyObject *fp_setpoint_local_ned(PyObject *mod, PyObject *const *args, Py_
         PyObject *f = PyFloat_FromDouble(v[i]);
         if (f == NULL)
             return NULL;
-        int r = PyObject_SetAttr(of, o_names[i], f);
+        int r = fast_setattr(of, o_names[i], f);
         Py_DECREF(f);
         if (r < 0)
             return NULL;

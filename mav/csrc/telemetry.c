@@ -51,7 +51,7 @@ static int tm_init(void)
 
 static long get_long_attr(PyObject *o, PyObject *name)
 {
-    PyObject *v = PyObject_GetAttr(o, name);
+    PyObject *v = fast_getattr(o, name);
     if (v == NULL)
         return -1;
     long r = PyLong_AsLong(v);
@@ -78,10 +78,10 @@ static double py_atan2(double y, double x)
 /* 1 if mav signs what it sends (then the Python reference frames it), 0 if not, -1 error */
 static int signs_outgoing(PyObject *mav)
 {
-    PyObject *sg = PyObject_GetAttr(mav, n_signing);
+    PyObject *sg = fast_getattr(mav, n_signing);
     if (sg == NULL)
         return -1;
-    PyObject *so = PyObject_GetAttr(sg, n_sign_outgoing);
+    PyObject *so = fast_getattr(sg, n_sign_outgoing);
     Py_DECREF(sg);
     if (so == NULL)
         return -1;
@@ -107,7 +107,7 @@ static PyObject *frame_on(PyObject *mav, long msgid, uint8_t extra, const uint8_
     PyObject *next = PyLong_FromLong((seq + 1) & 0xFF);
     if (next == NULL)
         return NULL;
-    int rc = PyObject_SetAttr(mav, n_seq, next);
+    int rc = fast_setattr(mav, n_seq, next);
     Py_DECREF(next);
     if (rc < 0)
         return NULL;
@@ -232,11 +232,11 @@ static PyObject *fp_emit_state(PyObject *mod, PyObject *const *args, Py_ssize_t 
         return NULL;
     const long kind = k[0], msgid = k[1], extra = k[2];
     PyObject *vs = args[4], *ch = args[5];
-    PyObject *state = PyObject_GetAttr(vs, n_state);
+    PyObject *state = fast_getattr(vs, n_state);
     if (state == NULL)
         return NULL;
-    PyObject *t_us = PyObject_GetAttr(vs, n_t_us);
-    PyObject *mav = t_us ? PyObject_GetAttr(ch, n_mav) : NULL;
+    PyObject *t_us = fast_getattr(vs, n_t_us);
+    PyObject *mav = t_us ? fast_getattr(ch, n_mav) : NULL;
     PyObject *data = mav ? state_msg(kind, msgid, extra, mav, state, t_us) : NULL;
     Py_DECREF(state);
     Py_XDECREF(t_us);
@@ -248,8 +248,8 @@ static PyObject *fp_emit_state(PyObject *mod, PyObject *const *args, Py_ssize_t 
         return PyObject_CallOneArg(args[3], ch);
     }
     /* Chan.send: stats[tx_key] += 1; link.send(data) */
-    PyObject *stats = PyObject_GetAttr(ch, n_stats);
-    PyObject *key = stats ? PyObject_GetAttr(ch, n_tx_key) : NULL;
+    PyObject *stats = fast_getattr(ch, n_stats);
+    PyObject *key = stats ? fast_getattr(ch, n_tx_key) : NULL;
     PyObject *old = key ? PyObject_GetItem(stats, key) : NULL;
     PyObject *inc = old ? PyNumber_Add(old, py_one) : NULL;
     int rc = inc ? PyObject_SetItem(stats, key, inc) : -1;
@@ -257,7 +257,7 @@ static PyObject *fp_emit_state(PyObject *mod, PyObject *const *args, Py_ssize_t 
     Py_XDECREF(key);
     Py_XDECREF(old);
     Py_XDECREF(inc);
-    PyObject *link = rc < 0 ? NULL : PyObject_GetAttr(ch, n_link);
+    PyObject *link = rc < 0 ? NULL : fast_getattr(ch, n_link);
     PyObject *r = link ? PyObject_CallMethodOneArg(link, n_send, data) : NULL;
     Py_XDECREF(link);
     Py_DECREF(data);

@@ -104,12 +104,12 @@ static void tick_dealloc(Tick *self)
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
-static PyObject *attr(PyObject *o, int k) { return PyObject_GetAttr(o, K[k]); }
+static PyObject *attr(PyObject *o, int k) { return fast_getattr(o, K[k]); }
 
 /* o.k as a C long (ints and bools), -1 with an error set on failure */
 static int attr_long(PyObject *o, int k, long *out)
 {
-    PyObject *v = PyObject_GetAttr(o, K[k]);
+    PyObject *v = fast_getattr(o, K[k]);
     if (v == NULL)
         return -1;
     *out = PyLong_AsLong(v);
@@ -120,7 +120,7 @@ static int attr_long(PyObject *o, int k, long *out)
 /* truth of o.k: 1, 0, or -1 on error */
 static int attr_true(PyObject *o, int k)
 {
-    PyObject *v = PyObject_GetAttr(o, K[k]);
+    PyObject *v = fast_getattr(o, K[k]);
     if (v == NULL)
         return -1;
     int r = PyObject_IsTrue(v);
@@ -131,7 +131,7 @@ static int attr_true(PyObject *o, int k)
 /* the comparison `o.k op b` with Python semantics (b an object): 1, 0 or -1 */
 static int attr_cmp(PyObject *o, int k, PyObject *b, int op)
 {
-    PyObject *v = PyObject_GetAttr(o, K[k]);
+    PyObject *v = fast_getattr(o, K[k]);
     if (v == NULL)
         return -1;
     int r = PyObject_RichCompareBool(v, b, op);
@@ -180,7 +180,7 @@ static int call_part(PyObject *veh, int part, int meth, PyObject *arg)
     return r ? 0 : -1;
 }
 
-static int set_attr(PyObject *o, int k, PyObject *v) { return PyObject_SetAttr(o, K[k], v); }
+static int set_attr(PyObject *o, int k, PyObject *v) { return fast_setattr(o, K[k], v); }
 
 static PyObject *tick_new(PyTypeObject *type, PyObject *args, PyObject *kw)
 {
@@ -291,7 +291,7 @@ static int tick_drain(Tick *self, PyObject *ch, PyObject *data)
                     PyObject *peer = Py_BuildValue("(ii)", d[5], d[6]);
                     if (peer == NULL)
                         goto done;
-                    int e = PyObject_SetAttr(ch, K[K_peer], peer);
+                    int e = fast_setattr(ch, K[K_peer], peer);
                     Py_DECREF(peer);
                     PyObject *t = e < 0 ? NULL : attr(vs, K_t_us);
                     if (t == NULL)

@@ -230,7 +230,7 @@ static PyObject *tick_odometry(Tick *self, PyObject *od)
     if ((tmp = attr(vs, K_t_us)) == NULL || (dt_us = PyNumber_Subtract(t_us, tmp)) == NULL)
         goto done;
     Py_CLEAR(tmp);
-    if (set_attr(vs, K_t_us, t_us) < 0 || (s = PyObject_GetAttr(vs, n_state)) == NULL)
+    if (set_attr(vs, K_t_us, t_us) < 0 || (s = fast_getattr(vs, n_state)) == NULL)
         goto done;
     if ((tmp = PyNumber_Multiply(t_us, py_micro)) == NULL || set_attr(s, K_t, tmp) < 0)
         goto done;
@@ -290,7 +290,7 @@ static PyObject *tick_odometry(Tick *self, PyObject *od)
             if (set_attrs(s, vel_names, f + O_VX_, 3) < 0)
                 goto done;
         } else {   /* body FRD velocity -> world NED */
-            PyObject *rot = PyObject_GetAttr(self->r[R_DEFS], K[K_rotate]);
+            PyObject *rot = fast_getattr(self->r[R_DEFS], K[K_rotate]);
             PyObject *w = rot ? PyObject_Vectorcall(rot, f + O_QW, 7, NULL) : NULL;
             Py_XDECREF(rot);
             PyObject *ws = w ? PySequence_Fast(w, "rotate_body_to_world") : NULL;
@@ -358,7 +358,7 @@ static PyObject *tick_run(Tick *self, PyObject *unused)
     PyObject *od = NULL, *ret = NULL;
     if (incr(self->r[R_STATS], K[K_rx_hil]) < 0)
         goto done;
-    PyObject *dec = PyObject_GetAttr(self->r[R_WIRE], K[K_decode_odometry]);
+    PyObject *dec = fast_getattr(self->r[R_WIRE], K[K_decode_odometry]);
     if (dec == NULL)
         goto done;
     od = PyObject_CallOneArg(dec, data);

@@ -5,6 +5,9 @@ Who writes what: the vehicle's tick (`vehicle.py`) the clock, the state estimate
 commands; the commander `armed`, `mode`, `landed_state`, `home` and the setpoint in use; the
 offboard part the offboard setpoint and its time; the failsafe part its timers; the
 parameters part `own` and the derived limits. Telemetry only reads.
+
+A dataclass with __slots__: a misspelt attribute raises instead of adding a field, and the
+compiled tick reads and writes the fields by slot offset (mav/csrc/slots.c).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from mav.onboard.defs import ON_GROUND, POSCTL
 from mav.types import Setpoint, VehicleState
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, slots=True)
 class VehicleStatus:
     stats: dict[str, int]                  # counters (see vehicle.STATS)
     ctrl: Any = None                       # the low-level controller in use (mav.control)

@@ -1,0 +1,88 @@
+/* Attribute reads and writes from C at the cost of a slot access (included by fastpath.c
+ * first: the other parts use it).
+ *
+ * The records the tick reads and writes (VehicleStatus, VehicleState, Setpoint, Chan, Stream,
+ * Battery) are classes with __slots__. `PyObject_GetAttr` on them looks the name up in the
+ * type (the method cache, then the member descriptor) before reading the slot; here the slot's
+ * offset is cached, guarded by the exact type and its version tag (CPython
+ * changes the tag whenever the type or a base is modified), which is how CPython's own
+ * specialised LOAD_ATTR_SLOT guards. Only a plain object slot (a T_OBJECT_EX member that is
+ * not read-only, on a type with the generic getattr and setattr) is cached; for anything else
+ * (an instance-dict attribute, a property, a type that customises attribute access) the cache
+ * remembers that and the generic PyObject_GetAttr / PyObject_SetAttr run, so the answer is
+ * always the one Python gives. An unset slot goes to the generic path too, which raises the
+ * AttributeError Python raises. The cache is direct-mapped on (interned name, type); names
+ * that are not interned strings always take the generic path.
+ */
+
+typedef struct {
+    PyObject *name;          /* interned attribute name (not owned: names are kept alive) */
+    PyTypeObject *type;      /* not owned: the version tag check makes a stale entry miss */
+    unsigned int version;
+    Py_ssize_t offset;       /* -1: not a plain slot, use the generic path */
+} SlotEntry;
+
+#define SLOT_CACHE 1024      /* direct-mapped on (name, type) */
+static SlotEntry slot_cache[SLOT_CACHE];
+
+/* the offset of `name` as a plain object slot of tp, or -1 */
+static Py_ssize_t slot_offset(PyTypeObject *tp, PyObject *name)
+{
+    if (tp->tp_getattro != PyObject_GenericGetAttr || tp->tp_setattro != PyObject_GenericSetAttr)
+        return -1;
+    PyObject *d = _PyType_Lookup(tp, name);     /* borrowed; assigns the version tag */
+    if (d == NULL || Py_TYPE(d) != &PyMemberDescr_Type)
+        return -1;
+    PyMemberDef *m = ((PyMemberDescrObject *)d)->d_member;
+    if (m->type != T_OBJECT_EX || (m->flags & READONLY))
+        return -1;
+    return m->offset;
+}
+
+/* the slot offset of name on o's type, or -1 (then the generic path applies) */
+static Py_ssize_t slot_of(PyObject *o, PyObject *name)
+{
+    PyTypeObject *tp = Py_TYPE(o);
+    if (!PyUnicode_CheckExact(name) || !PyUnicode_CHECK_INTERNED(name))
+        return -1;
+    SlotEntry *e = &slot_cache[(((uintptr_t)name >> 4) ^ ((uintptr_t)tp >> 6)) & (SLOT_CACHE - 1)];
+    if (e->name == name && e->type == tp && e->version == tp->tp_version_tag &&
+        PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG))
+        return e->offset;
+    Py_ssize_t off = slot_offset(tp, name);
+    if (PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG)) {
+        e->name = name;
+        e->type = tp;
+        e->version = tp->tp_version_tag;
+        e->offset = off;
+    }
+    return off;
+}
+
+/* getattr(o, name) -> new reference, or NULL with the error set */
+static PyObject *fast_getattr(PyObject *o, PyObject *name)
+{
+    Py_ssize_t off = slot_of(o, name);
+    if (off >= 0) {
+        PyObject *v = *(PyObject **)((char *)o + off);
+        if (v != NULL) {
+            Py_INCREF(v);
+            return v;
+        }
+    }
+    return PyObject_GetAttr(o, name);
+}
+
+/* setattr(o, name, v) -> 0, or -1 with the error set */
+static int fast_setattr(PyObject *o, PyObject *name, PyObject *v)
+{
+    Py_ssize_t off = slot_of(o, name);
+    if (off < 0)
+        return PyObject_SetAttr(o, name, v);
+    PyObject **p = (PyObject **)((char *)o + off);
+    PyObject *old = *p;
+    Py_INCREF(v);
+    *p = v;
+    Py_XDECREF(old);
+    return 0;
+}
