@@ -143,6 +143,13 @@ class OffboardClient:
             M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: self._on_target,
             M.MAVLINK_MSG_ID_SYS_STATUS: self._on_sys_status,
         }
+        if fp is not None and type(self)._on_attitude is _ON_ATTITUDE and (
+                type(self)._on_local_position is _ON_LOCAL_POSITION):
+            # the two 50 Hz handlers in one C call each (mav/csrc/client.c), same tuples
+            self._fast_handlers[M.MAVLINK_MSG_ID_ATTITUDE] = partial(
+                fp.set_halves, self, "attitude", "rates")
+            self._fast_handlers[M.MAVLINK_MSG_ID_LOCAL_POSITION_NED] = partial(
+                fp.set_halves, self, "position", "velocity")
         self._handlers = {
             M.MAVLINK_MSG_ID_COMMAND_ACK: self._on_ack,
             M.MAVLINK_MSG_ID_STATUSTEXT: self._on_statustext,
@@ -438,4 +445,7 @@ class OffboardClient:
                                                              self.target_component))
 
 
-_SET_POSITION_TARGET = OffboardClient.set_position_target   # the reference of client.c
+# the references of mav/csrc/client.c
+_SET_POSITION_TARGET = OffboardClient.set_position_target
+_ON_ATTITUDE = OffboardClient._on_attitude
+_ON_LOCAL_POSITION = OffboardClient._on_local_position

@@ -7,7 +7,7 @@ import math
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mav import wire
+from mav import reference, wire
 from mav.client import OffboardClient
 from mav.links import MemoryLink
 
@@ -204,7 +204,10 @@ def test_fast_telemetry_decode_matches_pymavlink(tmp_path):
     res.tlog.write(path)
     records = read_tlog(path)
     pairs = [MemoryLink.pair() for _ in range(3)]
-    fast, loop, slow = (OffboardClient(a) for a, _ in pairs)
+    fast, loop = (OffboardClient(a) for a, _ in pairs[:2])
+    with reference.python():                      # the Python handlers and setpoint too
+        slow = OffboardClient(pairs[2][0])
+    assert slow._fast_handlers[M.MAVLINK_MSG_ID_ATTITUDE].__func__ is OffboardClient._on_attitude
     assert fast._fast_one is not None            # one-frame datagrams in one C call
     loop._fast_one = None                         # the fast codec's frame loop
     slow._fast_rx = slow._fast_one = None         # pymavlink

@@ -25,7 +25,7 @@ static PyObject *client_fallback(PyObject *const *args, Py_ssize_t nargs, PyObje
 
 static int cs_attr_u8(PyObject *o, PyObject *name, long *out)
 {
-    PyObject *v = PyObject_GetAttr(o, name);
+    PyObject *v = fast_getattr(o, name);
     if (v == NULL)
         return -1;
     *out = PyLong_Check(v) ? PyLong_AsLong(v) : -1;
@@ -59,7 +59,7 @@ static PyObject *fp_client_setpoint(PyObject *mod, PyObject *const *args, Py_ssi
         v[i] = PyFloat_AS_DOUBLE(args[2 + i]);
     }
     PyObject *c = args[1];
-    PyObject *t = PyObject_GetAttr(c, n_t_);
+    PyObject *t = fast_getattr(c, n_t_);
     if (t == NULL)
         return NULL;
     double ms = PyFloat_Check(t) ? PyFloat_AS_DOUBLE(t) * 1000.0 : Py_NAN;
@@ -69,7 +69,7 @@ static PyObject *fp_client_setpoint(PyObject *mod, PyObject *const *args, Py_ssi
         return NULL;
     if (!(fabs(ms) < 9.0e18) || tsys < 0 || tsys > 255 || tcomp < 0 || tcomp > 255)
         return client_fallback(args, nargs, kwnames);
-    PyObject *mav = PyObject_GetAttr(c, n_mav);
+    PyObject *mav = fast_getattr(c, n_mav);
     if (mav == NULL)
         return NULL;
     int signing = signs_outgoing(mav);
@@ -112,19 +112,42 @@ static PyObject *fp_client_setpoint(PyObject *mod, PyObject *const *args, Py_ssi
     pl[50] = (uint8_t)tsys;
     pl[51] = (uint8_t)tcomp;
     pl[52] = 1;                                   /* MAV_FRAME_LOCAL_NED */
-    PyObject *stats = PyObject_GetAttr(c, n_stats);
+    PyObject *stats = fast_getattr(c, n_stats);
     int rc = stats ? incr(stats, n_tx) : -1;
     Py_XDECREF(stats);
     PyObject *fr = rc < 0 ? NULL : frame_on(mav, CS_MSGID, CS_CRC_EXTRA, pl, CS_PAYLOAD);
     Py_DECREF(mav);
     if (fr == NULL)
         return NULL;
-    PyObject *link = PyObject_GetAttr(c, n_link);
+    PyObject *link = fast_getattr(c, n_link);
     PyObject *r = link ? PyObject_CallMethodOneArg(link, n_send_c, fr) : NULL;
     Py_XDECREF(link);
     Py_DECREF(fr);
     if (r == NULL)
         return NULL;
     Py_DECREF(r);
+    Py_RETURN_NONE;
+}
+
+/* set_halves(obj, name_a, name_b, f, compid): obj.name_a = f[1:4], obj.name_b = f[4:7] (the
+ * same float objects, new tuples), for the client's ATTITUDE and LOCAL_POSITION_NED handlers
+ * (mav.client.OffboardClient._on_attitude / _on_local_position, the reference) */
+static PyObject *fp_set_halves(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 5 || !PyTuple_Check(args[3]) || PyTuple_GET_SIZE(args[3]) < 7) {
+        PyErr_SetString(PyExc_TypeError, "set_halves(obj, name_a, name_b, f: tuple, compid)");
+        return NULL;
+    }
+    PyObject *f = args[3];
+    for (int h = 0; h < 2; h++) {
+        PyObject *t = PyTuple_Pack(3, PyTuple_GET_ITEM(f, 1 + 3 * h), PyTuple_GET_ITEM(f, 2 + 3 * h),
+                                   PyTuple_GET_ITEM(f, 3 + 3 * h));
+        if (t == NULL)
+            return NULL;
+        int rc = fast_setattr(args[0], args[1 + h], t);
+        Py_DECREF(t);
+        if (rc < 0)
+            return NULL;
+    }
     Py_RETURN_NONE;
 }

@@ -63,6 +63,9 @@ static PyMethodDef module_methods[] = {
      METH_FASTCALL | METH_KEYWORDS,
      "client_setpoint(fallback, client, x, y, z, yaw, vx, vy, vz, yaw_rate): "
      "OffboardClient.set_position_target compiled (see client.c)"},
+    {"set_halves", (PyCFunction)(void (*)(void))fp_set_halves, METH_FASTCALL,
+     "set_halves(obj, name_a, name_b, f, compid): obj.name_a = f[1:4], obj.name_b = f[4:7] "
+     "(see client.c)"},
     {"emit_state", (PyCFunction)(void (*)(void))fp_emit_state, METH_FASTCALL,
      "emit_state(kind, msgid, crc_extra, fallback, vs, ch): a state stream's emit and send "
      "(see telemetry.c)"},
