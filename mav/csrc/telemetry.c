@@ -14,14 +14,14 @@
  * OverflowError, as struct.pack does). A signing link gets None: the reference signs.
  */
 
-enum { TM_ATTITUDE = 0, TM_LOCAL_POSITION_NED = 1 };
+enum { TM_ATTITUDE = 0, TM_LOCAL_POSITION_NED = 1, TM_POSITION_TARGET = 2 };
 static PyObject *n_seq, *n_src_system, *n_src_component, *n_signing, *n_sign_outgoing;
 enum { T_QW, T_QX, T_QY, T_QZ, T_P, T_Q, T_R, T_X, T_Y, T_Z, T_VX, T_VY, T_VZ, T_N };
 static const char *T_NAMES[T_N] = {"qw", "qx", "qy", "qz", "p", "q", "r", "x", "y", "z",
                                    "vx", "vy", "vz"};
 static PyObject *t_names[T_N];
 static PyObject *py_thousand, *py_u32_mask, *py_one;
-static PyObject *n_state, *n_mav, *n_stats, *n_tx_key, *n_link;
+static PyObject *n_state, *n_mav, *n_stats, *n_tx_key, *n_link, *n_setpoint;
 
 static int tm_init(void)
 {
@@ -40,7 +40,8 @@ static int tm_init(void)
     n_stats = PyUnicode_InternFromString("stats");
     n_tx_key = PyUnicode_InternFromString("tx_key");
     n_link = PyUnicode_InternFromString("link");
-    if (!py_one || !n_state || !n_mav || !n_stats || !n_tx_key || !n_link)
+    n_setpoint = PyUnicode_InternFromString("setpoint");
+    if (!py_one || !n_state || !n_mav || !n_stats || !n_tx_key || !n_link || !n_setpoint)
         return -1;
     py_u32_mask = PyLong_FromUnsignedLong(0xFFFFFFFFUL);
     if (!n_seq || !n_src_system || !n_src_component || !n_signing || !n_sign_outgoing ||
@@ -140,8 +141,38 @@ static PyObject *fp_frame_on(PyObject *mod, PyObject *const *args, Py_ssize_t na
                     n);
 }
 
+/* POSITION_TARGET_LOCAL_NED of the Setpoint `sp` (Telemetry.emit_position_target: type_mask
+ * from the NaN fields, each then sent as 0; no acceleration; MAV_FRAME_LOCAL_NED), payload
+ * "<I11fHB" */
+static PyObject *target_msg(long msgid, long extra, PyObject *mav, PyObject *sp,
+                            unsigned long tboot)
+{
+    static const unsigned bits[8] = {1, 2, 4, 8, 16, 32, 1024, 2048};
+    double f[8];
+    if (read_floats(sp, p_names, 8, f) < 0)      /* x y z vx vy vz yaw yaw_rate */
+        return NULL;
+    unsigned mask = 64 | 128 | 256;
+    for (int i = 0; i < 8; i++)
+        if (f[i] != f[i]) {
+            mask |= bits[i];
+            f[i] = 0.0;
+        }
+    const double v[11] = {f[0], f[1], f[2], f[3], f[4], f[5], 0.0, 0.0, 0.0, f[6], f[7]};
+    uint8_t pl[51];
+    for (int i = 0; i < 4; i++)
+        pl[i] = (uint8_t)((tboot >> (8 * i)) & 0xFF);
+    for (int i = 0; i < 11; i++)
+        if (PyFloat_Pack4(v[i], (char *)pl + 4 + 4 * i, 1) < 0)
+            return NULL;
+    pl[48] = (uint8_t)(mask & 0xFF);
+    pl[49] = (uint8_t)(mask >> 8);
+    pl[50] = 1;                                   /* MAV_FRAME_LOCAL_NED */
+    return frame_on(mav, msgid, (uint8_t)extra, pl, (Py_ssize_t)sizeof pl);
+}
+
 /* ATTITUDE (kind 0: time_boot_ms, roll, pitch, yaw, p, q, r) or LOCAL_POSITION_NED (kind 1:
- * time_boot_ms, x, y, z, vx, vy, vz) of `state` framed on `mav`, both payloads <I6f, stamped
+ * time_boot_ms, x, y, z, vx, vy, vz) of `state` framed on `mav`, both payloads <I6f, or
+ * POSITION_TARGET_LOCAL_NED (kind 2) of the Setpoint passed as `state`, stamped
  * time_boot_ms = (t_us // 1000) & 0xFFFFFFFF (the vehicle clock, us). None on a signing link. */
 static PyObject *state_msg(long kind, long msgid, long extra, PyObject *mav, PyObject *state,
                            PyObject *t_us)
@@ -158,8 +189,8 @@ static PyObject *state_msg(long kind, long msgid, long extra, PyObject *mav, PyO
     Py_DECREF(w);
     if (PyErr_Occurred())
         return NULL;
-    if (kind != TM_ATTITUDE && kind != TM_LOCAL_POSITION_NED) {
-        PyErr_SetString(PyExc_ValueError, "state_msg: kind must be 0 or 1");
+    if (kind != TM_ATTITUDE && kind != TM_LOCAL_POSITION_NED && kind != TM_POSITION_TARGET) {
+        PyErr_SetString(PyExc_ValueError, "state_msg: kind must be 0, 1 or 2");
         return NULL;
     }
     int signing = signs_outgoing(mav);
@@ -167,6 +198,8 @@ static PyObject *state_msg(long kind, long msgid, long extra, PyObject *mav, PyO
         return NULL;
     if (signing)
         Py_RETURN_NONE;
+    if (kind == TM_POSITION_TARGET)
+        return target_msg(msgid, extra, mav, state, tboot);
 
     double v[6];
     if (kind == TM_ATTITUDE) {
@@ -232,7 +265,7 @@ static PyObject *fp_emit_state(PyObject *mod, PyObject *const *args, Py_ssize_t 
         return NULL;
     const long kind = k[0], msgid = k[1], extra = k[2];
     PyObject *vs = args[4], *ch = args[5];
-    PyObject *state = fast_getattr(vs, n_state);
+    PyObject *state = fast_getattr(vs, kind == TM_POSITION_TARGET ? n_setpoint : n_state);
     if (state == NULL)
         return NULL;
     PyObject *t_us = fast_getattr(vs, n_t_us);

@@ -54,7 +54,8 @@ _NO_HASH = (0,) * 16
 _ATT_ID, _ATT_EXTRA = wire.ATTITUDE.id, wire.ATTITUDE.crc_extra
 _LPOS_ID, _LPOS_EXTRA = wire.LOCAL_POSITION_NED.id, wire.LOCAL_POSITION_NED.crc_extra
 _STATE_KIND = {wire.ATTITUDE.id: (0, wire.ATTITUDE),
-               wire.LOCAL_POSITION_NED.id: (1, wire.LOCAL_POSITION_NED)}
+               wire.LOCAL_POSITION_NED.id: (1, wire.LOCAL_POSITION_NED),
+               wire.POSITION_TARGET_LOCAL_NED.id: (2, wire.POSITION_TARGET_LOCAL_NED)}
 # BATTERY_STATUS: cells 2..10 not reported; charge state by the number of warnings given
 _NO_CELLS = (65535,) * 9
 _CHARGE_STATES = (M.MAV_BATTERY_CHARGE_STATE_OK, M.MAV_BATTERY_CHARGE_STATE_LOW,
@@ -104,9 +105,10 @@ class Telemetry:
         return self._emitters.get(msgid)
 
     def stream_emitter(self, msgid: int) -> Callable[[Chan], None] | None:
-        """What a periodic stream calls: the emitter, or for ATTITUDE and LOCAL_POSITION_NED
-        (most of what is streamed) its compiled copy with the send (telemetry.c `emit_state`:
-        the same bytes and counts, the Python emitter on a signing link) when built."""
+        """What a periodic stream calls: the emitter, or for ATTITUDE, LOCAL_POSITION_NED and
+        POSITION_TARGET_LOCAL_NED (most of what is streamed) its compiled copy with the send
+        (telemetry.c `emit_state`: the same bytes and counts, the Python emitter on a signing
+        link) when built."""
         py = self._emitters.get(msgid)
         fp = fastpath.lib
         if fp is None or msgid not in _STATE_KIND:
