@@ -150,6 +150,8 @@ class OffboardClient:
                 fp.set_halves, self, "attitude", "rates")
             self._fast_handlers[M.MAVLINK_MSG_ID_LOCAL_POSITION_NED] = partial(
                 fp.set_halves, self, "position", "velocity")
+        if fp is not None and type(self).poll is _POLL:   # poll in one C call (client.c)
+            self.poll = partial(fp.client_poll, MethodType(_POLL, self), self)
         self._handlers = {
             M.MAVLINK_MSG_ID_COMMAND_ACK: self._on_ack,
             M.MAVLINK_MSG_ID_STATUSTEXT: self._on_statustext,
@@ -447,5 +449,6 @@ class OffboardClient:
 
 # the references of mav/csrc/client.c
 _SET_POSITION_TARGET = OffboardClient.set_position_target
+_POLL = OffboardClient.poll
 _ON_ATTITUDE = OffboardClient._on_attitude
 _ON_LOCAL_POSITION = OffboardClient._on_local_position

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import pytest
@@ -238,3 +239,65 @@ def test_chunked_statustexts_are_joined(pair):
     v.send(M.MAVLink_statustext_message(M.MAV_SEVERITY_INFO, b"short", 0, 0))
     c.poll(0.0)
     assert [s[2] for s in c.statustext] == [text, "short"]
+
+
+def test_compiled_poll_is_the_python_poll():
+    """OffboardClient.poll in one C call (mav/csrc/client.c) against the Python method on the
+    same datagrams: one-frame telemetry (from the target and from another system), several
+    frames in one datagram, garbage, frames the fast decoders reject, a bytearray; the same
+    counts, attributes and heartbeats. A signing client runs the Python poll."""
+    import random
+
+    from test_fuzz import fuzz_datagram
+
+    from mav import fastpath
+
+    if fastpath.lib is None:
+        pytest.skip("mav/_fastpath not built")
+    pairs = [MemoryLink.pair() for _ in range(2)]
+    fast, py = (OffboardClient(a) for a, _ in pairs)
+    assert isinstance(fast.poll, functools.partial)
+    del py.poll                                   # the class's Python method
+    rng = random.Random(3)
+    vmav = {s: mavlink2.MAVLink(None, s, 1) for s in (1, 7)}
+    attrs = ("position", "velocity", "attitude", "rates", "global_position", "armed", "mode",
+             "position_target", "battery", "stats", "t")
+    for k in range(4000):
+        mav = vmav[1 if rng.random() < 0.9 else 7]
+        r = rng.random()
+        if r < 0.5:
+            d = wire.pack(mav, wire.ATTITUDE, k, *(rng.uniform(-1, 1) for _ in range(6)))
+        elif r < 0.7:
+            d = wire.pack(mav, wire.LOCAL_POSITION_NED, k, *(rng.uniform(-5, 5) for _ in range(6)))
+        elif r < 0.8:
+            d = b"".join(wire.pack(mav, wire.ATTITUDE, k, *(0.1,) * 6) for _ in range(2))
+        elif r < 0.9:
+            d = fuzz_datagram(rng, mav)
+        else:
+            d = wire.send_msg(mav, mavlink2.MAVLink_heartbeat_message(2, 12, 129, 0, 4, 3))
+        if rng.random() < 0.02:
+            d = bytearray(d)
+        got = []
+        copies = rng.randrange(0, 3)
+        for c, (_, peer) in zip((fast, py), pairs, strict=True):
+            for _ in range(copies):
+                peer.send(d)
+            got.append((c.poll(k * 0.005), [getattr(c, a) for a in attrs], peer.recv()))
+        assert repr(got[0]) == repr(got[1]), k
+    assert fast.stats["rx"] > 3000 and fast.stats["dropped_bad"] > 0
+
+
+def test_compiled_client_parts_step_aside_for_subclasses_and_signing():
+    from mav import fastpath
+
+    if fastpath.lib is None:
+        pytest.skip("mav/_fastpath not built")
+
+    class Mine(OffboardClient):
+        def poll(self, t):
+            return -1
+
+    c = Mine(MemoryLink.pair()[0])
+    assert c.poll(0.0) == -1
+    s = OffboardClient(MemoryLink.pair()[0], signing_key=b"k" * 32)
+    assert s.poll(0.0) == 0 and s.t == 0.0       # the Python poll (it signs its heartbeat)

@@ -1,4 +1,5 @@
-/* The offboard client's position setpoint, compiled (included by fastpath.c). The reference is
+/* The offboard client's per-tick calls, compiled (included by fastpath.c): its position
+ * setpoint, its two 50 Hz telemetry handlers and its poll (below). The setpoint's reference is
  * mav.client.OffboardClient.set_position_target (and its _setpoint): the type_mask from the
  * NaN arguments, SET_POSITION_TARGET_LOCAL_NED packed ("<I11fHBBB", time_boot_ms =
  * int(client.t * 1000.0) & 0xFFFFFFFF), framed on client.mav, counted in client.stats["tx"]
@@ -16,7 +17,22 @@
 #define CS_MSGID 84
 #define CS_CRC_EXTRA 143
 #define CS_PAYLOAD 53
-static PyObject *n_t_, *n_target_system, *n_target_component, *n_tx, *n_send_c;
+static PyObject *n_t_, *n_target_system, *n_target_component, *n_tx, *n_send_c, *n_signed_c,
+    *n_fast_one, *n_fast_handlers, *n_datagram, *n_next_hb, *n_send_hb, *n_rx, *n_recv_c;
+
+static int client_init(void)
+{
+    static const char *str[13] = {"t", "target_system", "target_component", "tx", "send",
+                                  "signed", "_fast_one", "_fast_handlers", "_datagram",
+                                  "_next_hb", "send_heartbeat", "rx", "recv"};
+    PyObject **dst[13] = {&n_t_, &n_target_system, &n_target_component, &n_tx, &n_send_c,
+                          &n_signed_c, &n_fast_one, &n_fast_handlers, &n_datagram, &n_next_hb,
+                          &n_send_hb, &n_rx, &n_recv_c};
+    for (int i = 0; i < 13; i++)
+        if ((*dst[i] = PyUnicode_InternFromString(str[i])) == NULL)
+            return -1;
+    return 0;
+}
 
 static PyObject *client_fallback(PyObject *const *args, Py_ssize_t nargs, PyObject *kwnames)
 {
@@ -43,12 +59,7 @@ static PyObject *fp_client_setpoint(PyObject *mod, PyObject *const *args, Py_ssi
         PyErr_SetString(PyExc_TypeError, "client_setpoint(fallback, client, x, y, z, ...)");
         return NULL;
     }
-    if (n_t_ == NULL && ((n_t_ = PyUnicode_InternFromString("t")) == NULL ||
-                         (n_target_system = PyUnicode_InternFromString("target_system")) == NULL ||
-                         (n_target_component = PyUnicode_InternFromString("target_component"))
-                             == NULL || (n_tx = PyUnicode_InternFromString("tx")) == NULL ||
-                         (n_send_c = PyUnicode_InternFromString("send")) == NULL))
-        return NULL;
+
     Py_ssize_t n = nargs - 2;
     if (kwnames != NULL || n < 3 || n > 8)
         return client_fallback(args, nargs, kwnames);
@@ -150,4 +161,111 @@ static PyObject *fp_set_halves(PyObject *mod, PyObject *const *args, Py_ssize_t 
             return NULL;
     }
     Py_RETURN_NONE;
+}
+
+/* client_poll(fallback, client, t) -> int: OffboardClient.poll (the reference) in one call:
+ * client.t = t, then each datagram on client.link: exactly one valid frame of a fast-decoded
+ * message (client._fast_one's one-call decoders) counted and handed to its handler when it is
+ * from the target system, anything else to client._datagram; then the HEARTBEAT when due
+ * (client.send_heartbeat). A signing client: fallback(t). */
+
+static PyObject *fp_client_poll(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 3) {
+        PyErr_SetString(PyExc_TypeError, "client_poll(fallback, client, t)");
+        return NULL;
+    }
+
+    PyObject *c = args[1], *t = args[2];
+    PyObject *sg = fast_getattr(c, n_signed_c);
+    int signed_ = sg ? PyObject_IsTrue(sg) : -1;
+    Py_XDECREF(sg);
+    if (signed_ != 0)
+        return signed_ < 0 ? NULL : PyObject_CallOneArg(args[0], t);
+    if (fast_setattr(c, n_t_, t) < 0)
+        return NULL;
+    PyObject *link = fast_getattr(c, n_link), *one = NULL, *n = PyLong_FromLong(0), *ret = NULL;
+    if (link == NULL || n == NULL || (one = fast_getattr(c, n_fast_one)) == NULL)
+        goto done;
+    for (;;) {
+        PyObject *data = PyObject_CallMethodNoArgs(link, n_recv_c);
+        if (data == NULL)
+            goto done;
+        if (data == Py_None) {
+            Py_DECREF(data);
+            break;
+        }
+        PyObject *f = NULL;
+        const uint8_t *d = (const uint8_t *)(PyBytes_Check(data) ? PyBytes_AS_STRING(data) : NULL);
+        if (one != Py_None && d != NULL && PyBytes_GET_SIZE(data) > 11 && d[0] == MAGIC_V2) {
+            PyObject *mid = PyLong_FromLong(d[7] | d[8] << 8 | d[9] << 16);
+            PyObject *dec = mid ? PyObject_CallMethod(one, "get", "O", mid) : NULL;
+            f = (dec && dec != Py_None) ? PyObject_CallOneArg(dec, data) : Py_XNewRef(dec);
+            Py_XDECREF(dec);
+            if (f != NULL && f != Py_None) {
+                PyObject *stats = fast_getattr(c, n_stats), *tsys = NULL, *h = NULL;
+                int e = stats ? incr(stats, n_rx) : -1;
+                Py_XDECREF(stats);
+                PyObject *n2 = e < 0 ? NULL : PyNumber_Add(n, py_one);
+                if (n2 != NULL) {
+                    Py_SETREF(n, n2);
+                    tsys = fast_getattr(c, n_target_system);
+                }
+                int mine = -1;
+                if (tsys != NULL) {
+                    PyObject *src = PyLong_FromLong(d[5]);
+                    mine = src ? PyObject_RichCompareBool(src, tsys, Py_EQ) : -1;
+                    Py_XDECREF(src);
+                    Py_DECREF(tsys);
+                }
+                if (mine > 0) {
+                    PyObject *hs = fast_getattr(c, n_fast_handlers);
+                    h = hs ? PyObject_GetItem(hs, mid) : NULL;
+                    Py_XDECREF(hs);
+                    PyObject *comp = h ? PyLong_FromLong(d[6]) : NULL;
+                    PyObject *r = comp ? PyObject_CallFunctionObjArgs(h, f, comp, NULL) : NULL;
+                    Py_XDECREF(comp);
+                    Py_XDECREF(h);
+                    mine = r ? 0 : -1;
+                    Py_XDECREF(r);
+                }
+                Py_XDECREF(mid);
+                Py_DECREF(f);
+                Py_DECREF(data);
+                if (mine < 0)
+                    goto done;
+                continue;
+            }
+            Py_XDECREF(mid);
+            if (f == NULL) {
+                Py_DECREF(data);
+                goto done;
+            }
+            Py_DECREF(f);      /* None: not such a frame */
+        }
+        PyObject *k = PyObject_CallMethodOneArg(c, n_datagram, data);
+        Py_DECREF(data);
+        PyObject *n2 = k ? PyNumber_Add(n, k) : NULL;
+        Py_XDECREF(k);
+        if (n2 == NULL)
+            goto done;
+        Py_SETREF(n, n2);
+    }
+    PyObject *nh = fast_getattr(c, n_next_hb);
+    int due = nh ? PyObject_RichCompareBool(t, nh, Py_GE) : -1;
+    Py_XDECREF(nh);
+    if (due < 0)
+        goto done;
+    if (due) {
+        PyObject *r = PyObject_CallMethodOneArg(c, n_send_hb, t);
+        if (r == NULL)
+            goto done;
+        Py_DECREF(r);
+    }
+    ret = Py_NewRef(n);
+done:
+    Py_XDECREF(link);
+    Py_XDECREF(one);
+    Py_XDECREF(n);
+    return ret;
 }

@@ -63,6 +63,8 @@ static PyMethodDef module_methods[] = {
      METH_FASTCALL | METH_KEYWORDS,
      "client_setpoint(fallback, client, x, y, z, yaw, vx, vy, vz, yaw_rate): "
      "OffboardClient.set_position_target compiled (see client.c)"},
+    {"client_poll", (PyCFunction)(void (*)(void))fp_client_poll, METH_FASTCALL,
+     "client_poll(fallback, client, t): OffboardClient.poll compiled (see client.c)"},
     {"set_halves", (PyCFunction)(void (*)(void))fp_set_halves, METH_FASTCALL,
      "set_halves(obj, name_a, name_b, f, compid): obj.name_a = f[1:4], obj.name_b = f[4:7] "
      "(see client.c)"},
@@ -92,7 +94,8 @@ PyMODINIT_FUNC PyInit__fastpath(void)
         return NULL;
     if (sp_init() < 0 || tm_init() < 0 || bat_init() < 0 || (py_ten = PyLong_FromLong(HDR_V2)) == NULL)
         return NULL;
-    if (PyType_Ready(&CascadeType) < 0 || PyType_Ready(&TickType) < 0 || tick_init_names() < 0)
+    if (PyType_Ready(&CascadeType) < 0 || PyType_Ready(&TickType) < 0 || tick_init_names() < 0 ||
+        client_init() < 0)
         return NULL;
     if (PyType_Ready(&MemLinkType) < 0 || PyType_Ready(&TapType) < 0 || tap_init_names() < 0)
         return NULL;
