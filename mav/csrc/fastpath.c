@@ -6,7 +6,7 @@
  * (mav/README.md lists them): slots.c attribute access by cached slot offset (used by the
  * others), cascade.c the controller, framing.c the MAVLink 2 framing and
  * checks, setpoint.c the offboard setpoint accept path, memlink.c the in-memory link and tlog
- * tap, telemetry.c the state telemetry, decode.c the one-frame decoders, battery.c the battery
+ * tap, telemetry.c the state telemetry, globalpos.c GLOBAL_POSITION_INT, decode.c the one-frame decoders, battery.c the battery
  * step, udp.c a UDP receive without an exception when nothing waits, tick.c, tick_tel.c and
  * tick_run.c the vehicle's tick (Onboard.poll) in one call, hilsim.c the simulator's ODOMETRY
  * and MIL exchange, client.c the offboard client's position setpoint. Compiled with -O2
@@ -26,6 +26,7 @@
 #include "setpoint.c"
 #include "memlink.c"
 #include "telemetry.c"
+#include "globalpos.c"
 #include "decode.c"
 #include "battery.c"
 #include "udp.c"
@@ -68,6 +69,9 @@ static PyMethodDef module_methods[] = {
     {"set_halves", (PyCFunction)(void (*)(void))fp_set_halves, METH_FASTCALL,
      "set_halves(obj, name_a, name_b, f, compid): obj.name_a = f[1:4], obj.name_b = f[4:7] "
      "(see client.c)"},
+    {"emit_global", (PyCFunction)(void (*)(void))fp_emit_global, METH_FASTCALL,
+     "emit_global(fallback, geo, vs, msgid, crc_extra, ch): GLOBAL_POSITION_INT's emit and "
+     "send (see globalpos.c)"},
     {"emit_state", (PyCFunction)(void (*)(void))fp_emit_state, METH_FASTCALL,
      "emit_state(kind, msgid, crc_extra, fallback, vs, ch): a state stream's emit and send "
      "(see telemetry.c)"},
@@ -95,7 +99,7 @@ PyMODINIT_FUNC PyInit__fastpath(void)
     if (sp_init() < 0 || tm_init() < 0 || bat_init() < 0 || (py_ten = PyLong_FromLong(HDR_V2)) == NULL)
         return NULL;
     if (PyType_Ready(&CascadeType) < 0 || PyType_Ready(&TickType) < 0 || tick_init_names() < 0 ||
-        client_init() < 0)
+        client_init() < 0 || gp_init() < 0)
         return NULL;
     if (PyType_Ready(&MemLinkType) < 0 || PyType_Ready(&TapType) < 0 || tap_init_names() < 0)
         return NULL;

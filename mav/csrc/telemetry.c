@@ -250,6 +250,24 @@ static PyObject *fp_state_msg(PyObject *mod, PyObject *const *args, Py_ssize_t n
     return state_msg(k[0], k[1], k[2], args[3], args[4], args[5]);
 }
 
+/* Chan.send(data): stats[tx_key] += 1; link.send(data) -> its result */
+static PyObject *chan_send(PyObject *ch, PyObject *data)
+{
+    PyObject *stats = fast_getattr(ch, n_stats);
+    PyObject *key = stats ? fast_getattr(ch, n_tx_key) : NULL;
+    PyObject *old = key ? PyObject_GetItem(stats, key) : NULL;
+    PyObject *inc = old ? PyNumber_Add(old, py_one) : NULL;
+    int rc = inc ? PyObject_SetItem(stats, key, inc) : -1;
+    Py_XDECREF(stats);
+    Py_XDECREF(key);
+    Py_XDECREF(old);
+    Py_XDECREF(inc);
+    PyObject *link = rc < 0 ? NULL : fast_getattr(ch, n_link);
+    PyObject *r = link ? PyObject_CallMethodOneArg(link, n_send, data) : NULL;
+    Py_XDECREF(link);
+    return r;
+}
+
 /* emit_state(kind, msgid, crc_extra, fallback, vs, ch) -> None: a periodic stream's emit
  * (Telemetry.emit_attitude / emit_local_position, then Chan.send) in one call, bound with
  * functools.partial to all but `ch`: the message of vs.state at vs.t_us on ch.mav, counted in
@@ -280,19 +298,7 @@ static PyObject *fp_emit_state(PyObject *mod, PyObject *const *args, Py_ssize_t 
         Py_DECREF(data);
         return PyObject_CallOneArg(args[3], ch);
     }
-    /* Chan.send: stats[tx_key] += 1; link.send(data) */
-    PyObject *stats = fast_getattr(ch, n_stats);
-    PyObject *key = stats ? fast_getattr(ch, n_tx_key) : NULL;
-    PyObject *old = key ? PyObject_GetItem(stats, key) : NULL;
-    PyObject *inc = old ? PyNumber_Add(old, py_one) : NULL;
-    int rc = inc ? PyObject_SetItem(stats, key, inc) : -1;
-    Py_XDECREF(stats);
-    Py_XDECREF(key);
-    Py_XDECREF(old);
-    Py_XDECREF(inc);
-    PyObject *link = rc < 0 ? NULL : fast_getattr(ch, n_link);
-    PyObject *r = link ? PyObject_CallMethodOneArg(link, n_send, data) : NULL;
-    Py_XDECREF(link);
+    PyObject *r = chan_send(ch, data);
     Py_DECREF(data);
     return r;
 }

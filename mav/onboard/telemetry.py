@@ -111,6 +111,9 @@ class Telemetry:
         link) when built."""
         py = self._emitters.get(msgid)
         fp = fastpath.lib
+        if fp is not None and msgid == wire.GLOBAL_POSITION_INT.id:   # globalpos.c
+            m = wire.GLOBAL_POSITION_INT
+            return functools.partial(fp.emit_global, py, self.geo, self.vs, m.id, m.crc_extra)
         if fp is None or msgid not in _STATE_KIND:
             return py
         kind, m = _STATE_KIND[msgid]
