@@ -199,7 +199,13 @@ static PyObject *fp_client_poll(PyObject *mod, PyObject *const *args, Py_ssize_t
         const uint8_t *d = (const uint8_t *)(PyBytes_Check(data) ? PyBytes_AS_STRING(data) : NULL);
         if (one != Py_None && d != NULL && PyBytes_GET_SIZE(data) > 11 && d[0] == MAGIC_V2) {
             PyObject *mid = PyLong_FromLong(d[7] | d[8] << 8 | d[9] << 16);
-            PyObject *dec = mid ? PyObject_CallMethod(one, "get", "O", mid) : NULL;
+            PyObject *dec = NULL;             /* one.get(mid) */
+            if (mid != NULL && PyDict_CheckExact(one)) {
+                dec = PyDict_GetItemWithError(one, mid);
+                dec = dec ? Py_NewRef(dec) : (PyErr_Occurred() ? NULL : Py_NewRef(Py_None));
+            } else if (mid != NULL) {
+                dec = PyObject_CallMethod(one, "get", "O", mid);
+            }
             f = (dec && dec != Py_None) ? PyObject_CallOneArg(dec, data) : Py_XNewRef(dec);
             Py_XDECREF(dec);
             if (f != NULL && f != Py_None) {

@@ -22,7 +22,7 @@ typedef struct {
     Py_ssize_t offset;       /* -1: not a plain slot, use the generic path */
 } SlotEntry;
 
-#define SLOT_CACHE 1024      /* direct-mapped on (name, type) */
+#define SLOT_CACHE 4096      /* direct-mapped on (name, type) */
 static SlotEntry slot_cache[SLOT_CACHE];
 
 /* the offset of `name` as a plain object slot of tp, or -1 */
@@ -45,7 +45,8 @@ static Py_ssize_t slot_of(PyObject *o, PyObject *name)
     PyTypeObject *tp = Py_TYPE(o);
     if (!PyUnicode_CheckExact(name) || !PyUnicode_CHECK_INTERNED(name))
         return -1;
-    SlotEntry *e = &slot_cache[(((uintptr_t)name >> 4) ^ ((uintptr_t)tp >> 6)) & (SLOT_CACHE - 1)];
+    uintptr_t h = ((uintptr_t)name ^ ((uintptr_t)tp << 7)) * (uintptr_t)0x9E3779B97F4A7C15ULL;
+    SlotEntry *e = &slot_cache[(h >> 40) & (SLOT_CACHE - 1)];
     if (e->name == name && e->type == tp && e->version == tp->tp_version_tag &&
         PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG))
         return e->offset;
