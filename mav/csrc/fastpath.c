@@ -98,37 +98,26 @@ PyMODINIT_FUNC PyInit__fastpath(void)
         return NULL;
     if (sp_init() < 0 || tm_init() < 0 || bat_init() < 0 || (py_ten = PyLong_FromLong(HDR_V2)) == NULL)
         return NULL;
-    if (PyType_Ready(&CascadeType) < 0 || PyType_Ready(&TickType) < 0 || tick_init_names() < 0 ||
-        client_init() < 0 || gp_init() < 0)
+    if (tick_init_names() < 0 || client_init() < 0 || gp_init() < 0 || tap_init_names() < 0)
         return NULL;
-    if (PyType_Ready(&MemLinkType) < 0 || PyType_Ready(&TapType) < 0 || tap_init_names() < 0)
-        return NULL;
+    /* the module's types: (name, type) */
+    static struct { const char *name; PyTypeObject *type; } types[] = {
+        {"MemoryLink", &MemLinkType}, {"TapLink", &TapType}, {"Tick", &TickType},
+        {"Cascade", &CascadeType}};
+    const int n_types = (int)(sizeof types / sizeof types[0]);
+    for (int i = 0; i < n_types; i++)
+        if (PyType_Ready(types[i].type) < 0)
+            return NULL;
     PyObject *m = PyModule_Create(&fastpath_module);
     if (m == NULL)
         return NULL;
-    Py_INCREF(&MemLinkType);
-    if (PyModule_AddObject(m, "MemoryLink", (PyObject *)&MemLinkType) < 0) {
-        Py_DECREF(&MemLinkType);
-        Py_DECREF(m);
-        return NULL;
-    }
-    Py_INCREF(&TapType);
-    if (PyModule_AddObject(m, "TapLink", (PyObject *)&TapType) < 0) {
-        Py_DECREF(&TapType);
-        Py_DECREF(m);
-        return NULL;
-    }
-    Py_INCREF(&TickType);
-    if (PyModule_AddObject(m, "Tick", (PyObject *)&TickType) < 0) {
-        Py_DECREF(&TickType);
-        Py_DECREF(m);
-        return NULL;
-    }
-    Py_INCREF(&CascadeType);
-    if (PyModule_AddObject(m, "Cascade", (PyObject *)&CascadeType) < 0) {
-        Py_DECREF(&CascadeType);
-        Py_DECREF(m);
-        return NULL;
+    for (int i = 0; i < n_types; i++) {
+        Py_INCREF(types[i].type);
+        if (PyModule_AddObject(m, types[i].name, (PyObject *)types[i].type) < 0) {
+            Py_DECREF(types[i].type);
+            Py_DECREF(m);
+            return NULL;
+        }
     }
     return m;
 }
