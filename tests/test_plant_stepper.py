@@ -24,6 +24,9 @@ def test_the_stepper_is_built_and_builds_are_checked(tmp_path):
     assert pb.build() == pb.library_path()
     src = tmp_path / "ext.c"
     src.write_text(pb.SOURCE.read_text().replace("_fmi2step", "ext"))
+    for part in pb.SOURCE.parent.glob("*.c"):          # the files it includes
+        if part != pb.SOURCE:
+            (tmp_path / part.name).write_text(part.read_text())
     lib = tmp_path / "ext.so"
     build_extension(src, lib)
     first = lib.stat().st_mtime_ns

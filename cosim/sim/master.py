@@ -29,7 +29,7 @@ import numpy as np
 from cosim.errors import ComponentError
 from cosim.outputs.folder import clean_run_folder
 from cosim.outputs.tlog import Tlog
-from cosim.plant.fmu import Y_QW, Y_QZ, Y_VZ, Y_X, Y_Z, Plant
+from cosim.plant.fmu import Y_ON_GROUND, Y_QW, Y_QX, Y_QY, Y_QZ, Y_VZ, Y_X, Y_Y, Y_Z, Plant
 from cosim.scenario.records import Scenario
 from cosim.sensors.camera import PngSink, VideoSink, make_camera
 from cosim.sensors.odometry import OdometrySensor
@@ -43,6 +43,8 @@ from mav.hil import HilSimulatorCodec
 __all__ = ["ExitReason", "RunOptions", "RunResult", "SERIES_COLUMNS", "run_scenario"]
 
 FLUSH_MASK = 4095            # the recorder writes a block every 4096 ticks (k & mask == mask)
+COMPILED_TAIL = True         # steps 5-7b in one C call (cosim/plant/csrc/tail.c) when there is
+                             # no fault hook; False: the Python loop below (the reference)
 STALL_S = 0.2                # s, real-time mode: further behind the wall clock than this is a
                              # host stall; the pacing skips it instead of running the missed
                              # ticks back to back (a client could not have seen them)
@@ -249,6 +251,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         check_exit = monitor.check
         on_tick = app.on_tick if app is not None else None
         realtime, progress, png_every = opts.realtime, opts.progress, opts.png_every
+        tail = make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool,
+                         plant_step, gusty, (wind_n, wind_e, wind_d), (home_n, home_e),
+                         monitor) if hooks is None else None
+        tail_run = tail.run if tail is not None else None
         loop0 = time.perf_counter()
         pacer = Pacer(opts.speed, loop0)
         pace = pacer.wait
@@ -282,6 +288,17 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                             app.on_frame(t, img)
                     stage = "app"
                     on_tick(t)
+                if tail_run is not None:   # 5-7b compiled
+                    stage = "tail"
+                    y = tail_run(k, t_us, t, meas, y)
+                    if y is None:
+                        exit_reason, message = tail.ended
+                        break
+                    if realtime:
+                        pace(t + h)
+                    if progress and k % 2000 == 0:
+                        show_progress(t, wall0, phases[tail.phase_index])
+                    continue
                 # 5. HIL exchange: ODOMETRY out, HIL_ACTUATOR_CONTROLS stamped t_k back
                 stage = "onboard"
                 ans = exchange(encode_odometry(t_us, meas))
@@ -326,12 +343,12 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                 if realtime:
                     pace(t + h)
                 if progress and k % 2000 == 0:
-                    el = time.perf_counter() - wall0
-                    print(f"\r  t = {t:7.1f} s  phase = {phases[pi]:<12s} "
-                          f"{t / el if el > 0 else 0:6.0f}x real time", end="", file=sys.stderr)
+                    show_progress(t, wall0, phases[pi])
         except ComponentError:
             raise
         except Exception as exc:   # the one place a part's failure is named
+            if stage == "tail":
+                stage = tail.stage
             raise ComponentError(stage, f"{type(exc).__name__}: {exc}") from exc
     except ComponentError as exc:
         exit_reason, message = ExitReason.COMPONENT_ERROR, str(exc)
@@ -371,6 +388,31 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     if mcap is not None:
         res.mcap = mcap.finish(res)
     return res
+
+
+def show_progress(t: float, wall0: float, phase: str) -> None:
+    el = time.perf_counter() - wall0
+    print(f"\r  t = {t:7.1f} s  phase = {phase:<12s} "
+          f"{t / el if el > 0 else 0:6.0f}x real time", end="", file=sys.stderr)
+
+
+def make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool, plant_step,
+              gusty, wind, home, monitor):
+    """The compiled steps 5-7b of the loop (cosim/plant/csrc/tail.c), or None without the
+    library or with COMPILED_TAIL off: the loop then runs them in Python, the reference."""
+    if not COMPILED_TAIL:
+        return None
+    try:
+        from cosim.plant._fmi2step import Tail
+    except ImportError:
+        return None
+    from cosim.sim import exits
+
+    consts = (Y_Z, Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_VZ, exits.AIRBORNE_Z_M,
+              exits.FLIP_PRECHECK, exits.CEILING_M, FLUSH_MASK)
+    return Tail(encode_odometry, exchange, wire.decode_hil_actuator_controls, gcs_recv, app,
+                phase_idx, phases, spool, plant_step, gusty, wind, home, monitor, consts,
+                ComponentError)
 
 
 def _app_metrics(app) -> dict[str, float]:

@@ -19,6 +19,9 @@
  *   names    (optional) the inputs' names, so step() also takes them as keywords
  * .step(u1, ..., un) with the inputs in in_vr order (missing trailing ones are 0.0):
  *   advance k -> k+1 and return y.  .k: the tick counter (read/write).
+ *
+ * Tail (tail.c, tail_run.c): the master's tick after the app (HIL exchange, record, plant step,
+ * exit test) in one call.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -316,6 +319,8 @@ static PyTypeObject StepperType = {
     .tp_getset = Stepper_getset,
 };
 
+#include "tail.c"
+
 static struct PyModuleDef fmi2step_module = {
     PyModuleDef_HEAD_INIT, "_fmi2step",
     "One FMI 2.0 co-simulation tick per call, without ctypes marshalling.", -1, NULL,
@@ -324,14 +329,13 @@ static struct PyModuleDef fmi2step_module = {
 
 PyMODINIT_FUNC PyInit__fmi2step(void)
 {
-    if (PyType_Ready(&StepperType) < 0)
+    if (PyType_Ready(&StepperType) < 0 || PyType_Ready(&TailType) < 0 || tail_names() < 0)
         return NULL;
     PyObject *m = PyModule_Create(&fmi2step_module);
     if (m == NULL)
         return NULL;
-    Py_INCREF(&StepperType);
-    if (PyModule_AddObject(m, "Stepper", (PyObject *)&StepperType) < 0) {
-        Py_DECREF(&StepperType);
+    if (PyModule_AddObjectRef(m, "Stepper", (PyObject *)&StepperType) < 0 ||
+        PyModule_AddObjectRef(m, "Tail", (PyObject *)&TailType) < 0) {
         Py_DECREF(m);
         return NULL;
     }
