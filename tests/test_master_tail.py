@@ -153,3 +153,13 @@ def test_a_touch_and_go_then_landing_is_the_same_both_ways(monkeypatch):
     assert (og[1:] != og[:-1]).sum() >= 3                   # down, up, down at least
     assert res.exit_reason is ExitReason.MISSION_COMPLETE
     assert res.touchdown[1] > 57.4                          # the final touchdown, not the first
+
+
+def test_cosim_fmi2step_0_flies_the_python_reference(monkeypatch):
+    """The simulator's compiled side off (as `cosim bench --instructions` "before" runs it)."""
+    monkeypatch.setenv("COSIM_FMI2STEP", "0")
+    got = []
+    real = master.make_tail
+    monkeypatch.setattr(master, "make_tail", lambda *a: got.append(real(*a)) or got[-1])
+    sc = with_set(load_scenario(SCEN / "scripted_square.toml"), {"timing.t_final_s": 1.0})
+    assert run_scenario(sc, RunOptions()).ticks == 200 and got == [None]

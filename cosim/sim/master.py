@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import sys
 import tempfile
 import time
@@ -44,7 +45,8 @@ __all__ = ["ExitReason", "RunOptions", "RunResult", "SERIES_COLUMNS", "run_scena
 
 FLUSH_MASK = 4095            # the recorder writes a block every 4096 ticks (k & mask == mask)
 COMPILED_TAIL = True         # steps 5-7b in one C call (cosim/plant/csrc/tail.c) when there is
-                             # no fault hook; False: the Python loop below (the reference)
+                             # no fault hook; False (or COSIM_FMI2STEP=0, the simulator's
+                             # compiled side off): the Python loop below (the reference)
 STALL_S = 0.2                # s, real-time mode: further behind the wall clock than this is a
                              # host stall; the pacing skips it instead of running the missed
                              # ticks back to back (a client could not have seen them)
@@ -400,7 +402,7 @@ def make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool
               gusty, wind, home, monitor):
     """The compiled steps 5-7b of the loop (cosim/plant/csrc/tail.c), or None without the
     library or with COMPILED_TAIL off: the loop then runs them in Python, the reference."""
-    if not COMPILED_TAIL:
+    if not COMPILED_TAIL or os.environ.get("COSIM_FMI2STEP", "1") == "0":
         return None
     try:
         from cosim.plant._fmi2step import Tail
