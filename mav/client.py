@@ -76,6 +76,13 @@ class CommandAck(NamedTuple):
 class OffboardClient:
     """A companion computer on the API link. See the module docstring."""
 
+    # the attributes the compiled poll and setpoint (mav/csrc/client.c) read and write each
+    # tick, as slots (read by offset from C); `__dict__` keeps every other attribute, and a
+    # subclass's, as before
+    __slots__ = ("link", "mav", "target_system", "target_component", "signed", "t", "_next_hb",
+                 "stats", "_fast_one", "_fast_handlers", "position", "velocity", "attitude",
+                 "rates", "__dict__", "__weakref__")
+
     def __init__(self, link, *, sysid: int = 1, compid: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
                  target_system: int = 1, target_component: int = M.MAV_COMP_ID_AUTOPILOT1,
                  signing_key: bytes | None = None,

@@ -17,18 +17,18 @@
 #define CS_MSGID 84
 #define CS_CRC_EXTRA 143
 #define CS_PAYLOAD 53
-static PyObject *n_t_, *n_target_system, *n_target_component, *n_tx, *n_send_c, *n_signed_c,
-    *n_fast_one, *n_fast_handlers, *n_datagram, *n_next_hb, *n_send_hb, *n_rx, *n_recv_c;
+static PyObject *n_t_, *n_target_system, *n_target_component, *n_tx, *n_signed_c,
+    *n_fast_one, *n_fast_handlers, *n_datagram, *n_next_hb, *n_send_hb, *n_rx;
 
 static int client_init(void)
 {
-    static const char *str[13] = {"t", "target_system", "target_component", "tx", "send",
-                                  "signed", "_fast_one", "_fast_handlers", "_datagram",
-                                  "_next_hb", "send_heartbeat", "rx", "recv"};
-    PyObject **dst[13] = {&n_t_, &n_target_system, &n_target_component, &n_tx, &n_send_c,
-                          &n_signed_c, &n_fast_one, &n_fast_handlers, &n_datagram, &n_next_hb,
-                          &n_send_hb, &n_rx, &n_recv_c};
-    for (int i = 0; i < 13; i++)
+    static const char *str[11] = {"t", "target_system", "target_component", "tx", "signed",
+                                  "_fast_one", "_fast_handlers", "_datagram", "_next_hb",
+                                  "send_heartbeat", "rx"};
+    PyObject **dst[11] = {&n_t_, &n_target_system, &n_target_component, &n_tx, &n_signed_c,
+                          &n_fast_one, &n_fast_handlers, &n_datagram, &n_next_hb, &n_send_hb,
+                          &n_rx};
+    for (int i = 0; i < 11; i++)
         if ((*dst[i] = PyUnicode_InternFromString(str[i])) == NULL)
             return -1;
     return 0;
@@ -131,7 +131,7 @@ static PyObject *fp_client_setpoint(PyObject *mod, PyObject *const *args, Py_ssi
     if (fr == NULL)
         return NULL;
     PyObject *link = fast_getattr(c, n_link);
-    PyObject *r = link ? PyObject_CallMethodOneArg(link, n_send_c, fr) : NULL;
+    PyObject *r = link ? link_send(link, fr) : NULL;
     Py_XDECREF(link);
     Py_DECREF(fr);
     if (r == NULL)
@@ -188,7 +188,7 @@ static PyObject *fp_client_poll(PyObject *mod, PyObject *const *args, Py_ssize_t
     if (link == NULL || n == NULL || (one = fast_getattr(c, n_fast_one)) == NULL)
         goto done;
     for (;;) {
-        PyObject *data = PyObject_CallMethodNoArgs(link, n_recv_c);
+        PyObject *data = link_recv(link);
         if (data == NULL)
             goto done;
         if (data == Py_None) {

@@ -58,18 +58,13 @@ static PyObject *fp_odometry_frame(PyObject *mod, PyObject *const *args, Py_ssiz
  * sim.send(data), then poll() until it handles a tick or nothing is queued at the vehicle's
  * end (`pending()`), then the answer, sim.recv() (None if there was none). Exceptions are the
  * reference's, unwrapped: its caller names them. */
-static PyObject *n_send_, *n_recv_;
-
 static PyObject *fp_mil_exchange(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
 {
     if (nargs != 4) {
         PyErr_SetString(PyExc_TypeError, "mil_exchange(sim, poll, pending, data)");
         return NULL;
     }
-    if (n_send_ == NULL && ((n_send_ = PyUnicode_InternFromString("send")) == NULL ||
-                            (n_recv_ = PyUnicode_InternFromString("recv")) == NULL))
-        return NULL;
-    PyObject *r = PyObject_CallMethodOneArg(args[0], n_send_, args[3]);
+    PyObject *r = link_send(args[0], args[3]);
     if (r == NULL)
         return NULL;
     Py_DECREF(r);
@@ -89,5 +84,5 @@ static PyObject *fp_mil_exchange(PyObject *mod, PyObject *const *args, Py_ssize_
         if (!more)
             break;
     }
-    return PyObject_CallMethodNoArgs(args[0], n_recv_);
+    return link_recv(args[0]);
 }

@@ -274,7 +274,7 @@ static int tap_add(Tap *self, PyObject *data)
         Py_XDECREF(r);
         return r == NULL ? -1 : 0;
     }
-    PyObject *t = PyObject_GetAttr(self->log, n_t_us);
+    PyObject *t = fast_getattr(self->log, n_t_us);
     if (t == NULL)
         return -1;
     unsigned long long t_us = PyLong_AsUnsignedLongLong(t);
@@ -294,7 +294,7 @@ static int tap_add(Tap *self, PyObject *data)
     if (r == NULL)
         return -1;
     Py_DECREF(r);
-    PyObject *c = PyObject_GetAttr(self->log, n_count);
+    PyObject *c = fast_getattr(self->log, n_count);
     if (c == NULL)
         return -1;
     long long k = PyLong_AsLongLong(c);
@@ -304,7 +304,7 @@ static int tap_add(Tap *self, PyObject *data)
     PyObject *c1 = PyLong_FromLongLong(k + 1);
     if (c1 == NULL)
         return -1;
-    int rc = PyObject_SetAttr(self->log, n_count, c1);
+    int rc = fast_setattr(self->log, n_count, c1);
     Py_DECREF(c1);
     return rc;
 }
@@ -319,18 +319,42 @@ static int tap_ready(Tap *self)
     return 0;
 }
 
+static PyTypeObject TapType;
+static PyObject *tap_send(Tap *self, PyObject *data);
+static PyObject *tap_recv(Tap *self, PyObject *unused);
+
+/* link.recv() and link.send(data) from C: a compiled link (exactly MemoryLink or TapLink,
+ * whose methods cannot be replaced) is called directly, any other link through its method */
+static PyObject *link_recv(PyObject *link)
+{
+    if (Py_TYPE(link) == &MemLinkType)
+        return ml_recv((MemLink *)link, NULL);
+    if (Py_TYPE(link) == &TapType)
+        return tap_recv((Tap *)link, NULL);
+    return PyObject_CallMethodNoArgs(link, n_recv);
+}
+
+static PyObject *link_send(PyObject *link, PyObject *data)
+{
+    if (Py_TYPE(link) == &MemLinkType)
+        return ml_send((MemLink *)link, data);
+    if (Py_TYPE(link) == &TapType)
+        return tap_send((Tap *)link, data);
+    return PyObject_CallMethodOneArg(link, n_send, data);
+}
+
 static PyObject *tap_send(Tap *self, PyObject *data)
 {
     if (tap_ready(self) < 0 || tap_add(self, data) < 0)
         return NULL;
-    return PyObject_CallMethodOneArg(self->inner, n_send, data);
+    return link_send(self->inner, data);
 }
 
 static PyObject *tap_recv(Tap *self, PyObject *unused)
 {
     if (tap_ready(self) < 0)
         return NULL;
-    PyObject *data = PyObject_CallMethodNoArgs(self->inner, n_recv);
+    PyObject *data = link_recv(self->inner);
     if (data == NULL || data == Py_None)
         return data;
     if (tap_add(self, data) < 0) {

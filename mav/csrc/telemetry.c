@@ -263,7 +263,7 @@ static PyObject *chan_send(PyObject *ch, PyObject *data)
     Py_XDECREF(old);
     Py_XDECREF(inc);
     PyObject *link = rc < 0 ? NULL : fast_getattr(ch, n_link);
-    PyObject *r = link ? PyObject_CallMethodOneArg(link, n_send, data) : NULL;
+    PyObject *r = link ? link_send(link, data) : NULL;
     Py_XDECREF(link);
     return r;
 }

@@ -267,7 +267,7 @@ static int tick_drain(Tick *self, PyObject *ch, PyObject *data)
     for (long n = 0; n < self->c[C_DRAIN_MAX]; n++) {
         if (n) {
             Py_DECREF(got);
-            got = PyObject_CallMethodNoArgs(link, K[K_recv]);
+            got = link_recv(link);
             if (got == NULL)
                 goto done;
             if (got == Py_None) {

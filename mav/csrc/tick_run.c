@@ -38,7 +38,7 @@ static int tick_answer(Tick *self, PyObject *t_us, PyObject *u, long mode)
     PyObject *fr = frame_on(self->r[R_HILMAV], self->hil_id, (uint8_t)self->hil_extra, pl, 81);
     if (fr == NULL)
         return -1;
-    PyObject *r = PyObject_CallMethodOneArg(self->r[R_HIL], K[K_send], fr);
+    PyObject *r = link_send(self->r[R_HIL], fr);
     Py_DECREF(fr);
     Py_XDECREF(r);
     return r ? 0 : -1;
@@ -216,7 +216,7 @@ static PyObject *tick_odometry(Tick *self, PyObject *od)
     PyObject *chans[2] = {self->r[R_API], self->r[R_GCS]};
     for (int i = 0; i < 2; i++) {
         PyObject *link = attr(chans[i], K_link);
-        PyObject *data = link ? PyObject_CallMethodNoArgs(link, K[K_recv]) : NULL;
+        PyObject *data = link ? link_recv(link) : NULL;
         Py_XDECREF(link);
         if (data == NULL)
             return NULL;
@@ -348,7 +348,7 @@ done:
 /* Tick.run(): Onboard.poll */
 static PyObject *tick_run(Tick *self, PyObject *unused)
 {
-    PyObject *data = PyObject_CallMethodNoArgs(self->r[R_HIL], K[K_recv]);
+    PyObject *data = link_recv(self->r[R_HIL]);
     if (data == NULL)
         return NULL;
     if (data == Py_None) {

@@ -81,6 +81,8 @@ class Onboard:
     """
 
     compiled_tick = True     # use mav/csrc/tick.c for `poll` when the extension is loaded
+    # read by the compiled tick every tick: slots (read by offset); the rest in `__dict__`
+    __slots__ = ("origin", "mission", "__dict__", "__weakref__")
 
     def __init__(self, config: OnboardConfig, hil, api, gcs, *, controller=None) -> None:
         self.cfg = cfg = config
