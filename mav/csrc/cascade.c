@@ -42,6 +42,7 @@ enum { P_X, P_Y, P_Z, P_VX, P_VY, P_VZ, P_YAW, P_YAW_RATE, P_AX, P_AY, P_N };
 static const char *P_NAMES[P_N] = {"x", "y", "z", "vx", "vy", "vz", "yaw", "yaw_rate", "ax",
                                    "ay"};
 static PyObject *s_names[S_N], *p_names[P_N], *name_armed;
+static SlotEntry s_cache[S_N], p_cache[P_N];
 
 static const double PI_ = 3.141592653589793;
 static const double TWO_PI_ = 6.283185307179586;
@@ -59,10 +60,11 @@ static double py_mod(double a, double b)
     return m;
 }
 
-static int read_floats(PyObject *obj, PyObject **names, int n, double *out)
+/* obj.<names[i]> as doubles, through the names' caches (`cache[i]`, slots.c) */
+static int read_floats(PyObject *obj, PyObject **names, SlotEntry *cache, int n, double *out)
 {
     for (int i = 0; i < n; i++) {
-        PyObject *v = fast_getattr(obj, names[i]);
+        PyObject *v = getattr_at(&cache[i], obj, names[i]);
         if (v == NULL)
             return -1;
         double d = PyFloat_CheckExact(v) ? PyFloat_AS_DOUBLE(v) : PyFloat_AsDouble(v);
@@ -189,7 +191,8 @@ static PyObject *Cascade_update(Cascade *c, PyObject *const *args, Py_ssize_t na
         Py_RETURN_NONE;
     }
     double s[S_N], sp[P_N];
-    if (read_floats(so, s_names, S_N, s) < 0 || read_floats(spo, p_names, P_N, sp) < 0)
+    if (read_floats(so, s_names, s_cache, S_N, s) < 0 ||
+        read_floats(spo, p_names, p_cache, P_N, sp) < 0)
         return NULL;
     const Gains *g = &c->g;
     const double v_max = g->vxy_max, e_max = g->xy_err_max, tilt_max = g->tilt_max;

@@ -67,10 +67,11 @@ static PyObject *fp_emit_global(PyObject *mod, PyObject *const *args, Py_ssize_t
         return NULL;
     double g[5], s[13], hz = 0.0;
     PyObject *gn[5] = {n_lat0, n_lon0, n_alt0, n_dlat, n_dlon};
-    if (read_floats(geo, gn, 5, g) < 0)
+    static SlotEntry gc[5];
+    if (read_floats(geo, gn, gc, 5, g) < 0)
         return NULL;
     PyObject *state = fast_getattr(vs, n_state);
-    int rc = state ? read_floats(state, t_names, T_N, s) : -1;   /* qw..r, x..vz */
+    int rc = state ? read_floats(state, t_names, t_cache, T_N, s) : -1;   /* qw..r, x..vz */
     Py_XDECREF(state);
     if (rc < 0)
         return NULL;

@@ -12,7 +12,9 @@
  * remembers that and the generic PyObject_GetAttr / PyObject_SetAttr run, so the answer is
  * always the one Python gives. An unset slot goes to the generic path too, which raises the
  * AttributeError Python raises. The cache is direct-mapped on (interned name, type); names
- * that are not interned strings always take the generic path.
+ * that are not interned strings always take the generic path. The sites that read the same
+ * names every tick (the tick's names, the controller's and telemetry's field lists) keep
+ * their own one-entry cache per name in front of it (`slot_at`), which skips the hashing.
  */
 
 typedef struct {
@@ -60,10 +62,27 @@ static Py_ssize_t slot_of(PyObject *o, PyObject *name)
     return off;
 }
 
-/* getattr(o, name) -> new reference, or NULL with the error set */
-static PyObject *fast_getattr(PyObject *o, PyObject *name)
+/* a call site's own one-entry cache `e` for one name: no hashing while the site sees the same
+ * type (with the same guard); anything else asks slot_of */
+static Py_ssize_t slot_at(SlotEntry *e, PyObject *o, PyObject *name)
 {
+    PyTypeObject *tp = Py_TYPE(o);
+    if (e->type == tp && e->version == tp->tp_version_tag &&
+        PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG))
+        return e->offset;
     Py_ssize_t off = slot_of(o, name);
+    if (PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG)) {
+        e->name = name;
+        e->type = tp;
+        e->version = tp->tp_version_tag;
+        e->offset = off;
+    }
+    return off;
+}
+
+/* o.name, read from the slot at `off` (-1: the generic path) */
+static PyObject *getattr_off(PyObject *o, Py_ssize_t off, PyObject *name)
+{
     if (off >= 0) {
         PyObject *v = *(PyObject **)((char *)o + off);
         if (v != NULL) {
@@ -74,10 +93,9 @@ static PyObject *fast_getattr(PyObject *o, PyObject *name)
     return PyObject_GetAttr(o, name);
 }
 
-/* setattr(o, name, v) -> 0, or -1 with the error set */
-static int fast_setattr(PyObject *o, PyObject *name, PyObject *v)
+/* o.name = v, into the slot at `off` (-1: the generic path) */
+static int setattr_off(PyObject *o, Py_ssize_t off, PyObject *name, PyObject *v)
 {
-    Py_ssize_t off = slot_of(o, name);
     if (off < 0)
         return PyObject_SetAttr(o, name, v);
     PyObject **p = (PyObject **)((char *)o + off);
@@ -86,4 +104,27 @@ static int fast_setattr(PyObject *o, PyObject *name, PyObject *v)
     *p = v;
     Py_XDECREF(old);
     return 0;
+}
+
+/* getattr(o, name) -> new reference, or NULL with the error set */
+static PyObject *fast_getattr(PyObject *o, PyObject *name)
+{
+    return getattr_off(o, slot_of(o, name), name);
+}
+
+/* setattr(o, name, v) -> 0, or -1 with the error set */
+static int fast_setattr(PyObject *o, PyObject *name, PyObject *v)
+{
+    return setattr_off(o, slot_of(o, name), name, v);
+}
+
+/* the same through a call site's cache (slot_at) */
+static PyObject *getattr_at(SlotEntry *e, PyObject *o, PyObject *name)
+{
+    return getattr_off(o, slot_at(e, o, name), name);
+}
+
+static int setattr_at(SlotEntry *e, PyObject *o, PyObject *name, PyObject *v)
+{
+    return setattr_off(o, slot_at(e, o, name), name, v);
 }

@@ -20,6 +20,7 @@ enum { T_QW, T_QX, T_QY, T_QZ, T_P, T_Q, T_R, T_X, T_Y, T_Z, T_VX, T_VY, T_VZ, T
 static const char *T_NAMES[T_N] = {"qw", "qx", "qy", "qz", "p", "q", "r", "x", "y", "z",
                                    "vx", "vy", "vz"};
 static PyObject *t_names[T_N];
+static SlotEntry t_cache[T_N];
 static PyObject *py_thousand, *py_u32_mask, *py_one;
 static PyObject *n_state, *n_mav, *n_stats, *n_tx_key, *n_link, *n_setpoint;
 
@@ -149,7 +150,7 @@ static PyObject *target_msg(long msgid, long extra, PyObject *mav, PyObject *sp,
 {
     static const unsigned bits[8] = {1, 2, 4, 8, 16, 32, 1024, 2048};
     double f[8];
-    if (read_floats(sp, p_names, 8, f) < 0)      /* x y z vx vy vz yaw yaw_rate */
+    if (read_floats(sp, p_names, p_cache, 8, f) < 0)      /* x y z vx vy vz yaw yaw_rate */
         return NULL;
     unsigned mask = 64 | 128 | 256;
     for (int i = 0; i < 8; i++)
@@ -204,7 +205,7 @@ static PyObject *state_msg(long kind, long msgid, long extra, PyObject *mav, PyO
     double v[6];
     if (kind == TM_ATTITUDE) {
         double s[7];
-        if (read_floats(state, t_names + T_QW, 7, s) < 0)
+        if (read_floats(state, t_names + T_QW, t_cache + T_QW, 7, s) < 0)
             return NULL;
         const double qw = s[0], qx = s[1], qy = s[2], qz = s[3];
         v[0] = py_atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy));
@@ -214,7 +215,7 @@ static PyObject *state_msg(long kind, long msgid, long extra, PyObject *mav, PyO
         v[3] = s[4];
         v[4] = s[5];
         v[5] = s[6];
-    } else if (read_floats(state, t_names + T_X, 6, v) < 0) {
+    } else if (read_floats(state, t_names + T_X, t_cache + T_X, 6, v) < 0) {
         return NULL;
     }
     uint8_t pl[28];

@@ -104,12 +104,13 @@ static void tick_dealloc(Tick *self)
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
-static PyObject *attr(PyObject *o, int k) { return fast_getattr(o, K[k]); }
+static SlotEntry KG[K_N], KS[K_N];    /* each name's cache for reads and for writes */
+static PyObject *attr(PyObject *o, int k) { return getattr_at(&KG[k], o, K[k]); }
 
 /* o.k as a C long (ints and bools), -1 with an error set on failure */
 static int attr_long(PyObject *o, int k, long *out)
 {
-    PyObject *v = fast_getattr(o, K[k]);
+    PyObject *v = attr(o, k);
     if (v == NULL)
         return -1;
     *out = PyLong_AsLong(v);
@@ -120,7 +121,7 @@ static int attr_long(PyObject *o, int k, long *out)
 /* truth of o.k: 1, 0, or -1 on error */
 static int attr_true(PyObject *o, int k)
 {
-    PyObject *v = fast_getattr(o, K[k]);
+    PyObject *v = attr(o, k);
     if (v == NULL)
         return -1;
     int r = PyObject_IsTrue(v);
@@ -131,7 +132,7 @@ static int attr_true(PyObject *o, int k)
 /* the comparison `o.k op b` with Python semantics (b an object): 1, 0 or -1 */
 static int attr_cmp(PyObject *o, int k, PyObject *b, int op)
 {
-    PyObject *v = fast_getattr(o, K[k]);
+    PyObject *v = attr(o, k);
     if (v == NULL)
         return -1;
     int r = PyObject_RichCompareBool(v, b, op);
@@ -180,7 +181,7 @@ static int call_part(PyObject *veh, int part, int meth, PyObject *arg)
     return r ? 0 : -1;
 }
 
-static int set_attr(PyObject *o, int k, PyObject *v) { return fast_setattr(o, K[k], v); }
+static int set_attr(PyObject *o, int k, PyObject *v) { return setattr_at(&KS[k], o, K[k], v); }
 
 static PyObject *tick_new(PyTypeObject *type, PyObject *args, PyObject *kw)
 {
