@@ -10,7 +10,10 @@ HIL_ACTUATOR_CONTROLS stamped t_k; 6. apply the motor commands, step the plant t
 MIL runs the onboard stack in this process over in-memory links carrying the same MAVLink bytes;
 SIL runs it as a separate process over loopback UDP. Both give bit-identical trajectories.
 The parts are built by the small functions below; `run_scenario` is the loop. A part that fails
-is named through one wrapper (`part`), and the run still returns what it recorded.
+is named through one wrapper (`part`), and the run still returns what it recorded. Steps 5-7b
+run as one C call (`cosim/plant/csrc/tail.c`, `make_tail`) when the simulator's extension is
+built and no fault hook is set; the Python code of the loop is their reference
+(tests/test_master_tail.py flies both).
 """
 
 from __future__ import annotations
