@@ -40,7 +40,7 @@ def test_instructions_per_tick_from_two_processes_per_variant(tmp_path, monkeypa
     fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
     monkeypatch.delenv("MAV_FASTPATH", raising=False)     # "now" runs as installed
     monkeypatch.delenv("COSIM_FMI2STEP", raising=False)
-    res = bench_instr.bench_instructions(valgrind=str(fake))
+    res = bench_instr.bench_instructions(valgrind=str(fake), parts=False)
     assert res["now"]["per_tick"] == 250 and res["before"]["per_tick"] == 600
     assert res["before_over_now"] == pytest.approx(2.4)
     assert res["now"]["ticks"] == 1000
@@ -54,7 +54,7 @@ def test_a_failing_count_is_reported(tmp_path):
                     "sys.exit(3)\n")
     fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
     with pytest.raises(RuntimeError, match="boom"):
-        bench_instr.bench_instructions(valgrind=str(fake))
+        bench_instr.bench_instructions(valgrind=str(fake), parts=False)
 
 
 def test_without_valgrind_the_bench_says_what_to_install(monkeypatch, capsys, tmp_path):
@@ -71,3 +71,34 @@ def test_instructions_and_flood_together_are_refused(capsys):
 
     assert main(["bench", "--instructions", "--flood"]) == 2
     assert "--instructions --flood" in capsys.readouterr().err
+
+
+ANNOTATE = """\
+--------------------------------------------------------------------------------
+Ir
+--------------------------------------------------------------------------------
+3,121,409,499 (100.0%)  PROGRAM TOTALS
+11,495,308,473 (368.2%)  /tmp/Python-3.11.7/Python/ceval.c:_PyEval_EvalFrameDefault'2 [/lib/x]
+   887,225,562 (28.42%)  ???:tail_run [/work/main/cosim/plant/_fmi2step.so]
+   518,703,574 (16.62%)  ???:fp_mil_exchange [/work/main/mav/_fastpath.so]
+   214,704,656 ( 6.88%)  ???:Stepper_step [/work/main/cosim/plant/_fmi2step.so]
+    55,000,000 ( 1.76%)  ???:fp_odometry_frame [/work/main/mav/_fastpath.so]
+    84,917,734 ( 2.72%)  ???:fp_client_poll [/work/main/mav/_fastpath.so]
+     1,000,000 ( 0.03%)  ???:fp_mil_exchange'2 [/work/main/mav/_fastpath.so]
+"""
+
+
+def test_parts_from_callgrind_inclusive_counts():
+    incl = bench_instr.parse_inclusive(ANNOTATE)
+    assert incl["tail_run"] == 887_225_562 and incl["fp_mil_exchange"] == 518_703_574
+    assert incl["_PyEval_EvalFrameDefault"] == 11_495_308_473 and "PROGRAM" not in incl
+    parts = bench_instr.parts_per_tick(incl, 1000, 3_000_000.0)
+    labels = list(parts)
+    assert parts[labels[0]] == 518_703.574 and parts[labels[4]] == 0.0   # no setpoint symbol
+    master = (887_225_562 - 518_703_574 - 214_704_656 - 55_000_000) / 1000
+    assert parts[labels[5]] == pytest.approx(master)
+    assert sum(parts.values()) == pytest.approx(3_000_000.0)              # the rest closes it
+    res = {"now": {"per_tick": 3e6, "ticks": 1000}, "before": {"per_tick": 6e6},
+           "before_over_now": 2.0, "parts_per_tick": parts}
+    text = "\n".join(bench_instr.format_instructions(res))
+    assert "518.7k" in text and "17.3%" in text and "the rest" in text

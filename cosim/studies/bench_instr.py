@@ -12,6 +12,15 @@ flying it twice; the difference over the mission's ticks is the work per tick, w
 imports, the FMU load and the first-run setup. Variants: "now" as installed; "before" with
 `MAV_FASTPATH=0` and `COSIM_FMI2STEP=0` (the Python onboard reference, its links and
 decoders, and the plant through ctypes). Four processes, two at a time: ~5-8 minutes.
+
+Where the compiled tick's instructions go (`parts`): one more process, under callgrind, flies
+the mission once; the inclusive count of each compiled part's entry point (its own code and
+everything it calls), per tick, is exact where a wall-clock timer around the part is not:
+the vehicle's tick with MIL's HIL exchange (`mil_exchange`), the plant (`Stepper.step`), the
+simulator's ODOMETRY, the client's poll and setpoint, and the master's compiled tail less the
+parts it calls. The rest of the tick (the app's Python, the camera and image processing, the
+master's Python loop, and the per-run setup the once/twice difference keeps) is the total
+less these. Needs `callgrind_annotate` (shipped with Valgrind); skipped without it.
 """
 
 from __future__ import annotations
@@ -48,6 +57,51 @@ for _ in range(int(sys.argv[2])):
 print("ticks", ticks)
 """
 _IREFS = re.compile(r"I\s+refs:\s+([\d,]+)")
+# the compiled entry points: (label, symbol); "master" is computed (its tail less the others)
+PART_SYMBOLS = (("onboard: the vehicle's tick and MIL's HIL exchange", "fp_mil_exchange"),
+                ("plant: FMI stepper and the FMU", "Stepper_step"),
+                ("ODOMETRY encode (simulator)", "fp_odometry_frame"),
+                ("app's client: poll (telemetry in)", "fp_client_poll"),
+                ("app's client: setpoint out", "fp_client_setpoint"))
+_TAIL = "tail_run"
+_INCL = re.compile(r"^\s*([\d,]+)\s+\([\d. ]+%\)\s+\S*?:(\w+)(?:'\d+)?(?:\s|$)")
+
+
+def parse_inclusive(text: str) -> dict[str, int]:
+    """{function: inclusive instructions} from `callgrind_annotate --inclusive=yes` output
+    (the first, largest line per function name)."""
+    out: dict[str, int] = {}
+    for line in text.splitlines():
+        m = _INCL.match(line)
+        if m is not None and m.group(2) not in out:
+            out[m.group(2)] = int(m.group(1).replace(",", ""))
+    return out
+
+
+def parts_per_tick(incl: dict[str, int], ticks: int, total_per_tick: float) -> dict[str, float]:
+    """Instructions per tick of each compiled part, the master's compiled tail less the parts
+    it calls, and the rest of the tick."""
+    parts = {label: incl.get(sym, 0) / ticks for label, sym in PART_SYMBOLS}
+    called = sum(parts[label] for label, sym in PART_SYMBOLS[:3])  # the tail calls these
+    parts["master: its compiled tail less those (record, exit test, HIL answer decode, "
+          "GCS tlog tap)"] = incl.get(_TAIL, 0) / ticks - called
+    parts["the rest (app's Python, camera + image processing, the master's Python loop, "
+          "per-run setup)"] = total_per_tick - sum(parts.values())
+    return parts
+
+
+def _callgrind_parts(valgrind: str, annotate: str, scenario: Path, tmp: Path
+                     ) -> tuple[dict[str, int], int]:
+    out = tmp / "callgrind.now"
+    cmd = [valgrind, "--tool=callgrind", f"--callgrind-out-file={out}", sys.executable, "-c",
+           _SCRIPT, str(scenario), "1"]
+    p = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    m = re.search(r"^ticks (\d+)$", p.stdout, re.M)
+    if p.returncode != 0 or m is None:
+        raise RuntimeError(f"callgrind run failed ({p.returncode}): {p.stderr[-2000:]}")
+    a = subprocess.run([annotate, "--inclusive=yes", "--threshold=100", str(out)],
+                       capture_output=True, text=True, check=True)
+    return parse_inclusive(a.stdout), int(m.group(1))
 
 
 def parse_irefs(text: str) -> int:
@@ -75,8 +129,9 @@ def _count(valgrind: str, env_extra: dict[str, str], runs: int, scenario: Path,
 
 
 def bench_instructions(scenario: Path = SEED, valgrind: str | None = None,
-                       workers: int = 2) -> dict[str, Any]:
-    """Instructions per MIL tick for each variant, and before / now."""
+                       workers: int = 2, parts: bool = True) -> dict[str, Any]:
+    """Instructions per MIL tick for each variant, and before / now; with `parts` (and
+    callgrind_annotate on PATH) where the compiled tick's go."""
     valgrind = valgrind or shutil.which("valgrind")
     if valgrind is None:
         raise ToolMissing("--instructions counts instructions with Valgrind's cachegrind, and "
@@ -86,7 +141,11 @@ def bench_instructions(scenario: Path = SEED, valgrind: str | None = None,
             ThreadPoolExecutor(max_workers=workers) as pool:
         futs = {job: pool.submit(_count, valgrind, VARIANTS[job[0]], job[1], scenario, Path(d))
                 for job in jobs}
+        annotate = shutil.which("callgrind_annotate") if parts else None
+        cg = (pool.submit(_callgrind_parts, valgrind, annotate, scenario, Path(d))
+              if annotate else None)
         got = {job: f.result() for job, f in futs.items()}
+        incl = cg.result() if cg is not None else None
     res: dict[str, Any] = {"scenario": str(scenario)}
     for name in VARIANTS:
         (i1, ticks), (i2, ticks2) = got[(name, 1)], got[(name, 2)]
@@ -95,6 +154,8 @@ def bench_instructions(scenario: Path = SEED, valgrind: str | None = None,
         res[name] = {"ticks": ticks, "instructions_1": i1, "instructions_2": i2,
                      "per_tick": (i2 - i1) / ticks}
     res["before_over_now"] = res["before"]["per_tick"] / res["now"]["per_tick"]
+    if incl is not None:
+        res["parts_per_tick"] = parts_per_tick(incl[0], incl[1], res["now"]["per_tick"])
     return res
 
 
@@ -103,5 +164,11 @@ def format_instructions(res: dict[str, Any]) -> list[str]:
     rows = (("now (compiled)", f"{now['per_tick'] / 1e3:.1f}k"),
             ("before (MAV_FASTPATH=0 COSIM_FMI2STEP=0)", f"{before['per_tick'] / 1e3:.1f}k"),
             ("before / now", f"{res['before_over_now']:.2f}x"))
-    return [f"instructions per MIL tick (cachegrind; seed mission flown twice minus once, "
-            f"{now['ticks']} ticks):"] + [f"  {a:<44}{b:>10}" for a, b in rows]
+    lines = [f"instructions per MIL tick (cachegrind; seed mission flown twice minus once, "
+             f"{now['ticks']} ticks):"] + [f"  {a:<44}{b:>10}" for a, b in rows]
+    if "parts_per_tick" in res:
+        lines.append("where the compiled tick's go (callgrind, inclusive counts of each entry "
+                     "point, per tick; share of the tick):")
+        for label, n in res["parts_per_tick"].items():
+            lines.append(f"  {label:<100}{n / 1e3:>7.1f}k {n / now['per_tick']:>6.1%}")
+    return lines

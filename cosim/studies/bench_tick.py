@@ -3,44 +3,51 @@ and the floor (the essentials of a tick measured alone)."""
 
 from __future__ import annotations
 
+import statistics
 import time
 from collections.abc import Callable
 from typing import Any
 
-from cosim.studies.bench_common import SEED, _per_call_us
+from cosim.studies.bench_common import SEED
 
-# (module, class, method, label, parent label or None): the parts of a MIL tick, timed by
-# wrapping the methods for one run (bench_tick_breakdown); class None: a module attribute the
-# tick looks up at run or call time (the compiled battery step and HIL answer decoder)
+# (module, class, method, label, parent label or None, set-up method or None): the parts of a
+# MIL tick, timed by wrapping them (bench_tick_breakdown). With a set-up method: `method` is an
+# instance attribute that set-up binds (a compiled part: the noise-free sensor's itemgetter,
+# the client's poll and setpoint, the ODOMETRY encoder, the controller, the FMI stepper), timed
+# on each instance as it is set up (a class-level wrapper would make the client pick its
+# Python path); class None: a module attribute looked up at run or call time (the compiled
+# battery step and the HIL answer decoder)
 _HIL = "HIL exchange (onboard)"
-_CTRL = "  onboard controller"
-_SETPOINT = "  setpoint encode+send"
 _TICK_PARTS = (
-    ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None),
-    ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None),
-    ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None),
-    ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None),
-    ("mav.client", "OffboardClient", "poll", "  client poll (telemetry in)", "app on_tick"),
-    ("mav.client", "OffboardClient", "_setpoint", _SETPOINT, "app on_tick"),
-    ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None),
-    ("cosim.sim.onboard", "OnboardHandle", "exchange_call", "HIL exchange (onboard)", None),
-    ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL),
-    ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", "HIL exchange (onboard)"),
-    ("mav.cascade", "QuadCascade", "update", _CTRL, _HIL),
-    ("mav.battery", "Battery", "step", "  onboard battery", "HIL exchange (onboard)"),
-    ("mav._fastpath", None, "battery_step", "  onboard battery", "HIL exchange (onboard)"),
-    ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL),
-    ("mav.wire", None, "decode_hil_actuator_controls", "HIL_ACTUATOR_CONTROLS decode", None),
-    ("cosim.plant.fmu", "Plant", "step", "plant step", None),
+    ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None, "__init__"),
+    ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None, None),
+    ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None, None),
+    ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None, None),
+    ("mav.client", "OffboardClient", "poll", "  client poll (telemetry in)", "app on_tick",
+     "__init__"),
+    ("mav.client", "OffboardClient", "set_position_target", "  setpoint encode+send",
+     "app on_tick", "__init__"),
+    ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None, "__init__"),
+    ("cosim.sim.onboard", "OnboardHandle", "exchange_call", _HIL, None, None),
+    ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL, None),
+    ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", _HIL, None),
+    ("mav.cascade", "QuadCascade", "update", "  onboard controller", _HIL, "__init__"),
+    ("mav.battery", "Battery", "step", "  onboard battery", _HIL, None),
+    ("mav._fastpath", None, "battery_step", "  onboard battery", _HIL, None),
+    ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL, None),
+    ("mav.wire", None, "decode_hil_actuator_controls", "HIL_ACTUATOR_CONTROLS decode", None,
+     None),
+    ("cosim.plant.fmu", "Plant", "step", "plant step", None, "_use_stepper"),
 )
+MASTER = "master loop itself (record, exit test, taps)"
 
 
 def _timing_attr(setup: Callable, attr: str, timed: Callable, label: str) -> Callable:
-    """A set-up method that then times the instance attribute `attr` it bound, if any."""
+    """A set-up method that then times the instance's `attr` (what set-up bound, or the
+    method) as an instance attribute."""
     def wrapper(self: Any, *a: Any, **kw: Any) -> None:
         setup(self, *a, **kw)
-        if attr in self.__dict__:
-            setattr(self, attr, timed(self.__dict__[attr], label))
+        setattr(self, attr, timed(getattr(self, attr), label))
     return wrapper
 
 
@@ -51,24 +58,55 @@ def _timed_result(fn: Callable, timed: Callable, label: str) -> Callable:
     return wrapper
 
 
+def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
+    """Wrap every implementation of the part `label` in `timed`; the (owner, name, original)
+    to put back."""
+    import importlib
+
+    saved = []
+    for mod, cls, meth, lb, _, setup in _TICK_PARTS:
+        if lb != label:
+            continue
+        try:
+            m = importlib.import_module(mod)
+        except ImportError:            # mav._fastpath not built: its parts run in Python
+            continue
+        c = m if cls is None else getattr(m, cls)
+        name = setup or meth
+        orig = c.__dict__[name]
+        saved.append((c, name, orig))
+        if setup is not None:
+            setattr(c, setup, _timing_attr(orig, meth, timed, label))
+        elif meth == "exchange_call":   # it returns the callable the master's loop calls
+            setattr(c, meth, _timed_result(orig, timed, label))
+        else:
+            setattr(c, meth, timed(orig, label))
+    return saved
+
+
 def bench_tick_breakdown() -> dict[str, Any]:
     """Where the MIL tick of the seed mission goes, in us per tick (averaged over the run).
 
-    One run with every part of `_TICK_PARTS` wrapped in a timer. The cost of a timer (measured
-    here on a no-op) is taken out of the parent's figure for each timed call inside it; what
-    is left of the loop is the master's own work (recording, exit checks, tlog taps, loop).
-    The timed run is slower than an untimed one by about that timer cost per call.
+    One part timed per run: each part of `_TICK_PARTS` is wrapped in a timer alone, in its own
+    run of the mission, so no other timer sits inside or around it; its figure is the time
+    inside its calls, less what a timed trivial call measures inside (a clock read and the
+    call through the wrapper). Each timed run follows an
+    untimed one; the tick's time is the median of those. A part's "rest" is its time less
+    its inner parts' (measured in their own runs); the master loop's own work (recording, the
+    exit test, tlog taps, the loop) is the untimed tick less the top-level parts. (Timing all
+    parts in one run, as this did before, made the run ~1.9x slower than an untimed one: the
+    timers' Python frames called from the compiled tick cost far more than a timer measured
+    alone, and that went into the master loop's and the onboard tick's figures.)
     """
-    import importlib
-
     from cosim.scenario.parse import load_scenario
     from cosim.sim.master import RunOptions, run_scenario
 
+    sc = load_scenario(SEED)
     acc: dict[str, list[int]] = {}
+    clock = time.perf_counter_ns
 
     def timed(fn: Callable, label: str) -> Callable:
         cell = acc.setdefault(label, [0, 0])
-        clock = time.perf_counter_ns
 
         def wrapper(*a: Any, **kw: Any) -> Any:
             t0 = clock()
@@ -79,72 +117,50 @@ def bench_tick_breakdown() -> dict[str, Any]:
                 cell[1] += 1
         return wrapper
 
-    # timer cost: a wrapped no-op minus a bare no-op
-    def noop() -> None:
-        return None
-    w = timed(noop, "_noop")
-    n = 200_000
-    bare = min(_per_call_us(noop, n, 1)[0] for _ in range(3))
-    wrapped = min(_per_call_us(w, n, 1)[0] for _ in range(3))
-    overhead_us = max(0.0, wrapped - bare)
-    del acc["_noop"]
-
-    saved = []
-    try:
-        for mod, cls, meth, label, _ in _TICK_PARTS:
-            try:
-                m = importlib.import_module(mod)
-            except ImportError:            # mav._fastpath not built: its parts run in Python
-                continue
-            c = m if cls is None else getattr(m, cls)
-            orig = c.__dict__[meth]
-            saved.append((c, meth, orig))
-            if meth == "exchange_call":     # it returns the callable the master's loop calls
-                setattr(c, meth, _timed_result(orig, timed, label))
-            else:
-                setattr(c, meth, timed(orig, label))
-        # the compiled parts bound as instance attributes when their object is set up (the
-        # controller, mav/fastpath.py; the FMI stepper, cosim/plant/fmu.py; the ODOMETRY
-        # encoder, mav/hil.py; the client's setpoint, mav/client.py): timed there
-        from cosim.plant.fmu import Plant
-        from mav.cascade import QuadCascade
-        from mav.client import OffboardClient
-        from mav.hil import HilSimulatorCodec
-        for c, setup, attr, label in (
-                (QuadCascade, "__init__", "update", _CTRL),
-                (Plant, "_use_stepper", "step", "plant step"),
-                (HilSimulatorCodec, "__init__", "encode_odometry", "ODOMETRY encode"),
-                (OffboardClient, "__init__", "set_position_target", _SETPOINT)):
-            orig = c.__dict__[setup]
-            saved.append((c, setup, orig))
-            setattr(c, setup, _timing_attr(orig, attr, timed, label))
-        res = run_scenario(load_scenario(SEED), RunOptions(mode="mil"))
-    finally:
-        for c, meth, orig in reversed(saved):
-            setattr(c, meth, orig)
+    # what the time inside a timed call holds besides the call's work (one clock read, the
+    # call through the wrapper): measured on a trivial compiled call, taken out per call
+    probe_us = []
+    for _ in range(3):
+        acc.clear()
+        probe = timed(abs, "_probe")
+        for _ in range(100_000):
+            probe(1)
+        ns, calls = acc["_probe"]
+        probe_us.append(ns / 1e3 / calls)
+    clock_us = min(probe_us)
+    labels = list(dict.fromkeys((label, parent) for _, _, _, label, parent, _ in _TICK_PARTS))
+    untimed: list[float] = []
+    got: dict[str, tuple[int, int]] = {}
+    res = None
+    for label, _parent in labels:
+        res = run_scenario(sc, RunOptions(mode="mil"))
+        untimed.append(res.loop_wall_s * 1e6 / res.ticks)
+        acc.clear()
+        saved = _wrap(label, timed)
+        try:
+            timed_res = run_scenario(sc, RunOptions(mode="mil"))
+        finally:
+            for c, meth, orig in reversed(saved):
+                setattr(c, meth, orig)
+        if timed_res.ticks != res.ticks:
+            raise RuntimeError(f"timing {label!r} changed the flight ({timed_res.ticks} ticks)")
+        got[label] = tuple(acc.get(label, [0, 0]))
+    assert res is not None
     ticks = res.ticks
-    parts: dict[str, float] = {}
-    # (label, parent) once each: a part may have two implementations (Python, compiled)
-    labels = list(dict.fromkeys((label, parent) for _, _, _, label, parent in _TICK_PARTS))
+    loop_us = statistics.median(untimed)
     # a part never called on its own is not a row: the compiled tick (mav/csrc/tick.c) runs
     # the drain of setpoints, the modes and the battery step inside its one call, so they
     # are in "HIL exchange (onboard): rest" then
-    labels = [(lb, pa) for lb, pa in labels if acc.get(lb, [0, 0])[1] > 0 or pa is None]
-    for label, _parent in labels:
-        ns = acc.get(label, [0, 0])[0]
-        inner = sum(acc.get(lb, [0, 0])[1] for lb, pa in labels if pa == label)
-        parts[label] = (ns / 1e3 - inner * overhead_us) / ticks
-    top_calls = sum(acc.get(lb, [0, 0])[1] for lb, pa in labels if pa is None)
-    top = sum(parts[lb] for lb, pa in labels if pa is None)
-    loop_us = res.loop_wall_s * 1e6 / ticks - top_calls * overhead_us / ticks
+    labels = [(lb, pa) for lb, pa in labels if got[lb][1] > 0 or pa is None]
+    parts = {lb: (got[lb][0] / 1e3 - got[lb][1] * clock_us) / ticks for lb, _ in labels}
     for label, parent in labels:
         if parent is not None:
             parts[parent + ": rest"] = parts.get(parent + ": rest", parts[parent]) - parts[label]
-    parts["master loop itself (record, exit checks, taps)"] = loop_us - top
+    parts[MASTER] = loop_us - sum(parts[lb] for lb, pa in labels if pa is None)
     st = res.onboard_stats
-    sc = res.scenario
-    return {"ticks": ticks, "timer_overhead_us": overhead_us, "loop_us_per_tick": loop_us,
-            "parts_us_per_tick": parts,
+    return {"ticks": ticks, "timer_overhead_us": clock_us, "loop_us_per_tick": loop_us,
+            "loop_us_per_tick_runs": untimed, "parts_us_per_tick": parts,
+            "method": "one part timed per run; the tick untimed (median of the runs between)",
             "setpoints_per_tick": st.get("setpoints", 0) / ticks,
             "telemetry_per_tick": (st.get("tx_api", 0) + st.get("tx_gcs", 0)) / ticks,
             "frames_per_tick": 1.0 / sc.timing.camera_every}
