@@ -3,7 +3,6 @@ and the floor (the essentials of a tick measured alone)."""
 
 from __future__ import annotations
 
-import statistics
 import time
 from collections.abc import Callable
 from typing import Any
@@ -84,16 +83,18 @@ def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
     return saved
 
 
-def bench_tick_breakdown() -> dict[str, Any]:
+def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
     """Where the MIL tick of the seed mission goes, in us per tick (averaged over the run).
 
     One part timed per run: each part of `_TICK_PARTS` is wrapped in a timer alone, in its own
     run of the mission, so no other timer sits inside or around it; its figure is the time
     inside its calls, less what a timed trivial call measures inside (a clock read and the
-    call through the wrapper). Each timed run follows an
-    untimed one; the tick's time is the median of those. A part's "rest" is its time less
-    its inner parts' (measured in their own runs); the master loop's own work (recording, the
-    exit test, tlog taps, the loop) is the untimed tick less the top-level parts. (Timing all
+    call through the wrapper). Each timed run follows an untimed one; over `repeats` rounds,
+    each figure (a part's, the untimed tick's) is its least: the shared host's speed drifts
+    between runs, and the least is the figure least disturbed by it. A part's "rest" is its
+    time less its inner parts' (measured in their own runs); the master loop's own work
+    (recording, the exit test, tlog taps, the loop) is the untimed tick less the top-level
+    parts. (Timing all
     parts in one run, as this did before, made the run ~1.9x slower than an untimed one: the
     timers' Python frames called from the compiled tick cost far more than a timer measured
     alone, and that went into the master loop's and the onboard tick's figures.)
@@ -130,29 +131,34 @@ def bench_tick_breakdown() -> dict[str, Any]:
     clock_us = min(probe_us)
     labels = list(dict.fromkeys((label, parent) for _, _, _, label, parent, _ in _TICK_PARTS))
     untimed: list[float] = []
-    got: dict[str, tuple[int, int]] = {}
+    got: dict[str, list[float]] = {label: [] for label, _ in labels}
+    calls: dict[str, int] = {}
     res = None
-    for label, _parent in labels:
-        res = run_scenario(sc, RunOptions(mode="mil"))
-        untimed.append(res.loop_wall_s * 1e6 / res.ticks)
-        acc.clear()
-        saved = _wrap(label, timed)
-        try:
-            timed_res = run_scenario(sc, RunOptions(mode="mil"))
-        finally:
-            for c, meth, orig in reversed(saved):
-                setattr(c, meth, orig)
-        if timed_res.ticks != res.ticks:
-            raise RuntimeError(f"timing {label!r} changed the flight ({timed_res.ticks} ticks)")
-        got[label] = tuple(acc.get(label, [0, 0]))
+    for _ in range(repeats):          # rounds: the host's speed drifts; each figure's least
+        for label, _parent in labels:
+            res = run_scenario(sc, RunOptions(mode="mil"))
+            untimed.append(res.loop_wall_s * 1e6 / res.ticks)
+            acc.clear()
+            saved = _wrap(label, timed)
+            try:
+                timed_res = run_scenario(sc, RunOptions(mode="mil"))
+            finally:
+                for c, meth, orig in reversed(saved):
+                    setattr(c, meth, orig)
+            if timed_res.ticks != res.ticks:
+                raise RuntimeError(f"timing {label!r} changed the flight "
+                                   f"({timed_res.ticks} ticks)")
+            ns, n_calls = acc.get(label, [0, 0])
+            calls[label] = n_calls
+            got[label].append((ns / 1e3 - n_calls * clock_us) / res.ticks)
     assert res is not None
     ticks = res.ticks
-    loop_us = statistics.median(untimed)
+    loop_us = min(untimed)
     # a part never called on its own is not a row: the compiled tick (mav/csrc/tick.c) runs
     # the drain of setpoints, the modes and the battery step inside its one call, so they
     # are in "HIL exchange (onboard): rest" then
-    labels = [(lb, pa) for lb, pa in labels if got[lb][1] > 0 or pa is None]
-    parts = {lb: (got[lb][0] / 1e3 - got[lb][1] * clock_us) / ticks for lb, _ in labels}
+    labels = [(lb, pa) for lb, pa in labels if calls[lb] > 0 or pa is None]
+    parts = {lb: min(got[lb]) for lb, _ in labels}
     for label, parent in labels:
         if parent is not None:
             parts[parent + ": rest"] = parts.get(parent + ": rest", parts[parent]) - parts[label]
@@ -160,7 +166,8 @@ def bench_tick_breakdown() -> dict[str, Any]:
     st = res.onboard_stats
     return {"ticks": ticks, "timer_overhead_us": clock_us, "loop_us_per_tick": loop_us,
             "loop_us_per_tick_runs": untimed, "parts_us_per_tick": parts,
-            "method": "one part timed per run; the tick untimed (median of the runs between)",
+            "repeats": repeats,
+            "method": "one part timed per run, the tick untimed between; least of the rounds",
             "setpoints_per_tick": st.get("setpoints", 0) / ticks,
             "telemetry_per_tick": (st.get("tx_api", 0) + st.get("tx_gcs", 0)) / ticks,
             "frames_per_tick": 1.0 / sc.timing.camera_every}
