@@ -58,11 +58,11 @@ print("ticks", ticks)
 """
 _IREFS = re.compile(r"I\s+refs:\s+([\d,]+)")
 # the compiled entry points: (label, symbol); "master" is computed (its tail less the others)
-PART_SYMBOLS = (("onboard: the vehicle's tick and MIL's HIL exchange", "fp_mil_exchange"),
-                ("plant: FMI stepper and the FMU", "Stepper_step"),
+PART_SYMBOLS = (("onboard (vehicle tick + MIL HIL exchange)", "fp_mil_exchange"),
+                ("plant (FMI stepper + FMU)", "Stepper_step"),
                 ("ODOMETRY encode (simulator)", "fp_odometry_frame"),
-                ("app's client: poll (telemetry in)", "fp_client_poll"),
-                ("app's client: setpoint out", "fp_client_setpoint"))
+                ("app: client poll (telemetry in)", "fp_client_poll"),
+                ("app: client setpoint out", "fp_client_setpoint"))
 _TAIL = "tail_run"
 _INCL = re.compile(r"^\s*([\d,]+)\s+\([\d. ]+%\)\s+\S*?:(\w+)(?:'\d+)?(?:\s|$)")
 
@@ -83,10 +83,10 @@ def parts_per_tick(incl: dict[str, int], ticks: int, total_per_tick: float) -> d
     it calls, and the rest of the tick."""
     parts = {label: incl.get(sym, 0) / ticks for label, sym in PART_SYMBOLS}
     called = sum(parts[label] for label, sym in PART_SYMBOLS[:3])  # the tail calls these
-    parts["master: its compiled tail less those (record, exit test, HIL answer decode, "
-          "GCS tlog tap)"] = incl.get(_TAIL, 0) / ticks - called
-    parts["the rest (app's Python, camera + image processing, the master's Python loop, "
-          "per-run setup)"] = total_per_tick - sum(parts.values())
+    # the tail less those: the record, the exit test, the HIL answer decode, the GCS tlog tap
+    parts["master: compiled tail less the above"] = incl.get(_TAIL, 0) / ticks - called
+    # the app's Python, camera + image processing, the master's Python loop, per-run setup
+    parts["the rest (app Python, camera+IPS, setup)"] = total_per_tick - sum(parts.values())
     return parts
 
 
@@ -170,5 +170,5 @@ def format_instructions(res: dict[str, Any]) -> list[str]:
         lines.append("where the compiled tick's go (callgrind, inclusive counts of each entry "
                      "point, per tick; share of the tick):")
         for label, n in res["parts_per_tick"].items():
-            lines.append(f"  {label:<100}{n / 1e3:>7.1f}k {n / now['per_tick']:>6.1%}")
+            lines.append(f"  {label:<44}{n / 1e3:>9.1f}k {n / now['per_tick']:>6.1%}")
     return lines
