@@ -88,3 +88,18 @@ def test_slot_cache_follows_subclasses_and_changed_classes():
     del s5.z
     a5, b5 = _both(s5, sp)
     assert a5 == b5 and a5[0] is AttributeError
+
+
+def test_a_slot_descriptor_borrowed_by_another_class_is_refused_as_python_does():
+    """A class that took VehicleState's member descriptors: Python refuses to read it
+    on that class's objects; the compiled reads must not read at VehicleState's offset."""
+    class Borrower:
+        __slots__ = tuple(f"own{i}" for i in range(len(VehicleState.__slots__)))
+
+    for k in VehicleState.__slots__:
+        setattr(Borrower, k, VehicleState.__dict__[k])
+    o = Borrower()
+    for name in Borrower.__slots__:             # what lies at VehicleState's offsets in o
+        setattr(o, name, 0.5)
+    a, b = _both(o, _setpoint())
+    assert a == b and a[0] is TypeError and "doesn't apply" in a[1]

@@ -131,3 +131,33 @@ def test_compiled_tap_link_without_its_parts_raises_not_crashes(tmp_path):
     with pytest.raises(TypeError):
         T(1)
     log.close()
+
+
+def test_compiled_tap_links_in_a_loop_or_changed_while_logging_raise_not_crash(tmp_path):
+    """Taps call their inner link directly from C: a loop of taps still ends in Python's
+    RecursionError, and a log that takes the inner link away meanwhile gets an error."""
+    from cosim.outputs.tlog import Tlog
+
+    T = fastpath.lib.TapLink
+    log = Tlog(tmp_path / "t.tlog")
+    a = T(MemoryLink.pair()[0], log)
+    b = T(a, log)
+    a.inner = b                                  # a -> b -> a -> ...
+    for call in (lambda: a.send(b"x"), a.recv):
+        with pytest.raises(RecursionError):
+            call()
+    me = T(MemoryLink.pair()[0], log)
+    me.inner = me
+    with pytest.raises(RecursionError):
+        me.send(b"x")
+
+    class Thief:                                 # a log whose write drops the tap's link
+        t_us, count = 0, 0
+
+        def _write(self, rec):
+            del victim.inner
+
+    victim = T(MemoryLink.pair()[0], Thief())
+    with pytest.raises(AttributeError):
+        victim.send(b"x")
+    log.close()

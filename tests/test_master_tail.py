@@ -163,3 +163,22 @@ def test_cosim_fmi2step_0_flies_the_python_reference(monkeypatch):
     monkeypatch.setattr(master, "make_tail", lambda *a: got.append(real(*a)) or got[-1])
     sc = with_set(load_scenario(SCEN / "scripted_square.toml"), {"timing.t_final_s": 1.0})
     assert run_scenario(sc, RunOptions()).ticks == 200 and got == [None]
+
+
+def test_a_tail_never_set_up_refuses_to_run():
+    from cosim.plant._fmi2step import Tail
+
+    bare = Tail.__new__(Tail)
+    with pytest.raises(TypeError, match="not initialised"):
+        bare.run(0, 0, 0.0, (0.0,) * 13, [0.0] * 20)
+
+
+def test_an_answer_decoder_that_fails_while_unpacked_is_named_the_same(monkeypatch):
+    def odd(t, u):
+        def gen():
+            yield t
+            raise TypeError("inner bug")
+        return gen()
+    _poison(monkeypatch, odd)
+    res = _both(monkeypatch, load_scenario(SCEN / "scripted_square.toml"))
+    assert res.message == "onboard: TypeError: inner bug"

@@ -405,7 +405,8 @@ def make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool
               gusty, wind, home, monitor):
     """The compiled steps 5-7b of the loop (cosim/plant/csrc/tail.c), or None without the
     library or with COMPILED_TAIL off: the loop then runs them in Python, the reference."""
-    if not COMPILED_TAIL or os.environ.get("COSIM_FMI2STEP", "1") == "0":
+    if (not COMPILED_TAIL or os.environ.get("COSIM_FMI2STEP", "1") == "0"
+            or type(monitor) is not ExitMonitor):   # its exit test is ExitMonitor.check's
         return None
     try:
         from cosim.plant._fmi2step import Tail

@@ -267,14 +267,24 @@ static int tap_init(Tap *self, PyObject *args, PyObject *kw)
 }
 
 /* Tlog.add(data): log._write(stamp + data); log.count += 1 */
+static int tap_add_to(PyObject *log, PyObject *data);
+
 static int tap_add(Tap *self, PyObject *data)
 {
+    PyObject *log = Py_NewRef(self->log);    /* held: Python code below may replace it */
+    int rc = tap_add_to(log, data);
+    Py_DECREF(log);
+    return rc;
+}
+
+static int tap_add_to(PyObject *log, PyObject *data)
+{
     if (!PyBytes_Check(data)) {      /* the reference's `bytes + data` takes any buffer */
-        PyObject *r = PyObject_CallMethodOneArg(self->log, n_add, data);
+        PyObject *r = PyObject_CallMethodOneArg(log, n_add, data);
         Py_XDECREF(r);
         return r == NULL ? -1 : 0;
     }
-    PyObject *t = fast_getattr(self->log, n_t_us);
+    PyObject *t = fast_getattr(log, n_t_us);
     if (t == NULL)
         return -1;
     unsigned long long t_us = PyLong_AsUnsignedLongLong(t);
@@ -289,12 +299,12 @@ static int tap_add(Tap *self, PyObject *data)
     for (int i = 0; i < 8; i++)
         p[i] = (uint8_t)(t_us >> (56 - 8 * i));
     memcpy(p + 8, PyBytes_AS_STRING(data), (size_t)n);
-    PyObject *r = PyObject_CallMethodOneArg(self->log, n_write, rec);
+    PyObject *r = PyObject_CallMethodOneArg(log, n_write, rec);
     Py_DECREF(rec);
     if (r == NULL)
         return -1;
     Py_DECREF(r);
-    PyObject *c = fast_getattr(self->log, n_count);
+    PyObject *c = fast_getattr(log, n_count);
     if (c == NULL)
         return -1;
     long long k = PyLong_AsLongLong(c);
@@ -304,7 +314,7 @@ static int tap_add(Tap *self, PyObject *data)
     PyObject *c1 = PyLong_FromLongLong(k + 1);
     if (c1 == NULL)
         return -1;
-    int rc = fast_setattr(self->log, n_count, c1);
+    int rc = fast_setattr(log, n_count, c1);
     Py_DECREF(c1);
     return rc;
 }
@@ -345,19 +355,28 @@ static PyObject *link_send(PyObject *link, PyObject *data)
 
 static PyObject *tap_send(Tap *self, PyObject *data)
 {
-    if (tap_ready(self) < 0 || tap_add(self, data) < 0)
+    if (tap_ready(self) < 0 || tap_add(self, data) < 0 || tap_ready(self) < 0)
         return NULL;
-    return link_send(self->inner, data);
+    if (Py_EnterRecursiveCall(" in TapLink.send"))   /* a loop of taps: RecursionError */
+        return NULL;
+    PyObject *inner = Py_NewRef(self->inner);     /* held: the log may have replaced it */
+    PyObject *r = link_send(inner, data);
+    Py_DECREF(inner);
+    Py_LeaveRecursiveCall();
+    return r;
 }
 
 static PyObject *tap_recv(Tap *self, PyObject *unused)
 {
-    if (tap_ready(self) < 0)
+    if (tap_ready(self) < 0 || Py_EnterRecursiveCall(" in TapLink.recv"))
         return NULL;
-    PyObject *data = link_recv(self->inner);
+    PyObject *inner = Py_NewRef(self->inner);
+    PyObject *data = link_recv(inner);
+    Py_DECREF(inner);
+    Py_LeaveRecursiveCall();
     if (data == NULL || data == Py_None)
         return data;
-    if (tap_add(self, data) < 0) {
+    if (tap_ready(self) < 0 || tap_add(self, data) < 0) {
         Py_DECREF(data);
         return NULL;
     }

@@ -33,7 +33,8 @@ static Py_ssize_t slot_offset(PyTypeObject *tp, PyObject *name)
     if (tp->tp_getattro != PyObject_GenericGetAttr || tp->tp_setattro != PyObject_GenericSetAttr)
         return -1;
     PyObject *d = _PyType_Lookup(tp, name);     /* borrowed; assigns the version tag */
-    if (d == NULL || Py_TYPE(d) != &PyMemberDescr_Type)
+    if (d == NULL || Py_TYPE(d) != &PyMemberDescr_Type ||
+        !PyType_IsSubtype(tp, PyDescr_TYPE(d)))   /* another class's slot: Python refuses */
         return -1;
     PyMemberDef *m = ((PyMemberDescrObject *)d)->d_member;
     if (m->type != T_OBJECT_EX || (m->flags & READONLY))

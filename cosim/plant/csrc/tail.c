@@ -31,6 +31,8 @@
  * check changes) are read back after it.
  */
 
+#define ROW_MAX 64           /* columns of a row built on the stack (wider: on the heap) */
+
 typedef struct {
     PyObject_HEAD
     PyObject *encode, *exchange, *decode, *gcs_recv, *app, *phase_idx, *phases, *rows,
@@ -40,7 +42,7 @@ typedef struct {
     int iz, ion, iqx, iqy, ix, iy, ivz;
     double airborne_z, flip_pre, ceiling, box[4];
     long long flush_mask;
-    int sitl, scene, airborne;
+    int sitl, scene, airborne, ready;
     long ground_ticks;
     const char *stage;
 } Tail;
@@ -132,21 +134,31 @@ static int tail_init(Tail *self, PyObject *args, PyObject *kw)
     self->home_e = Py_NewRef(PyTuple_GET_ITEM(home, 1));
     int *idx[] = {&self->iz, &self->ion, &self->iqx, &self->iqy, &self->ix, &self->iy,
                   &self->ivz};
-    for (int i = 0; i < 7; i++)
-        if ((*idx[i] = (int)PyLong_AsLong(PyTuple_GET_ITEM(consts, i))) < 0) {
-            if (!PyErr_Occurred())
-                PyErr_SetString(PyExc_ValueError, "Tail: negative output index");
+    for (int i = 0; i < 7; i++) {
+        long v = PyLong_AsLong(PyTuple_GET_ITEM(consts, i));
+        if (v == -1 && PyErr_Occurred())
+            return -1;
+        if (v < 0 || v > 4096) {
+            PyErr_SetString(PyExc_ValueError, "Tail: an output index out of range");
             return -1;
         }
-    self->airborne_z = PyFloat_AsDouble(PyTuple_GET_ITEM(consts, 7));
-    self->flip_pre = PyFloat_AsDouble(PyTuple_GET_ITEM(consts, 8));
-    self->ceiling = PyFloat_AsDouble(PyTuple_GET_ITEM(consts, 9));
+        *idx[i] = (int)v;
+    }
+    double *dst_f[3] = {&self->airborne_z, &self->flip_pre, &self->ceiling};
+    for (int i = 0; i < 3; i++)
+        if ((*dst_f[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(consts, 7 + i))) == -1.0 &&
+            PyErr_Occurred())
+            return -1;
     self->flush_mask = PyLong_AsLongLong(PyTuple_GET_ITEM(consts, 10));
-    if (PyErr_Occurred())
+    if (self->flush_mask == -1 && PyErr_Occurred())
         return -1;
     PyObject *nc = PyObject_GetAttr(spool, s_ncols);
-    self->ncols = nc ? PyLong_AsSsize_t(nc) : -1;
-    Py_XDECREF(nc);
+    if (nc == NULL)
+        return -1;
+    self->ncols = PyLong_AsSsize_t(nc);
+    Py_DECREF(nc);
+    if (self->ncols == -1 && PyErr_Occurred())
+        return -1;
     if ((self->rows = PyObject_GetAttr(spool, s_rows)) == NULL ||
         (self->flush = PyObject_GetAttr(spool, s_flush)) == NULL ||
         (self->pack = PyObject_GetAttr(spool, s_pack)) == NULL ||
@@ -169,7 +181,9 @@ static int tail_init(Tail *self, PyObject *args, PyObject *kw)
         return -1;
     int ok = PyTuple_GET_SIZE(bt) == 4;
     for (int i = 0; ok && i < 4; i++)
-        self->box[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(bt, i));
+        if ((self->box[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(bt, i))) == -1.0 &&
+            PyErr_Occurred())
+            ok = 0;
     Py_DECREF(bt);
     if (!ok && !PyErr_Occurred())
         PyErr_SetString(PyExc_ValueError, "Tail: monitor.arena_box must have 4 values");
@@ -192,7 +206,10 @@ static int tail_init(Tail *self, PyObject *args, PyObject *kw)
         return -1;
     self->stage = "onboard";
     self->phase_index = -1;
-    return tail_sync(self);
+    if (tail_sync(self) < 0)
+        return -1;
+    self->ready = 1;
+    return 0;
 }
 
 /* raise component_error(part, message) */
@@ -208,11 +225,14 @@ static void tail_raise(Tail *self, const char *part, PyObject *msg)
     }
 }
 
-/* `a, b, ... = seq` for n names: a new tuple of n items, or NULL with Python's error */
+/* `a, b, ... = seq` for n names: a new tuple of n items, or NULL with Python's error (the
+ * items are taken from the iterator, at most n + 1 of them, as the unpacking does) */
 static PyObject *unpack_n(PyObject *seq, Py_ssize_t n)
 {
-    PyObject *t = PyTuple_CheckExact(seq) ? Py_NewRef(seq) : PySequence_Tuple(seq);
-    if (t == NULL) {
+    if (PyTuple_CheckExact(seq) && PyTuple_GET_SIZE(seq) == n)
+        return Py_NewRef(seq);
+    PyObject *it = PyObject_GetIter(seq);
+    if (it == NULL) {
         if (PyErr_ExceptionMatches(PyExc_TypeError)) {
             PyErr_Clear();
             PyErr_Format(PyExc_TypeError, "cannot unpack non-iterable %.200s object",
@@ -220,16 +240,29 @@ static PyObject *unpack_n(PyObject *seq, Py_ssize_t n)
         }
         return NULL;
     }
-    Py_ssize_t got = PyTuple_GET_SIZE(t);
-    if (got == n)
-        return t;
-    Py_DECREF(t);
-    if (got > n)
-        PyErr_Format(PyExc_ValueError, "too many values to unpack (expected %zd)", n);
-    else
+    PyObject *t = PyTuple_New(n);
+    Py_ssize_t got = 0;
+    for (; t != NULL && got <= n; got++) {
+        PyObject *v = PyIter_Next(it);
+        if (v == NULL)
+            break;
+        if (got == n) {
+            Py_DECREF(v);
+            Py_CLEAR(t);
+            PyErr_Format(PyExc_ValueError, "too many values to unpack (expected %zd)", n);
+            break;
+        }
+        PyTuple_SET_ITEM(t, got, v);
+    }
+    Py_DECREF(it);
+    if (t != NULL && PyErr_Occurred())
+        Py_CLEAR(t);
+    else if (t != NULL && got < n) {
+        Py_CLEAR(t);
         PyErr_Format(PyExc_ValueError, "not enough values to unpack (expected %zd, got %zd)",
                      n, got);
-    return NULL;
+    }
+    return t;
 }
 
 #include "tail_run.c"

@@ -1,8 +1,6 @@
 /* The master's tick after the app, second part (included by tail.c, whose header says what
  * it is): the recorded row, the fast exit test and Tail.run. */
 
-#define ROW_MAX 64
-
 /* the row's bytes: spool.pack(*vals) as struct "<{n}d" packs them (the exact floats packed
  * here, anything else by pack itself, which converts or raises as the reference does) */
 static PyObject *tail_row(Tail *self, PyObject *const *vals, Py_ssize_t n)
@@ -55,10 +53,10 @@ static PyObject *item(PyObject *seq, Py_ssize_t i)
 static int tail_record(Tail *self, PyObject *t, PyObject *y, PyObject *act, PyObject *meas,
                        PyObject *sp, PyObject *pi)
 {
-    PyObject *v[ROW_MAX];
+    PyObject *stack[ROW_MAX], **v = stack;
     Py_ssize_t n = 0, ny = PyList_GET_SIZE(y);
-    if (ny + 12 > ROW_MAX) {
-        PyErr_SetString(PyExc_ValueError, "Tail: the row has too many columns");
+    if (ny + 12 > ROW_MAX && (v = PyMem_New(PyObject *, ny + 12)) == NULL) {
+        PyErr_NoMemory();
         return -1;
     }
     int rc = -1;
@@ -98,6 +96,8 @@ static int tail_record(Tail *self, PyObject *t, PyObject *y, PyObject *act, PyOb
 done:
     for (Py_ssize_t i = 0; i < n; i++)
         Py_DECREF(v[i]);
+    if (v != stack)
+        PyMem_Free(v);
     return rc;
 }
 
@@ -148,23 +148,27 @@ static int tail_phase(Tail *self, PyObject **sp, PyObject **pi)
         ph = Py_NewRef(self->none_phase);
     }
     PyObject *got = PyDict_GetItemWithError(self->phase_idx, ph);
+    Py_XINCREF(got);        /* held: dropping ph below may run Python code */
     if (got == NULL && !PyErr_Occurred()) {
         got = PyLong_FromSsize_t(PyList_GET_SIZE(self->phases));
-        int e = got ? PyDict_SetItem(self->phase_idx, ph, got) : -1;
-        Py_XDECREF(got);    /* the dict holds it */
-        if (e < 0 || PyList_Append(self->phases, ph) < 0)
-            got = NULL;
+        if (got != NULL && (PyDict_SetItem(self->phase_idx, ph, got) < 0 ||
+                            PyList_Append(self->phases, ph) < 0))
+            Py_CLEAR(got);
     }
     Py_DECREF(ph);
     if (got == NULL)
         return -1;
-    *pi = Py_NewRef(got);
+    *pi = got;
     self->phase_index = PyLong_AsSsize_t(got);
     return self->phase_index == -1 && PyErr_Occurred() ? -1 : 0;
 }
 
 static PyObject *tail_run(Tail *self, PyObject *const *args, Py_ssize_t nargs)
 {
+    if (!self->ready) {
+        PyErr_SetString(PyExc_TypeError, "Tail: not initialised");
+        return NULL;
+    }
     if (nargs != 5 || !PyList_CheckExact(args[4])) {
         PyErr_SetString(PyExc_TypeError, "run(k, t_us, t, meas, y: list)");
         return NULL;
