@@ -42,6 +42,18 @@ static Py_ssize_t slot_offset(PyTypeObject *tp, PyObject *name)
     return m->offset;
 }
 
+/* off, noted in the cache entry e for (name, tp) when tp's version tag is valid */
+static Py_ssize_t remember(SlotEntry *e, PyTypeObject *tp, PyObject *name, Py_ssize_t off)
+{
+    if (PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG)) {
+        e->name = name;
+        e->type = tp;
+        e->version = tp->tp_version_tag;
+        e->offset = off;
+    }
+    return off;
+}
+
 /* the slot offset of name on o's type, or -1 (then the generic path applies) */
 static Py_ssize_t slot_of(PyObject *o, PyObject *name)
 {
@@ -54,13 +66,7 @@ static Py_ssize_t slot_of(PyObject *o, PyObject *name)
         PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG))
         return e->offset;
     Py_ssize_t off = slot_offset(tp, name);
-    if (PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG)) {
-        e->name = name;
-        e->type = tp;
-        e->version = tp->tp_version_tag;
-        e->offset = off;
-    }
-    return off;
+    return remember(e, tp, name, off);
 }
 
 /* a call site's own one-entry cache `e` for one name: no hashing while the site sees the same
@@ -72,13 +78,7 @@ static Py_ssize_t slot_at(SlotEntry *e, PyObject *o, PyObject *name)
         PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG))
         return e->offset;
     Py_ssize_t off = slot_of(o, name);
-    if (PyType_HasFeature(tp, Py_TPFLAGS_VALID_VERSION_TAG)) {
-        e->name = name;
-        e->type = tp;
-        e->version = tp->tp_version_tag;
-        e->offset = off;
-    }
-    return off;
+    return remember(e, tp, name, off);
 }
 
 /* o.name, read from the slot at `off` (-1: the generic path) */
