@@ -267,16 +267,6 @@ static int tap_init(Tap *self, PyObject *args, PyObject *kw)
 }
 
 /* Tlog.add(data): log._write(stamp + data); log.count += 1 */
-static int tap_add_to(PyObject *log, PyObject *data);
-
-static int tap_add(Tap *self, PyObject *data)
-{
-    PyObject *log = Py_NewRef(self->log);    /* held: Python code below may replace it */
-    int rc = tap_add_to(log, data);
-    Py_DECREF(log);
-    return rc;
-}
-
 static int tap_add_to(PyObject *log, PyObject *data)
 {
     if (!PyBytes_Check(data)) {      /* the reference's `bytes + data` takes any buffer */
@@ -316,6 +306,14 @@ static int tap_add_to(PyObject *log, PyObject *data)
         return -1;
     int rc = fast_setattr(log, n_count, c1);
     Py_DECREF(c1);
+    return rc;
+}
+
+static int tap_add(Tap *self, PyObject *data)
+{
+    PyObject *log = Py_NewRef(self->log);    /* held: Python code below may replace it */
+    int rc = tap_add_to(log, data);
+    Py_DECREF(log);
     return rc;
 }
 

@@ -17,7 +17,7 @@
  */
 
 enum {
-    K_recv, K_send, K_rx_hil, K_decode_odometry, K_hil_not_odometry, K_hil_bad_values,
+    K_rx_hil, K_decode_odometry, K_hil_not_odometry, K_hil_bad_values,
     K_have_state, K_t_us, K_origin, K_link, K_drain, K_dt_us, K_t, K_v_prev, K_vx, K_vy, K_vz,
     K_qw, K_qx, K_qy, K_qz, K_p, K_q, K_r, K_x, K_y, K_z, K_pos_lost_us, K_failsafe,
     K_position_regained, K_position_lost, K_commander, K_set_home, K_hold_here, K_u, K_armed,
@@ -33,7 +33,7 @@ enum {
     K_recompute_due, K_streams, K_emit, K_interval_us, K_next_us, K_N
 };
 static const char *K_STR[K_N] = {
-    "recv", "send", "rx_hil", "decode_odometry", "_hil_not_odometry", "hil_bad_values",
+    "rx_hil", "decode_odometry", "_hil_not_odometry", "hil_bad_values",
     "have_state", "t_us", "origin", "link", "drain", "dt_us", "t", "v_prev", "vx", "vy", "vz",
     "qw", "qx", "qy", "qz", "p", "q", "r", "x", "y", "z", "pos_lost_us", "failsafe",
     "position_regained", "position_lost", "commander", "set_home", "hold_here", "u", "armed",
