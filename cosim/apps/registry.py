@@ -20,6 +20,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import sys
+from pathlib import Path
 
 from cosim.errors import ComponentError, ScenarioError
 from cosim.scenario.records import AppSpec
@@ -76,6 +77,16 @@ def make_app(spec: AppSpec):
     except ScenarioError as exc:
         raise ComponentError("app", str(exc)) from None
     return cls(spec.params)
+
+
+def app_inputs(spec: AppSpec, source: str | None) -> dict[str, Path]:
+    """The files and folders the app reads (field -> path), so that a run never clears one."""
+    if spec.name == "visual_servo" and isinstance(spec.params.get("visual_path"), str) \
+            and spec.params["visual_path"]:
+        from cosim.apps.vs.visual_path import folder_of
+
+        return {"app.params.visual_path": folder_of(spec.params["visual_path"], source)}
+    return {}
 
 
 def check_app(spec: AppSpec) -> None:

@@ -31,6 +31,26 @@ def clean_run_folder(out: Path) -> None:
             f.unlink(missing_ok=True)
 
 
+def cleared_by_run(out: Path) -> list[Path]:
+    """The paths a run into `out` clears before it writes (resolved): its output files, the
+    PNG frames folder and the visual path a run teaches itself."""
+    out = out.resolve()
+    return [*(out / n for n in OUTPUT_FILES), out / "frames", out / "visual_path"]
+
+
+def check_inputs_kept(out: Path, inputs: dict[str, Path], flag: str = "--out") -> None:
+    """A run never deletes what it reads: ScenarioError (naming the input's field and
+    `flag`) when an input is, or lies in, something a run into `out` clears."""
+    cleared = cleared_by_run(out)
+    for name, path in inputs.items():
+        p = path.resolve()
+        for c in cleared:
+            if p == c or c in p.parents:
+                raise ScenarioError(name, str(path), f"an input outside what `{flag} {out}` "
+                                    f"clears before the run writes there ({c}); give another "
+                                    f"{flag} or move the input")
+
+
 @contextlib.contextmanager
 def claim_run_folder(out: Path, flag: str = "--out") -> Iterator[Path]:
     """Hold `out` for one run: create it, check it is writable, and lock it so a second run

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import OutputError
-from cosim.outputs.folder import clean_run_folder
+from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.metrics import COL, compute_metrics, evaluate
 from cosim.sim.master import RunResult
 from cosim.sim.recorder import SERIES_COLUMNS
@@ -84,6 +84,9 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True,
     out.mkdir(parents=True, exist_ok=True)
     same = out.resolve() == res.run_dir.resolve()
     if not same:
+        from cosim.apps.registry import app_inputs
+
+        check_inputs_kept(out, app_inputs(res.scenario.app, res.scenario.source))
         clean_run_folder(out)
     summary = summarize(res)
     summary.update(extra or {})

@@ -60,6 +60,14 @@ def camera_dict(cfg) -> dict:
             "cx": cfg.cx, "cy": cfg.cy, "mount_B": list(cfg.mount_B)}
 
 
+def folder_of(value: str, source: str | None) -> Path:
+    """The folder an `app.params.visual_path` names: relative to the scenario file's folder."""
+    folder = Path(value)
+    if not folder.is_absolute() and source:
+        folder = Path(source).parent / folder
+    return folder
+
+
 def teach_by_render(scenario, poses, folder: Path, detector: str, n_features: int) -> Path:
     """Render the key images at `poses` ([n, e, d, yaw_deg] rows) and write the folder."""
     from cosim.sensors.camera import make_camera
