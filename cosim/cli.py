@@ -343,13 +343,16 @@ def _sweep(args) -> int:
         raise ScenarioError("--workers", args.workers, "an integer >= 1")
     out = args.out or Path("runs") / f"sweep-{sc.name}"
     _check_out_dir(out, "--out")
-    out.mkdir(parents=True, exist_ok=True)
-    jobs = make_jobs(args.scenario, grid, out, args.mode)
-    print(f"sweep: {len(jobs)} runs of {sc.name} ({args.executor} executor)", file=sys.stderr)
-    results = EXECUTORS[args.executor](args.workers).map(run_job, jobs)
-    keys = list(grid)
-    table = write_table(results, keys, out)
-    plot_sweep(results, keys[0], out)
+    from cosim.outputs.folder import claim_run_folder
+
+    with claim_run_folder(out, "--out", what="study"):   # one sweep per folder at a time
+        jobs = make_jobs(args.scenario, grid, out, args.mode)
+        print(f"sweep: {len(jobs)} runs of {sc.name} ({args.executor} executor)",
+              file=sys.stderr)
+        results = EXECUTORS[args.executor](args.workers).map(run_job, jobs)
+        keys = list(grid)
+        table = write_table(results, keys, out)
+        plot_sweep(results, keys[0], out)
     print(table.read_text())
     print(f"sweep outputs in {out}")
     return 0 if all(r["passed"] for r in results) else 1

@@ -33,3 +33,25 @@ def test_a_run_never_clears_the_visual_path_it_reads(tmp_path, capsys):
     assert "app.params.visual_path" in err and "--out" in err
     assert sorted(p.name for p in vp.iterdir()) == before
     VP.load(vp)                                   # still a whole visual path
+
+
+HOVER = ROOT / "scenarios" / "mambo_hover.toml"
+
+
+def test_a_second_study_into_the_same_folder_fails_at_once(tmp_path, capsys):
+    """Defect 2: two studies started together into one --out both 'succeeded' and the table
+    lost rows. The folder is locked for a study: the second fails at once, exit 2, naming
+    --out, and writes nothing there."""
+    from cosim.outputs.folder import claim_run_folder
+
+    out = tmp_path / "mc"
+    with claim_run_folder(out, "--out", what="study"):       # a study running there now
+        for argv in (["montecarlo", str(HOVER), "-n", "2", "--vary",
+                      "timing.t_final_s=uniform(1,2)", "--limit", "0"],
+                     ["sweep", str(HOVER), "--set", "timing.t_final_s=1,2", "--limit", "0"],
+                     ["sweep", str(HOVER), "--set", "timing.t_final_s=1,2"]):   # plain sweep
+            argv = argv + ["--out", str(out), "--executor", "serial"]
+            rc = main(argv)
+            err = capsys.readouterr().err
+            assert rc == 2 and "--out" in err and "study" in err, (argv, err)
+    assert sorted(p.name for p in out.iterdir()) == [".study.lock"]

@@ -52,21 +52,22 @@ def check_inputs_kept(out: Path, inputs: dict[str, Path], flag: str = "--out") -
 
 
 @contextlib.contextmanager
-def claim_run_folder(out: Path, flag: str = "--out") -> Iterator[Path]:
-    """Hold `out` for one run: create it, check it is writable, and lock it so a second run
-    into the same folder at the same time fails at once (ScenarioError naming `flag`) instead
-    of both overwriting each other. The lock goes with the process (flock)."""
+def claim_run_folder(out: Path, flag: str = "--out", what: str = "run") -> Iterator[Path]:
+    """Hold `out` for one run (or one study, `what`): create it, check it is writable, and
+    lock it so a second one into the same folder at the same time fails at once
+    (ScenarioError naming `flag`) instead of both overwriting each other. The lock goes with
+    the process (flock)."""
     try:
         out.mkdir(parents=True, exist_ok=True)
-        fd = os.open(out / ".run.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        fd = os.open(out / f".{what}.lock", os.O_RDWR | os.O_CREAT, 0o644)
     except OSError as exc:
         raise ScenarioError(flag, str(out), f"a writable folder ({exc.strerror})") from None
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
-            raise ScenarioError(flag, str(out), "a folder no other run is writing to (one is "
-                                "running there now)") from None
+            raise ScenarioError(flag, str(out), f"a folder no other {what} is writing to (one "
+                                "is running there now)") from None
         yield out
     finally:
         os.close(fd)

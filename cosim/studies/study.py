@@ -120,13 +120,19 @@ def open_study(out: Path, manifest: dict[str, Any]) -> ResultsTable:
 
 def run_in_folder(jobs: list[Job], manifest: dict[str, Any], out: Path, **engine) -> tuple[
         StudyStats, list[dict[str, str]], dict[str, Any] | None]:
-    """Run what is left, sort the table, write the report when every run has a row."""
-    table = open_study(out, manifest)
-    try:
-        stats = run_study(jobs, table, log=out / "runs.log", **engine)
-    finally:
-        rows = table.finish()
-    ids = {j.run_id for j in jobs}
-    rows = [r for r in rows if int(r["run_id"]) in ids]
-    report = write_report(rows, manifest, out) if len(rows) == len(ids) else None
+    """Run what is left, sort the table, write the report when every run has a row. The
+    folder is locked for the study: a second study into it fails at once (ScenarioError)."""
+    from cosim.outputs.folder import claim_run_folder
+
+    if out.exists() and not out.is_dir():
+        raise ScenarioError("--out", str(out), "a folder (this path is a file)")
+    with claim_run_folder(out, "--out", what="study"):
+        table = open_study(out, manifest)
+        try:
+            stats = run_study(jobs, table, log=out / "runs.log", **engine)
+        finally:
+            rows = table.finish()
+        ids = {j.run_id for j in jobs}
+        rows = [r for r in rows if int(r["run_id"]) in ids]
+        report = write_report(rows, manifest, out) if len(rows) == len(ids) else None
     return stats, rows, report
