@@ -110,6 +110,20 @@ def check_app(spec: AppSpec) -> None:
         raise ScenarioError(head, _param_value(spec, head), rest) from None
 
 
+def check_inputs(spec: AppSpec, camera, source: str | None) -> None:
+    """At load time: what the app reads (app_inputs) exists and fits the scenario: a visual
+    path is a readable taught folder for the scenario's camera. ScenarioError naming the
+    field, with the file and field at fault."""
+    for name, path in app_inputs(spec, source).items():
+        from cosim.apps.vs import visual_path as VP
+
+        try:
+            VP.check(path, camera)
+        except ValueError as exc:
+            raise ScenarioError(name, spec.params["visual_path"], "a taught folder for the "
+                                f"scenario's camera ({exc})") from None
+
+
 def _param_value(spec: AppSpec, path: str) -> object:
     key = path.removeprefix("app.params.").split("[")[0]
     return spec.params.get(key, spec.params)

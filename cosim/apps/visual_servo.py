@@ -123,7 +123,7 @@ class VisualServoApp:
         else:
             folder = VP.teach_by_render(scenario, self.teach_poses, run_dir / "visual_path",
                                         p["detector"], p["n_features"])
-        self.path = VP.load(folder)
+        self.path = VP.load(folder, scenario.camera)
         self.reference_poses = self.path.poses
 
     def on_start(self, ctx: AppContext) -> None:

@@ -15,7 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from cosim.apps.registry import BUILTIN_APPS, check_app
+from cosim.apps.registry import BUILTIN_APPS, check_app, check_inputs
 from cosim.errors import ScenarioError
 from cosim.plant.vehicles import PRESETS, get_vehicle
 from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
@@ -183,6 +183,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
                             f"E {a.e_min:g} to {a.e_max:g})")
     camera = parse_camera(camera_table, "camera") if camera_table is not None else None
     check_app(app)
+    check_inputs(app, camera, source)
     return Scenario(
         name=name, description=description, seed=seed, vehicle=vehicle, start=start,
         timing=timing, world=world, camera=camera, app=app, noise=noise,
