@@ -8,7 +8,6 @@ The schema is documented in scenarios/README.md.
 from __future__ import annotations
 
 import copy
-import math
 import re
 import tomllib
 from dataclasses import replace
@@ -17,7 +16,7 @@ from typing import Any
 
 from cosim.apps.registry import BUILTIN_APPS, check_app, check_inputs
 from cosim.errors import ScenarioError
-from cosim.plant.vehicles import PRESETS, get_vehicle
+from cosim.plant.vehicles import PHYSICAL_RANGES, PRESETS, get_vehicle
 from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
 from cosim.sensors.camera import parse_camera
@@ -87,10 +86,11 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     no_unknown(ov, fields, "vehicle.overrides")
     if ov:
         vehicle = vehicle.with_overrides(
-            **{k: number(ov, k, "vehicle.overrides", lo=0.0, lo_open=k != "drag_rot",
-                         hi=2.0 if k == "body_radius" else math.inf)
-               for k in ov}
-        )
+            **{k: number(ov, k, "vehicle.overrides", lo=PHYSICAL_RANGES[k][0],
+                         hi=PHYSICAL_RANGES[k][1]) for k in ov})
+        problem = vehicle.physical_problem()
+        if problem is not None:
+            raise ScenarioError("vehicle.overrides", ov, f"a vehicle that can fly: {problem}")
     world_table = _load_world(raw, base_dir)
     st = table(v, "start", "vehicle")
     no_unknown(st, {"n", "e", "yaw_deg"}, "vehicle.start")
@@ -183,7 +183,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
                             f"E {a.e_min:g} to {a.e_max:g})")
     camera = parse_camera(camera_table, "camera") if camera_table is not None else None
     check_app(app)
-    check_inputs(app, camera, source)
+    check_inputs(app, camera, source, world.arena)
     return Scenario(
         name=name, description=description, seed=seed, vehicle=vehicle, start=start,
         timing=timing, world=world, camera=camera, app=app, noise=noise,
