@@ -8,7 +8,18 @@ class ScenarioError(ValueError):
 
     def __init__(self, field: str, value: object, allowed: str) -> None:
         self.field, self.value, self.allowed = field, value, allowed
-        super().__init__(f"{field}: got {value!r}; allowed: {allowed}")
+        super().__init__(f"{clip(field, 200)}: got {clip(repr(value), VALUE_CHARS)}; "
+                         f"allowed: {clip(allowed, 800)}")
+
+
+VALUE_CHARS = 160      # an error line shows at most this much of the bad value
+
+
+def clip(text: str, n: int) -> str:
+    """`text` cut to about `n` characters (head ... tail) when longer, saying how long."""
+    if len(text) <= n:
+        return text
+    return f"{text[: n * 2 // 3]}...[{len(text)} characters]...{text[-(n // 4):]}"
 
 
 class ComponentError(RuntimeError):
