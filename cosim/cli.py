@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import signal
 import sys
 import threading
@@ -214,6 +215,15 @@ def main(argv: list[str] | None = None) -> int:
         except OutputError as exc:      # disk full, read-only, ...: what was written stays
             print(f"cosim: {exc}", file=sys.stderr)
             return 1
+        except RecursionError:      # a value nested thousands deep that a check recursed into
+            print("cosim: bad input: a value nested too deeply", file=sys.stderr)
+            return 2
+        except OSError as exc:
+            if exc.errno != errno.ENAMETOOLONG:
+                raise
+            print(f"cosim: bad input: a path name too long ({str(exc.filename)[:80]}...)",
+                  file=sys.stderr)
+            return 2
         except KeyboardInterrupt:   # outside a run's loop (a run itself ends 'interrupted')
             print("cosim: interrupted", file=sys.stderr)
             rc = 130
@@ -467,7 +477,11 @@ def _check_speed(speed: float) -> None:
 
 
 def _check_out_dir(out: Path, flag: str) -> None:
-    if out.exists() and not out.is_dir():
+    try:
+        is_file = out.exists() and not out.is_dir()
+    except OSError as exc:             # a name too long, ...
+        raise ScenarioError(flag, str(out), f"a usable folder name ({exc.strerror})") from None
+    if is_file:
         raise ScenarioError(flag, str(out), "a folder (this path is a file)")
 
 

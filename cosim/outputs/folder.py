@@ -17,7 +17,12 @@ OUTPUT_FILES = ("summary.json", "timeseries.csv", "frames.csv", "flight.tlog", "
 
 
 def clean_run_folder(out: Path) -> None:
-    """Remove what an earlier run wrote into `out` (only the files a run writes)."""
+    """Remove what an earlier run wrote into `out` (only the files a run writes). A folder
+    where a run writes a file is not removed: ScenarioError naming it."""
+    for name in OUTPUT_FILES:
+        if (out / name).is_dir():
+            raise ScenarioError("--out", str(out / name), f"a run folder where {name} can be "
+                                "written (this is a folder: move it)")
     for name in OUTPUT_FILES:
         (out / name).unlink(missing_ok=True)
     frames = out / "frames"

@@ -34,11 +34,18 @@ TOP_KEYS = {"name", "description", "seed", "vehicle", "timing", "world", "camera
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario TOML file."""
     p = Path(path)
-    if not p.is_file():
+    try:
+        text = p.read_text(encoding="utf-8") if p.is_file() else None
+    except OSError as exc:          # a name too long, a folder we may not read, ...
+        raise ScenarioError("scenario", str(p), f"a readable .toml file ({exc.strerror})"
+                            ) from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError("scenario", str(p), f"valid UTF-8 TOML ({exc})") from None
+    if text is None:
         raise ScenarioError("scenario", str(p), "an existing .toml file")
     try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise ScenarioError("scenario", str(p), f"valid UTF-8 TOML ({exc})") from None
     except RecursionError:   # thousands of nested tables or arrays
         raise ScenarioError("scenario", str(p), "TOML nested less deeply") from None
@@ -53,13 +60,21 @@ def _load_world(raw: dict, base_dir: Path) -> dict:
         if not isinstance(f, str):
             raise ScenarioError("world.file", f, "a path to a world TOML file")
         fp = (base_dir / f) if not Path(f).is_absolute() else Path(f)
-        if not fp.is_file():
+        try:
+            found = fp.is_file()
+        except OSError:                 # e.g. a name too long
+            found = False
+        if not found:
             raise ScenarioError("world.file", f, f"an existing file (looked for {fp})")
         try:
             base = tomllib.loads(fp.read_text(encoding="utf-8"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ScenarioError("world.file", f, f"valid UTF-8 TOML ({exc})") from None
+        except RecursionError:   # thousands of nested tables or arrays
+            raise ScenarioError("world.file", f, "TOML nested less deeply") from None
         base = base.get("world", base)
+        if not isinstance(base, dict):
+            raise ScenarioError("world.file", f, "a world file whose `world` is a table")
         base.update(w)  # keys given in the scenario override the file's
         w = base
     return w

@@ -47,7 +47,7 @@ def parse_camera(d: Mapping[str, Any], where: str = "camera") -> CameraConfigAny
     if not isinstance(d, Mapping):
         raise ScenarioError(where, d, "a table")
     kind = d.get("kind", "down")
-    if kind not in KINDS:
+    if not isinstance(kind, str) or kind not in KINDS:
         raise ScenarioError(f"{where}.kind", kind, f"one of {', '.join(sorted(KINDS))}")
     cfg = KINDS[kind][0].from_dict({k: v for k, v in d.items() if k != "kind"}, where)
     need = frame_bytes(cfg)

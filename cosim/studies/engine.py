@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -106,9 +107,15 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
 def scheduler_address(option: str | None) -> str | None:
     """--scheduler, else $COSIM_DASK_SCHEDULER, else None (a local cluster)."""
     addr = option or os.environ.get(SCHEDULER_ENV) or None
-    if addr is not None and "://" not in addr and ":" not in addr:
-        raise ScenarioError("--scheduler", addr, "a scheduler address like tcp://HOST:8786")
+    if addr is not None and not _ADDRESS.fullmatch(addr):
+        raise ScenarioError("--scheduler", addr, "a scheduler address like tcp://HOST:8786 "
+                            "(HOST a name, an IPv4 address or [IPv6])")
     return addr
+
+
+# [protocol://]host:port, the forms Dask's `Client(address)` takes
+_ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx|inproc)://)?"
+                      r"(?:[A-Za-z0-9_.-]+|\[[0-9A-Fa-f:.]+\]):[0-9]{1,5}")
 
 
 # ---------------------------------------------------------------------- executors
@@ -158,7 +165,7 @@ def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
     else:
         try:
             client = Client(addr, timeout="20s")
-        except OSError as exc:
+        except (OSError, ValueError) as exc:
             raise ScenarioError("--scheduler", addr, f"a reachable Dask scheduler ({exc})"
                                 ) from None
     try:

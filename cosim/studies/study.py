@@ -103,8 +103,20 @@ def open_study(out: Path, manifest: dict[str, Any]) -> ResultsTable:
         raise ScenarioError("--out", str(out), "a folder (this path is a file)")
     out.mkdir(parents=True, exist_ok=True)
     mf = out / MANIFEST
+    for p in (mf, out / TABLE):
+        if p.exists() and not p.is_file():
+            raise ScenarioError("--out", str(out), f"a study folder whose {p.name} is a file "
+                                "(it is a folder: move it)")
     if mf.is_file():
-        old = json.loads(mf.read_text())
+        try:
+            old = json.loads(mf.read_text())
+        except (ValueError, OSError, RecursionError) as exc:
+            raise ScenarioError("--out", str(out), f"a study folder with a readable "
+                                f"{MANIFEST} ({type(exc).__name__}; a new --out, or remove "
+                                "the broken file)") from None
+        if not isinstance(old, dict):
+            raise ScenarioError("--out", str(out), f"a study folder whose {MANIFEST} holds a "
+                                "JSON object (a new --out, or remove the broken file)")
         for k in sorted(set(old) | set(manifest)):
             if k not in MAY_CHANGE and json.dumps(old.get(k), default=str) != json.dumps(
                     manifest.get(k), default=str):
