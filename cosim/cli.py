@@ -328,6 +328,9 @@ def _run(args) -> int:
         res = run_scenario(sc, opts)
         summary = write_run(res, out, plots=not args.no_plots)
     print(one_screen(summary, out))
+    if summary.get("output_errors"):     # e.g. a full disk: the summary says which files
+        print(f"cosim: outputs not written in {out}: " + "; ".join(summary["output_errors"]),
+              file=sys.stderr)
     if res.exit_reason is ExitReason.COMPONENT_ERROR:
         print(f"cosim: run failed: {res.message}", file=sys.stderr)
     return 0 if summary["passed"] else 1

@@ -32,3 +32,15 @@ class ComponentError(RuntimeError):
 
 class OutputError(OSError):
     """A run's outputs could not be written (disk full, read-only, ...); names the folder."""
+
+
+def output_error(exc: OSError, path: object, more: str = "") -> OutputError:
+    """The OutputError for a failed write of `path`: 'disk full writing PATH' when the
+    device is full, else 'cannot write PATH (reason)'; `more` says what was kept."""
+    import errno
+
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        text = f"disk full writing {path}"
+    else:
+        text = f"cannot write {path} ({exc.strerror or exc})"
+    return OutputError(text + (f"; {more}" if more else ""))

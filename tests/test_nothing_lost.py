@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from cosim.apps.vs import visual_path as VP
 from cosim.cli import main
 from cosim.scenario.parse import load_scenario
@@ -55,3 +57,111 @@ def test_a_second_study_into_the_same_folder_fails_at_once(tmp_path, capsys):
             err = capsys.readouterr().err
             assert rc == 2 and "--out" in err and "study" in err, (argv, err)
     assert sorted(p.name for p in out.iterdir()) == [".study.lock"]
+
+
+# ---------------------------------------------------------------- defect 6: a full disk
+def full_disk(monkeypatch, root: Path, free: int) -> None:
+    """Files opened for writing under `root` share `free` bytes: a write beyond them writes
+    what fits and raises ENOSPC, and so does closing such a file (its last flush), as on a
+    full device. (Simulated: mounting a small tmpfs needs privileges a test must not need.)"""
+    import builtins
+    import errno
+    import io
+
+    real = builtins.open
+    left = [free]
+
+    def enospc():
+        return OSError(errno.ENOSPC, "No space left on device")
+
+    class Full:
+        def __init__(self, f):
+            self._f, self._hit = f, False
+
+        def write(self, b):
+            if len(b) > left[0]:
+                k, left[0] = left[0], 0
+                if k:
+                    self._f.write(b[:k])
+                self._hit = True
+                raise enospc()
+            left[0] -= len(b)
+            return self._f.write(b)
+
+        def close(self):
+            self._f.close()
+            if self._hit:
+                raise enospc()
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.close()
+
+        def __getattr__(self, name):
+            return getattr(self._f, name)
+
+    def fake_open(file, mode="r", *a, **kw):
+        f = real(file, mode, *a, **kw)
+        if isinstance(file, int) or not any(m in mode for m in "wax+"):
+            return f
+        return Full(f) if str(Path(file).resolve()).startswith(str(root)) else f
+
+    monkeypatch.setattr(builtins, "open", fake_open)
+    monkeypatch.setattr(io, "open", fake_open)
+
+
+def _whole_outputs(out: Path) -> None:
+    """What a run left is consistent: no part files, a summary that parses, whole records."""
+    import json
+
+    from cosim.outputs.tlog import read_tlog
+
+    assert not [p.name for p in out.iterdir() if p.suffix in (".part", ".tmp")]
+    if (out / "summary.json").exists():
+        json.loads((out / "summary.json").read_text())
+    if (out / "flight.tlog").exists():
+        from mav import wire
+
+        for _, frame in read_tlog(out / "flight.tlog"):
+            assert wire.decode_fast is not None and len(frame) >= 12
+
+
+@pytest.mark.parametrize("free", [5_000, 40_000, 147_000])
+def test_a_full_disk_ends_a_run_in_one_line_and_keeps_outputs_whole(tmp_path, monkeypatch,
+                                                                   capsys, free):
+    """Defect 6: ENOSPC gave a traceback at the tlog's close and no summary. Now: one line
+    `cosim: disk full writing ...`, exit 1, and every file left is whole."""
+    out = tmp_path / "r"
+    full_disk(monkeypatch, tmp_path.resolve(), free)
+    rc = main(["run", str(HOVER), "--set", "timing.t_final_s=2", "--out", str(out), "--quiet",
+               "--no-plots"])
+    monkeypatch.undo()
+    err = capsys.readouterr().err
+    assert rc == 1, err
+    assert "Traceback" not in err
+    assert "cosim: disk full writing" in err.strip().splitlines()[-1], err
+    _whole_outputs(out)
+
+
+def test_a_full_disk_ends_a_study_in_one_line_and_keeps_its_table(tmp_path, monkeypatch,
+                                                                   capsys):
+    """Defect 6, studies: tracebacks and a stray results.csv.tmp. Now one line, exit 1, the
+    table holds the rows written before, and the same command then finishes the study."""
+    import csv
+
+    out = tmp_path / "mc"
+    argv = ["montecarlo", str(HOVER), "-n", "3", "--vary", "timing.t_final_s=uniform(0.2,0.3)",
+            "--executor", "serial", "--quiet", "--out", str(out)]
+    full_disk(monkeypatch, tmp_path.resolve(), 900)
+    rc = main(argv)
+    monkeypatch.undo()
+    err = capsys.readouterr().err
+    assert rc == 1 and "Traceback" not in err, err
+    assert err.strip().splitlines()[-1].startswith("cosim: disk full writing"), err
+    assert not list(out.glob("*.tmp"))
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert len(rows) < 3
+    assert main(argv) == 0                                   # room again: the study finishes
+    assert len(list(csv.DictReader((out / "results.csv").open()))) == 3

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import os
 from collections.abc import Iterator
 from pathlib import Path
 
-from cosim.errors import ScenarioError
+from cosim.errors import ScenarioError, output_error
 
 # files a run folder may hold; removed before a run writes there, so folders never mix runs
 OUTPUT_FILES = ("summary.json", "timeseries.csv", "frames.csv", "flight.tlog", "trajectory.png",
@@ -66,6 +67,8 @@ def claim_run_folder(out: Path, flag: str = "--out", what: str = "run") -> Itera
         out.mkdir(parents=True, exist_ok=True)
         fd = os.open(out / f".{what}.lock", os.O_RDWR | os.O_CREAT, 0o644)
     except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise output_error(exc, out) from None
         raise ScenarioError(flag, str(out), f"a writable folder ({exc.strerror})") from None
     try:
         try:

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from cosim.errors import OutputError
+from cosim.errors import output_error
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.metrics import COL, compute_metrics, evaluate
 from cosim.sim.master import RunResult
@@ -124,13 +124,23 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True,
                 shutil.copytree(res.run_dir / "frames", out / "frames", dirs_exist_ok=True)
             except OSError as exc:
                 errors.append(f"frames: {exc.strerror or exc}")
+    tlog_error = res.tlog.error
+    if tlog_error is not None:       # the streamed log stopped: it holds whole records only
+        errors.append(f"flight.tlog: {tlog_error.strerror or tlog_error} (cut at its last "
+                      "whole record)")
     if errors:
         summary["output_errors"] = errors
         summary["passed"] = False
     text = json.dumps(summary, indent=2, default=_json_default)
-    put("summary.json", lambda p: p.write_text(text))
-    if any(e.startswith("summary.json") for e in errors):
-        raise OutputError(f"cannot write the run's outputs to {out}: " + "; ".join(errors))
+    try:
+        part = out / "summary.json.part"
+        part.write_text(text)
+        os.replace(part, out / "summary.json")
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            part.unlink()
+        raise output_error(exc, out / "summary.json", "the other outputs that fit are written"
+                           + (f" ({'; '.join(errors)})" if errors else "")) from None
     return summary
 
 

@@ -20,6 +20,7 @@ changes from one execution to another stays out of the table.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -32,7 +33,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from cosim.errors import ScenarioError
+from cosim.errors import ScenarioError, output_error
 from cosim.studies.jobs import Job, run_job
 from cosim.studies.table import ResultsTable
 
@@ -77,11 +78,15 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
 
     def record(row: dict[str, Any]) -> None:
         extra = {k: row.pop(k) for k in list(row) if k.startswith("_")}
-        table.append(row)
+        try:
+            table.append(row)
+        except OSError as exc:        # disk full: the table keeps the rows before this one
+            raise output_error(exc, table.path, f"run {row['run_id']} just flown is not in it; "
+                               "the same command runs it again") from None
         stats.ran += 1
         stats.failed += row["status"] == "failed"
         if log is not None:
-            with open(log, "a") as f:
+            with contextlib.suppress(OSError), open(log, "a") as f:   # a log line: optional
                 f.write(json.dumps({"run_id": row["run_id"], "status": row["status"],
                                     "wall_s": extra.get("_wall_s"),
                                     "worker": extra.get("_worker"),

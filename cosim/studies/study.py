@@ -16,7 +16,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from cosim.errors import ScenarioError
+from cosim.errors import ScenarioError, output_error
 from cosim.studies.deps import with_set
 from cosim.studies.dists import Dist, run_draws
 from cosim.studies.engine import StudyStats, run_study
@@ -123,7 +123,10 @@ def open_study(out: Path, manifest: dict[str, Any]) -> ResultsTable:
                 raise ScenarioError("--out", str(out), f"a new folder, or the same settings: it "
                                     f"holds a study whose {k} was {old.get(k)!r}, not "
                                     f"{manifest.get(k)!r}")
-    mf.write_text(json.dumps(manifest, indent=2, default=str) + "\n")
+    try:
+        mf.write_text(json.dumps(manifest, indent=2, default=str) + "\n")
+    except OSError as exc:
+        raise output_error(exc, mf) from None
     try:
         return ResultsTable(out / TABLE, list(manifest["params"]))
     except ValueError as exc:
@@ -143,8 +146,15 @@ def run_in_folder(jobs: list[Job], manifest: dict[str, Any], out: Path, **engine
         try:
             stats = run_study(jobs, table, log=out / "runs.log", **engine)
         finally:
-            rows = table.finish()
+            try:
+                rows = table.finish()
+            except OSError as exc:
+                raise output_error(exc, table.path, "it holds the rows written before") \
+                    from None
         ids = {j.run_id for j in jobs}
         rows = [r for r in rows if int(r["run_id"]) in ids]
-        report = write_report(rows, manifest, out) if len(rows) == len(ids) else None
+        try:
+            report = write_report(rows, manifest, out) if len(rows) == len(ids) else None
+        except OSError as exc:
+            raise output_error(exc, out / "report.md", f"every row is in {TABLE}") from None
     return stats, rows, report

@@ -95,13 +95,17 @@ class ResultsTable:
     def _rewrite(self) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_name(self.path.name + ".tmp")
-        with open(tmp, "w", newline="") as f:
-            f.write(_line(self.columns))
-            for r in self.rows:
-                f.write(_line([r.get(c, "") for c in self.columns]))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, self.path)
+        try:
+            with open(tmp, "w", newline="") as f:
+                f.write(_line(self.columns))
+                for r in self.rows:
+                    f.write(_line([r.get(c, "") for c in self.columns]))
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)
+        except OSError:                 # disk full: the table on disk stays as it was
+            tmp.unlink(missing_ok=True)
+            raise
 
 
 def _run_number(text: str) -> bool:
