@@ -338,6 +338,7 @@ def _run(args) -> int:
 
 def _sweep(args) -> int:
     from cosim.scenario.parse import load_scenario, with_set
+    from cosim.studies.study import check_grid
     from cosim.studies.sweep import (
         EXECUTORS,
         make_jobs,
@@ -349,6 +350,7 @@ def _sweep(args) -> int:
 
     sc = load_scenario(args.scenario)
     grid = parse_sets(args.set, multi=True)
+    check_grid(grid)
     for key, values in grid.items():  # validate every value before starting any run
         for v in values:
             with_set(sc, {key: v})

@@ -10,7 +10,7 @@ import pytest
 
 from cosim.apps.vs import visual_path as VP
 from cosim.cli import main
-from cosim.scenario.parse import load_scenario
+from cosim.scenario.parse import load_scenario, with_set
 
 ROOT = Path(__file__).resolve().parents[1]
 E1 = ROOT / "scenarios" / "bebop2_vs_e1.toml"
@@ -165,3 +165,61 @@ def test_a_full_disk_ends_a_study_in_one_line_and_keeps_its_table(tmp_path, monk
     assert len(rows) < 3
     assert main(argv) == 0                                   # room again: the study finishes
     assert len(list(csv.DictReader((out / "results.csv").open()))) == 3
+
+
+# ---------------------------------------------------------------- defect 7: strict outputs
+def _strict_load(text: str):
+    import json
+
+    def refuse(name):
+        raise ValueError(f"not JSON: {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_summary_json_is_strict_json(tmp_path, monkeypatch):
+    """Defect 7: summary.json held bare NaN and criteria `"passed": "True"` (a numpy bool
+    through default=str). Now null for a missing number, true/false as booleans."""
+    import numpy as np
+
+    from cosim.outputs import report
+    from cosim.sim.master import RunOptions, run_scenario
+
+    sc = with_set(load_scenario(HOVER), {"timing.t_final_s": 1.0})
+    res = run_scenario(sc, RunOptions(out_dir=tmp_path / "a"))
+    real = report.summarize
+
+    def with_numpy(r):
+        s = real(r)
+        s["metrics"]["x_nan"] = np.float64("nan")
+        s["metrics"]["x_inf"] = float("inf")
+        s["metrics"]["x_list"] = [np.float32(1.5), float("nan"), (1, np.int64(2))]
+        s["criteria"]["x"] = {"value": np.float64(0.1), "limit": 0.2,
+                              "passed": np.float64(0.1) <= 0.2}
+        return s
+
+    monkeypatch.setattr(report, "summarize", with_numpy)
+    report.write_run(res, tmp_path / "a", plots=False)
+    s = _strict_load((tmp_path / "a" / "summary.json").read_text())
+    assert s["metrics"]["x_nan"] is None and s["metrics"]["x_inf"] is None
+    assert s["metrics"]["x_list"] == [1.5, None, [1, 2]]
+    assert s["criteria"]["x"]["passed"] is True
+    assert all(isinstance(c["passed"], bool) for c in s["criteria"].values())
+    assert isinstance(s["passed"], bool)
+
+
+def test_montecarlo_runs_are_bounded(tmp_path, capsys):
+    """Defect 7: `-n 100000000 --limit 1` made 1.6 GB of draws before its one run. -n and
+    the sweep grid are bounded (MAX_RUNS) and refused at once."""
+    from cosim.studies.study import MAX_RUNS
+
+    rc = main(["montecarlo", str(HOVER), "-n", str(100_000_000), "--limit", "1", "--vary",
+               "timing.t_final_s=uniform(1,2)", "--out", str(tmp_path / "m"),
+               "--executor", "serial"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "-n" in err and f"{MAX_RUNS}" in err.replace(",", ""), err
+    vals = ",".join(str(1 + i / 1000) for i in range(400))
+    rc = main(["sweep", str(HOVER), "--set", f"timing.t_final_s={vals}", "--set",
+               f"timing.camera_every={','.join(str(i) for i in range(1, 401))}",
+               "--out", str(tmp_path / "s"), "--executor", "serial", "--limit", "1"])
+    assert rc == 2 and "runs" in capsys.readouterr().err

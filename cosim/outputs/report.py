@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import platform
 import shutil
@@ -17,6 +16,7 @@ import numpy as np
 from cosim.errors import output_error
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.metrics import COL, compute_metrics, evaluate
+from cosim.outputs.strict import dumps as strict_dumps
 from cosim.sim.master import RunResult
 from cosim.sim.recorder import SERIES_COLUMNS
 
@@ -131,7 +131,7 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True,
     if errors:
         summary["output_errors"] = errors
         summary["passed"] = False
-    text = json.dumps(summary, indent=2, default=_json_default)
+    text = strict_dumps(summary, indent=2)       # strict JSON: null for NaN, real booleans
     try:
         part = out / "summary.json.part"
         part.write_text(text)
@@ -205,10 +205,3 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
                  + (f"   outputs in {out}" if out else ""))
     return "\n".join(lines)
 
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.integer | np.floating):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    return str(o)

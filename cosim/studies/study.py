@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,18 @@ TABLE = "results.csv"
 MAY_CHANGE = {"n", "command"}
 
 
+# A study has at most MAX_RUNS runs: its jobs are made (and a Monte Carlo study's draws checked)
+# before the first run starts, ~1 KB each; 1e5 runs of a 1-minute mission are ~70 core-days.
+MAX_RUNS = 100_000
+
+
+def check_grid(grid: dict[str, list[Any]]) -> None:
+    n = math.prod(len(v) for v in grid.values())
+    if n > MAX_RUNS:
+        raise ScenarioError("--set", " ".join(f"{k}=({len(v)} values)" for k, v in grid.items()),
+                            f"a grid of at most {MAX_RUNS} runs (this one: {n} runs)")
+
+
 def scenario_hash(raw: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -42,8 +55,9 @@ def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, An
                     *, mode: str = "mil", keep_runs: bool = False, mcap: bool = False
                     ) -> tuple[list[Job], dict[str, Any]]:
     """The jobs of an n-run study, every draw checked against its field's range first."""
-    if n < 1:
-        raise ScenarioError("-n", n, "an integer >= 1")
+    if not 1 <= n <= MAX_RUNS:
+        raise ScenarioError("-n", n, f"an integer in 1..{MAX_RUNS} (the draws of every run are "
+                            "made and checked before the first starts)")
     if not 0 <= seed <= 2**63 - 1:
         raise ScenarioError("--seed", seed, "an integer in [0, 2^63 - 1]")
     keys = [d.key for d in dists]
@@ -80,6 +94,7 @@ def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, An
 def sweep_jobs(sc, grid: dict[str, list[Any]], out: Path, *, mode: str = "mil",
                keep_runs: bool = False, mcap: bool = False) -> tuple[list[Job], dict[str, Any]]:
     """The Cartesian product of the values; keys with one value are fixed --sets."""
+    check_grid(grid)
     for key, values in grid.items():  # every value checked before any run starts
         for v in values:
             with_set(sc, {key: v})
