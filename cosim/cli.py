@@ -258,11 +258,19 @@ def _dispatch(args) -> int:
     if args.cmd == "validate":
         from cosim.scenario.parse import load_scenario
 
-        for path in args.scenarios:
-            sc = load_scenario(path)
+        bad = 0
+        for path in args.scenarios:          # every file checked, each reported
+            try:
+                sc = load_scenario(path)
+            except ScenarioError as exc:
+                bad += 1
+                print(f"cosim: bad input: {path}: {exc}", file=sys.stderr)
+                continue
             print(f"{path}: ok ({sc.name}: vehicle {sc.vehicle.name}, app {sc.app.name}, "
                   f"t_final {sc.timing.t_final_s:g} s)")
-        return 0
+        if bad:
+            print(f"cosim: {bad} of {len(args.scenarios)} files are bad", file=sys.stderr)
+        return 2 if bad else 0
     if args.cmd == "run":
         return _run(args)
     if args.cmd == "sweep":
@@ -315,6 +323,11 @@ def _run(args) -> int:
         raise ScenarioError("--png-every", args.png_every, "an integer >= 0")
     if (args.video or args.png_every) and sc.camera is None:
         print(f"cosim: warning: {sc.name} has no [camera]; --video / --png-every save nothing",
+              file=sys.stderr)
+    elif args.video and (sc.camera.width % 2 or sc.camera.height % 2):
+        w, h = sc.camera.width, sc.camera.height   # mp4v (MPEG-4 part 2) takes even sizes
+        print(f"cosim: warning: the camera is {w}x{h}; the video keeps {w - w % 2}x{h - h % 2}"
+              f" (its encoder drops an odd last column / row); --png-every keeps every pixel",
               file=sys.stderr)
     out = args.out or Path("runs") / f"{sc.name}-{args.mode}"
     _check_out_dir(out, "--out")
