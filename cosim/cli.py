@@ -264,7 +264,8 @@ def _dispatch(args) -> int:
                 sc = load_scenario(path)
             except ScenarioError as exc:
                 bad += 1
-                print(f"cosim: bad input: {path}: {exc}", file=sys.stderr)
+                where = "" if str(path) in str(exc) else f" (in {path})"
+                print(f"cosim: bad input: {exc}{where}", file=sys.stderr)
                 continue
             print(f"{path}: ok ({sc.name}: vehicle {sc.vehicle.name}, app {sc.app.name}, "
                   f"t_final {sc.timing.t_final_s:g} s)")
