@@ -269,7 +269,7 @@ def _dispatch(args) -> int:
                 continue
             print(f"{path}: ok ({sc.name}: vehicle {sc.vehicle.name}, app {sc.app.name}, "
                   f"t_final {sc.timing.t_final_s:g} s)")
-        if bad:
+        if bad and len(args.scenarios) > 1:
             print(f"cosim: {bad} of {len(args.scenarios)} files are bad", file=sys.stderr)
         return 2 if bad else 0
     if args.cmd == "run":
