@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import signal
 import sys
 import threading
@@ -223,6 +224,15 @@ def _main(argv: list[str] | None) -> int:
         except OutputError as exc:      # disk full, read-only, ...: what was written stays
             print(f"cosim: {exc}", file=sys.stderr)
             return 1
+        except RecursionError:      # a value nested thousands deep that a check recursed into
+            print("cosim: bad input: a value nested too deeply", file=sys.stderr)
+            return 2
+        except OSError as exc:
+            if exc.errno != errno.ENAMETOOLONG:
+                raise
+            print(f"cosim: bad input: a path name too long ({str(exc.filename)[:80]}...)",
+                  file=sys.stderr)
+            return 2
         except KeyboardInterrupt:   # outside a run's loop (a run itself ends 'interrupted')
             print("cosim: interrupted", file=sys.stderr)
             rc = 130
@@ -257,11 +267,20 @@ def _dispatch(args) -> int:
     if args.cmd == "validate":
         from cosim.scenario.parse import load_scenario
 
-        for path in args.scenarios:
-            sc = load_scenario(path)
+        bad = 0
+        for path in args.scenarios:          # every file checked, each reported
+            try:
+                sc = load_scenario(path)
+            except ScenarioError as exc:
+                bad += 1
+                where = "" if str(path) in str(exc) else f" (in {path})"
+                print(f"cosim: bad input: {exc}{where}", file=sys.stderr)
+                continue
             print(f"{path}: ok ({sc.name}: vehicle {sc.vehicle.name}, app {sc.app.name}, "
                   f"t_final {sc.timing.t_final_s:g} s)")
-        return 0
+        if bad and len(args.scenarios) > 1:
+            print(f"cosim: {bad} of {len(args.scenarios)} files are bad", file=sys.stderr)
+        return 2 if bad else 0
     if args.cmd == "run":
         return _run(args)
     if args.cmd == "sweep":
@@ -315,6 +334,11 @@ def _run(args) -> int:
     if (args.video or args.png_every) and sc.camera is None:
         print(f"cosim: warning: {sc.name} has no [camera]; --video / --png-every save nothing",
               file=sys.stderr)
+    elif args.video and (sc.camera.width % 2 or sc.camera.height % 2):
+        w, h = sc.camera.width, sc.camera.height   # mp4v (MPEG-4 part 2) takes even sizes
+        print(f"cosim: warning: the camera is {w}x{h}; the video keeps {w - w % 2}x{h - h % 2}"
+              f" (its encoder drops an odd last column / row); --png-every keeps every pixel",
+              file=sys.stderr)
     out = args.out or Path("runs") / f"{sc.name}-{args.mode}"
     _check_out_dir(out, "--out")
     if args.hil_transport != "udp" and args.mode != "sil":
@@ -327,6 +351,9 @@ def _run(args) -> int:
         res = run_scenario(sc, opts)
         summary = write_run(res, out, plots=not args.no_plots)
     print(one_screen(summary, out))
+    if summary.get("output_errors"):     # e.g. a full disk: the summary says which files
+        print(f"cosim: outputs not written in {out}: " + "; ".join(summary["output_errors"]),
+              file=sys.stderr)
     if res.exit_reason is ExitReason.COMPONENT_ERROR:
         print(f"cosim: run failed: {res.message}", file=sys.stderr)
     return 0 if summary["passed"] else 1
@@ -334,6 +361,7 @@ def _run(args) -> int:
 
 def _sweep(args) -> int:
     from cosim.scenario.parse import load_scenario, with_set
+    from cosim.studies.study import check_grid
     from cosim.studies.sweep import (
         EXECUTORS,
         make_jobs,
@@ -345,6 +373,7 @@ def _sweep(args) -> int:
 
     sc = load_scenario(args.scenario)
     grid = parse_sets(args.set, multi=True)
+    check_grid(grid)
     for key, values in grid.items():  # validate every value before starting any run
         for v in values:
             with_set(sc, {key: v})
@@ -352,13 +381,16 @@ def _sweep(args) -> int:
         raise ScenarioError("--workers", args.workers, "an integer >= 1")
     out = args.out or Path("runs") / f"sweep-{sc.name}"
     _check_out_dir(out, "--out")
-    out.mkdir(parents=True, exist_ok=True)
-    jobs = make_jobs(args.scenario, grid, out, args.mode)
-    print(f"sweep: {len(jobs)} runs of {sc.name} ({args.executor} executor)", file=sys.stderr)
-    results = EXECUTORS[args.executor](args.workers).map(run_job, jobs)
-    keys = list(grid)
-    table = write_table(results, keys, out)
-    plot_sweep(results, keys[0], out)
+    from cosim.outputs.folder import claim_run_folder
+
+    with claim_run_folder(out, "--out", what="study"):   # one sweep per folder at a time
+        jobs = make_jobs(args.scenario, grid, out, args.mode)
+        print(f"sweep: {len(jobs)} runs of {sc.name} ({args.executor} executor)",
+              file=sys.stderr)
+        results = EXECUTORS[args.executor](args.workers).map(run_job, jobs)
+        keys = list(grid)
+        table = write_table(results, keys, out)
+        plot_sweep(results, keys[0], out)
     print(table.read_text())
     print(f"sweep outputs in {out}")
     return 0 if all(r["passed"] for r in results) else 1
@@ -473,7 +505,11 @@ def _check_speed(speed: float) -> None:
 
 
 def _check_out_dir(out: Path, flag: str) -> None:
-    if out.exists() and not out.is_dir():
+    try:
+        is_file = out.exists() and not out.is_dir()
+    except OSError as exc:             # a name too long, ...
+        raise ScenarioError(flag, str(out), f"a usable folder name ({exc.strerror})") from None
+    if is_file:
         raise ScenarioError(flag, str(out), "a folder (this path is a file)")
 
 

@@ -168,6 +168,6 @@ def test_disk_full_leaves_no_truncated_file_and_no_summary_claiming_success(tmp_
         real_replace(src, dst)
 
     monkeypatch.setattr(report.os, "replace", no_summary)
-    with pytest.raises(OutputError, match="cannot write the run's outputs to .*summary.json"):
+    with pytest.raises(OutputError, match="disk full writing .*summary.json"):
         report.write_run(res, tmp_path / "o2", plots=False)
     assert not (tmp_path / "o2" / "summary.json").exists()

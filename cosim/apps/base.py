@@ -21,6 +21,12 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 NAN = math.nan
+# Bounds of app parameters (issue 31). Every number an app takes (a distance in m, a time in
+# s, a gain, a count) is within APP_NUMBER_MAX in magnitude: beyond it is a typo or a unit
+# error, and 1e308 overflows arithmetic. The take-off height is at most 120 m above ground,
+# the ceiling of the EU open category (Regulation (EU) 2019/947) and of FAA Part 107 (400 ft).
+APP_NUMBER_MAX = 1e6
+TAKEOFF_ALT_MAX_M = 120.0
 
 
 @dataclass
@@ -73,6 +79,9 @@ def check_params(params: dict[str, Any], defaults: dict[str, Any], app: str) -> 
             raise ValueError(f"app.params.{k}: got {v!r}; expected {like}")
         if isinstance(v, float) and not math.isfinite(v):
             raise ValueError(f"app.params.{k}: got {v!r}; expected a finite number")
+        if isinstance(v, int | float) and not isinstance(v, bool) and abs(v) > APP_NUMBER_MAX:
+            raise ValueError(f"app.params.{k}: got {v!r}; expected a number within "
+                             f"+-{APP_NUMBER_MAX:g}")
         out[k] = v
     return out
 
@@ -93,6 +102,12 @@ class FlightSequencer:
     _t_sent: float = -1e9
     _t_stream: float = NAN
     events: list[tuple[float, str]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        alt = self.takeoff_alt_m
+        if not (isinstance(alt, int | float) and 0.0 < alt <= TAKEOFF_ALT_MAX_M):
+            raise ValueError(f"app.params.takeoff_alt_m: got {alt!r}; expected a height in "
+                             f"(0, {TAKEOFF_ALT_MAX_M:g}] m")
 
     def step(self, t: float, client: Any, hold: tuple[float, float, float]) -> bool:
         """Advance the prelude; True once the vehicle is in OFFBOARD and the app may fly.

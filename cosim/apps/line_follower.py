@@ -30,7 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from cosim.apps.base import NAN, AppContext, FlightSequencer, check_params
+from cosim.apps.base import (
+    NAN,
+    TAKEOFF_ALT_MAX_M,
+    AppContext,
+    FlightSequencer,
+    check_params,
+)
 from cosim.apps.ips import ImageProcessor, IPSParams
 from cosim.apps.planner import Action, MissionLogic, MissionState, PlannerParams
 
@@ -108,9 +114,10 @@ class LineFollowerApp:
         pl = _overrides(p, {"alpha": "gain_track", "beta": "gain_marker",
                             "deriv_gain": "deriv_gain"})
         if p["hover_alt_m"] is not None:
-            if not p["hover_alt_m"] > 0.0:
+            if not 0.0 < p["hover_alt_m"] <= TAKEOFF_ALT_MAX_M:
                 raise ValueError(f"app.params.hover_alt_m: got {p['hover_alt_m']!r}; "
-                                 "expected a height above the floor > 0 m")
+                                 f"expected a height above the floor in (0, "
+                                 f"{TAKEOFF_ALT_MAX_M:g}] m")
             pl["z_hover"] = -float(p["hover_alt_m"])
         pl["search_on_loss"] = bool(p["search_on_loss"])
         pl["lost_timeout"] = float(p["lost_timeout_s"])

@@ -20,6 +20,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import sys
+from pathlib import Path
 
 from cosim.errors import ComponentError, ScenarioError
 from cosim.scenario.records import AppSpec
@@ -78,6 +79,16 @@ def make_app(spec: AppSpec):
     return cls(spec.params)
 
 
+def app_inputs(spec: AppSpec, source: str | None) -> dict[str, Path]:
+    """The files and folders the app reads (field -> path), so that a run never clears one."""
+    if spec.name == "visual_servo" and isinstance(spec.params.get("visual_path"), str) \
+            and spec.params["visual_path"]:
+        from cosim.apps.vs.visual_path import folder_of
+
+        return {"app.params.visual_path": folder_of(spec.params["visual_path"], source)}
+    return {}
+
+
 def check_app(spec: AppSpec) -> None:
     """At load time: a built-in app is built once, so a bad parameter fails here; a plugin is
     checked against the contract without being constructed. Errors are ScenarioErrors."""
@@ -97,6 +108,45 @@ def check_app(spec: AppSpec) -> None:
         for lead in ("expected ", "allowed: "):
             rest = rest.removeprefix(lead)
         raise ScenarioError(head, _param_value(spec, head), rest) from None
+
+
+def check_inputs(spec: AppSpec, camera, source: str | None, arena=None) -> None:
+    """At load time: what the app reads (app_inputs) exists and fits the scenario (a visual
+    path is a readable taught folder for the scenario's camera, with one `sigma` per key when
+    a list), and every point it flies to is inside the arena and above the floor.
+    ScenarioError naming the field, with the file and field at fault."""
+    points: list[tuple[str, tuple[float, ...]]] = []
+    if spec.name == "scripted":
+        wps = spec.params.get("waypoints", [])
+        points += [(f"app.params.waypoints[{i}]", tuple(r[:3])) for i, r in enumerate(wps)]
+    if spec.name == "visual_servo":
+        from cosim.apps.vs.presets import resolve
+
+        p = resolve(spec.params)
+        points += [(f"app.params.keys[{i}]", tuple(r[:3])) for i, r in enumerate(p["keys"])]
+        n_keys = len(p["keys"])
+        for name, path in app_inputs(spec, source).items():
+            from cosim.apps.vs import visual_path as VP
+
+            try:
+                meta = VP.check(path, camera)
+            except ValueError as exc:
+                raise ScenarioError(name, spec.params["visual_path"], "a taught folder for "
+                                    f"the scenario's camera ({exc})") from None
+            n_keys = len(meta["_poses"])
+            points += [(f"{name} (path.json keys[{i}].pose)", pose[:3])
+                       for i, pose in enumerate(meta["_poses"])]
+        sigma = p["sigma"]
+        if isinstance(sigma, list) and len(sigma) > 1 and len(sigma) != n_keys:
+            raise ScenarioError("app.params.sigma", sigma, f"one number, or one per key "
+                                f"({n_keys} keys)")
+    if arena is not None:
+        for name, (n, e, d) in points:
+            if not (arena.n_min <= n <= arena.n_max and arena.e_min <= e <= arena.e_max
+                    and d <= 0.0):
+                raise ScenarioError(name, [n, e, d], f"a point inside the arena (N "
+                                    f"{arena.n_min:g} to {arena.n_max:g}, E {arena.e_min:g} to "
+                                    f"{arena.e_max:g}) and above the floor (d <= 0)")
 
 
 def _param_value(spec: AppSpec, path: str) -> object:

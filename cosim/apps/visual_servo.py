@@ -119,13 +119,11 @@ class VisualServoApp:
         visual path the scenario names (relative to the scenario file)."""
         p = self.p
         if p["visual_path"]:
-            folder = Path(p["visual_path"])
-            if not folder.is_absolute() and scenario.source is not None:
-                folder = Path(scenario.source).parent / folder
+            folder = VP.folder_of(p["visual_path"], scenario.source)
         else:
             folder = VP.teach_by_render(scenario, self.teach_poses, run_dir / "visual_path",
                                         p["detector"], p["n_features"])
-        self.path = VP.load(folder)
+        self.path = VP.load(folder, scenario.camera)
         self.reference_poses = self.path.poses
 
     def on_start(self, ctx: AppContext) -> None:

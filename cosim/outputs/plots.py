@@ -3,6 +3,7 @@ teach-and-repeat run also the taught poses and visual_servo.png (plots_vs.py).""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import matplotlib
@@ -163,7 +164,15 @@ def _draw_scene(ax, scene) -> None:
 
 
 def _save(fig, path: Path) -> Path:
+    """Saved as PATH.part and renamed when whole (a full disk leaves no torn PNG)."""
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    part = path.with_name(path.name + ".part")
+    try:
+        fig.savefig(part, dpi=110, format=path.suffix.lstrip(".") or "png")
+        os.replace(part, path)
+    except OSError:
+        part.unlink(missing_ok=True)
+        raise
+    finally:
+        plt.close(fig)
     return path

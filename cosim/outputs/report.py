@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import platform
 import shutil
@@ -14,9 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from cosim.errors import OutputError
-from cosim.outputs.folder import clean_run_folder
+from cosim.errors import output_error
+from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.metrics import COL, compute_metrics, evaluate
+from cosim.outputs.strict import dumps as strict_dumps
 from cosim.sim.master import RunResult
 from cosim.sim.recorder import SERIES_COLUMNS
 from mav import compiled
@@ -87,6 +87,9 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True,
     out.mkdir(parents=True, exist_ok=True)
     same = out.resolve() == res.run_dir.resolve()
     if not same:
+        from cosim.apps.registry import app_inputs
+
+        check_inputs_kept(out, app_inputs(res.scenario.app, res.scenario.source))
         clean_run_folder(out)
     summary = summarize(res)
     summary.update(extra or {})
@@ -124,13 +127,23 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True,
                 shutil.copytree(res.run_dir / "frames", out / "frames", dirs_exist_ok=True)
             except OSError as exc:
                 errors.append(f"frames: {exc.strerror or exc}")
+    tlog_error = res.tlog.error
+    if tlog_error is not None:       # the streamed log stopped: it holds whole records only
+        errors.append(f"flight.tlog: {tlog_error.strerror or tlog_error} (cut at its last "
+                      "whole record)")
     if errors:
         summary["output_errors"] = errors
         summary["passed"] = False
-    text = json.dumps(summary, indent=2, default=_json_default)
-    put("summary.json", lambda p: p.write_text(text))
-    if any(e.startswith("summary.json") for e in errors):
-        raise OutputError(f"cannot write the run's outputs to {out}: " + "; ".join(errors))
+    text = strict_dumps(summary, indent=2)       # strict JSON: null for NaN, real booleans
+    try:
+        part = out / "summary.json.part"
+        part.write_text(text)
+        os.replace(part, out / "summary.json")
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            part.unlink()
+        raise output_error(exc, out / "summary.json", "the other outputs that fit are written"
+                           + (f" ({'; '.join(errors)})" if errors else "")) from None
     return summary
 
 
@@ -195,10 +208,3 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
                  + (f"   outputs in {out}" if out else ""))
     return "\n".join(lines)
 
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.integer | np.floating):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    return str(o)

@@ -7,6 +7,8 @@ Stamps are simulation time (us since t = 0), so the log of a run is deterministi
 
 from __future__ import annotations
 
+import contextlib
+import os
 import shutil
 import struct
 from pathlib import Path
@@ -18,12 +20,13 @@ class Tlog:
     """A tlog streamed to `path` as the datagrams pass (memory stays flat); `t_us` is the stamp
     the master sets each tick, `count` the datagrams logged."""
 
-    __slots__ = ("path", "t_us", "count", "_f", "_write")
+    __slots__ = ("path", "t_us", "count", "error", "_f", "_write")
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self.t_us = 0
         self.count = 0
+        self.error: OSError | None = None      # a write that failed (disk full): see close()
         self._f = open(self.path, "wb", buffering=1 << 16)  # noqa: SIM115 (closed in close())
         self._write = self._f.write
 
@@ -32,8 +35,17 @@ class Tlog:
         self.count += 1
 
     def close(self) -> None:
-        if not self._f.closed:
+        """Close the file. A write that fails (disk full) does not raise here: `error` keeps
+        it and the file is cut back to its last whole record, so what it holds reads."""
+        if self._f.closed:
+            return
+        try:
             self._f.close()
+        except OSError as exc:
+            self.error = exc
+        if self.error is not None:
+            with contextlib.suppress(OSError):
+                keep_whole_records(self.path)
 
     def read(self) -> bytes:
         """Everything logged so far."""
@@ -76,6 +88,26 @@ class TapLink:
 def tap(inner, log: Tlog) -> TapLink:
     """A TapLink on `inner`."""
     return TapLink(inner, log)
+
+
+def keep_whole_records(path: Path) -> int:
+    """Cut a tlog after its last whole record (a write that failed midway); its new size."""
+    raw = Path(path).read_bytes()
+    i = 0
+    while i + 10 <= len(raw):
+        b = raw[i + 8]
+        if b == 0xFD:
+            n = 12 + raw[i + 9] + (13 if i + 10 < len(raw) and raw[i + 10] & 1 else 0)
+        elif b == 0xFE:
+            n = 8 + raw[i + 9]
+        else:
+            break
+        if i + 8 + n > len(raw):
+            break
+        i += 8 + n
+    if i != len(raw):
+        os.truncate(path, i)
+    return i
 
 
 def read_tlog(path: Path) -> list[tuple[int, bytes]]:

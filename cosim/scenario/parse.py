@@ -8,16 +8,15 @@ The schema is documented in scenarios/README.md.
 from __future__ import annotations
 
 import copy
-import math
 import re
 import tomllib
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from cosim.apps.registry import BUILTIN_APPS, check_app
+from cosim.apps.registry import BUILTIN_APPS, check_app, check_inputs
 from cosim.errors import ScenarioError
-from cosim.plant.vehicles import PRESETS, get_vehicle
+from cosim.plant.vehicles import PHYSICAL_RANGES, PRESETS, get_vehicle
 from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
 from cosim.sensors.camera import parse_camera
@@ -35,11 +34,18 @@ TOP_KEYS = {"name", "description", "seed", "vehicle", "timing", "world", "camera
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario TOML file."""
     p = Path(path)
-    if not p.is_file():
+    try:
+        text = p.read_text(encoding="utf-8") if p.is_file() else None
+    except OSError as exc:          # a name too long, a folder we may not read, ...
+        raise ScenarioError("scenario", str(p), f"a readable .toml file ({exc.strerror})"
+                            ) from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError("scenario", str(p), f"valid UTF-8 TOML ({exc})") from None
+    if text is None:
         raise ScenarioError("scenario", str(p), "an existing .toml file")
     try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise ScenarioError("scenario", str(p), f"valid UTF-8 TOML ({exc})") from None
     except RecursionError:   # thousands of nested tables or arrays
         raise ScenarioError("scenario", str(p), "TOML nested less deeply") from None
@@ -54,13 +60,21 @@ def _load_world(raw: dict, base_dir: Path) -> dict:
         if not isinstance(f, str):
             raise ScenarioError("world.file", f, "a path to a world TOML file")
         fp = (base_dir / f) if not Path(f).is_absolute() else Path(f)
-        if not fp.is_file():
+        try:
+            found = fp.is_file()
+        except OSError:                 # e.g. a name too long
+            found = False
+        if not found:
             raise ScenarioError("world.file", f, f"an existing file (looked for {fp})")
         try:
             base = tomllib.loads(fp.read_text(encoding="utf-8"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ScenarioError("world.file", f, f"valid UTF-8 TOML ({exc})") from None
+        except RecursionError:   # thousands of nested tables or arrays
+            raise ScenarioError("world.file", f, "TOML nested less deeply") from None
         base = base.get("world", base)
+        if not isinstance(base, dict):
+            raise ScenarioError("world.file", f, "a world file whose `world` is a table")
         base.update(w)  # keys given in the scenario override the file's
         w = base
     return w
@@ -87,10 +101,11 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     no_unknown(ov, fields, "vehicle.overrides")
     if ov:
         vehicle = vehicle.with_overrides(
-            **{k: number(ov, k, "vehicle.overrides", lo=0.0, lo_open=k != "drag_rot",
-                         hi=2.0 if k == "body_radius" else math.inf)
-               for k in ov}
-        )
+            **{k: number(ov, k, "vehicle.overrides", lo=PHYSICAL_RANGES[k][0],
+                         hi=PHYSICAL_RANGES[k][1]) for k in ov})
+        problem = vehicle.physical_problem()
+        if problem is not None:
+            raise ScenarioError("vehicle.overrides", ov, f"a vehicle that can fly: {problem}")
     world_table = _load_world(raw, base_dir)
     st = table(v, "start", "vehicle")
     no_unknown(st, {"n", "e", "yaw_deg"}, "vehicle.start")
@@ -183,6 +198,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
                             f"E {a.e_min:g} to {a.e_max:g})")
     camera = parse_camera(camera_table, "camera") if camera_table is not None else None
     check_app(app)
+    check_inputs(app, camera, source, world.arena)
     return Scenario(
         name=name, description=description, seed=seed, vehicle=vehicle, start=start,
         timing=timing, world=world, camera=camera, app=app, noise=noise,

@@ -47,9 +47,33 @@ def parse_camera(d: Mapping[str, Any], where: str = "camera") -> CameraConfigAny
     if not isinstance(d, Mapping):
         raise ScenarioError(where, d, "a table")
     kind = d.get("kind", "down")
-    if kind not in KINDS:
+    if not isinstance(kind, str) or kind not in KINDS:
         raise ScenarioError(f"{where}.kind", kind, f"one of {', '.join(sorted(KINDS))}")
-    return KINDS[kind][0].from_dict({k: v for k, v in d.items() if k != "kind"}, where)
+    cfg = KINDS[kind][0].from_dict({k: v for k, v in d.items() if k != "kind"}, where)
+    need = frame_bytes(cfg)
+    if need > FRAME_BYTES_MAX:
+        raise ScenarioError(f"{where}.supersample", cfg.supersample,
+                            f"a camera whose frame needs at most {FRAME_BYTES_MAX / 2**30:g} GiB "
+                            f"to render (this one ~{need / 2**30:.1f} GiB: {cfg.width} x "
+                            f"{cfg.height} px x {cfg.supersample}^2 samples); a smaller size or "
+                            "supersample")
+    return cfg
+
+
+# Memory to render one frame (issue 31), measured as the peak resident growth of a render
+# (ru_maxrss; 428 x 240 and 856 x 480, supersample 2 to 8): the exact front renderer (the ray
+# caster) ~180 B per ray (width x height x supersample^2), the fast front renderer ~175 B per
+# pixel (it does not supersample), the downward camera ~5 B per sample. A frame needing more
+# than FRAME_BYTES_MAX is refused when the scenario loads instead of exhausting memory.
+FRAME_BYTES_MAX = 2 * 2**30
+
+
+def frame_bytes(cfg: CameraConfigAny) -> float:
+    """An upper estimate of the memory (bytes) one frame of this camera takes to render."""
+    px = cfg.width * cfg.height
+    if isinstance(cfg, FrontCameraConfig):
+        return px * 200.0 * (cfg.supersample ** 2 if cfg.exact else 1)
+    return px * cfg.supersample ** 2 * 8.0
 
 
 def make_camera(config: CameraConfigAny, world, seed: int) -> Renderer:

@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cosim.errors import ScenarioError
+from cosim.errors import OutputError, ScenarioError
 from cosim.sensors.camera import KINDS, make_camera, save_png
 
 
@@ -43,10 +43,25 @@ def save_depth_png(depth: np.ndarray, path: str | Path) -> Path:
     return p
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+def _image_path(path: Path, flag: str, suffixes: tuple[str, ...]) -> None:
+    """An image file name with a suffix the writer knows, not a folder."""
+    p = Path(path)
+    if p.suffix.lower() not in suffixes:
+        raise ScenarioError(flag, str(p), f"an image file name ending in {', '.join(suffixes)}")
+    if p.is_dir():
+        raise ScenarioError(flag, str(p), "an image file name (this is a folder)")
+
+
 def render_command(args) -> int:
     from cosim.scenario.parse import load_scenario, with_set
     from cosim.studies.sweep import parse_sets
 
+    _image_path(args.out, "--out", IMAGE_SUFFIXES)
+    if args.depth is not None:
+        _image_path(args.depth, "--depth", (".png",))
     sc = load_scenario(args.scenario)
     if args.set:
         sc = with_set(sc, {k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
@@ -69,12 +84,17 @@ def render_command(args) -> int:
     cam = make_camera(config, sc.world, seed=sc.seed)
     q = quat_from_euler(*(math.radians(v) for v in (roll, pitch, yaw)))
     img = cam.render(np.array([n, e, d]), q)
-    out = save_png(img, args.out)
+    try:
+        out = save_png(img, args.out)
+        if args.depth is not None:
+            save_depth_png(cam.last_depth, args.depth)
+    except OSError as exc:
+        raise OutputError(f"cannot write {exc.filename or args.out}: "
+                          f"{exc.strerror or exc}") from None
     print(f"{out}: {img.shape[1]}x{img.shape[0]} {getattr(config, 'kind', 'down')} camera at "
           f"N {n:g} E {e:g} D {d:g} m, yaw {yaw:g} deg")
     if args.depth is not None:
         depth = cam.last_depth
-        save_depth_png(depth, args.depth)
         seen = depth[np.isfinite(depth)]
         rng = f"{seen.min():.3f}-{seen.max():.3f} m" if seen.size else "nothing seen"
         print(f"{args.depth}: depth (16-bit mm), {rng}", file=sys.stdout)

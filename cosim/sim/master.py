@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import ComponentError
-from cosim.outputs.folder import clean_run_folder
+from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.tlog import Tlog
 from cosim.plant.fmu import Plant
 from cosim.scenario.records import Scenario
@@ -188,6 +188,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         raise ValueError(f"mode: got {opts.mode!r}; allowed: mil, sil")
     if opts.hil_transport not in ("udp", "unix"):
         raise ValueError(f"hil_transport: got {opts.hil_transport!r}; allowed: udp, unix")
+    if opts.out_dir is not None:      # a run never clears what it reads (issue 31)
+        from cosim.apps.registry import app_inputs
+
+        check_inputs_kept(opts.out_dir, app_inputs(sc.app, sc.source))
     run_dir, tmp = run_dir_for(opts)
     spool_tmp = tmp or tempfile.TemporaryDirectory(prefix="cosim-spool-")
     spool = SeriesSpool(Path(spool_tmp.name) / "series.f64")

@@ -66,6 +66,10 @@ def _engine_kw(args) -> dict:
         raise ScenarioError("--limit", args.limit, "an integer >= 0")
     if args.scheduler is not None and args.executor != "dask":
         raise ScenarioError("--scheduler", args.scheduler, "only with --executor dask")
+    if args.scheduler is not None:
+        from cosim.studies.engine import scheduler_address
+
+        scheduler_address(args.scheduler)          # a malformed address: refused now
     if args.scheduler is not None and args.workers is not None:
         raise ScenarioError("--workers", args.workers, "only without --scheduler (an existing "
                             "cluster has the workers it has)")

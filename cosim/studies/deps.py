@@ -31,6 +31,13 @@ def parse_sets(sets: list[str], *, multi: bool) -> dict[str, list[Any]]:
     return f(sets, multi=multi)
 
 
+def strict_json(o: Any, **kw: Any) -> str:
+    """JSON without NaN / Infinity (null for a missing number) and with real booleans."""
+    from cosim.outputs.strict import dumps
+
+    return dumps(o, **kw)
+
+
 # ---------------------------------------------------------------- scenarios
 def load_scenario(path: str | Path):
     from cosim.scenario.parse import load_scenario as f

@@ -90,6 +90,8 @@ def parse_vary(text: str) -> Dist:
     args = tuple(float(v) for v in args)
     if kind == "uniform" and not args[0] < args[1]:
         raise ScenarioError(where, spec, "uniform(a,b) with a < b")
+    if kind in ("uniform", "truncnormal") and not math.isfinite(args[-1] - args[-2]):
+        raise ScenarioError(where, spec, f"{kind}(...) whose range b - a is a finite number")
     if kind in ("normal", "truncnormal") and args[1] < 0:
         raise ScenarioError(where, spec, f"{kind}(...) with sigma >= 0")
     if kind == "truncnormal" and not args[2] < args[3]:

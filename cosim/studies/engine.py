@@ -20,9 +20,11 @@ changes from one execution to another stays out of the table.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
+import re
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -31,7 +33,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from cosim.errors import ScenarioError
+from cosim.errors import ScenarioError, output_error
 from cosim.studies.jobs import Job, run_job
 from cosim.studies.table import ResultsTable
 
@@ -76,11 +78,15 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
 
     def record(row: dict[str, Any]) -> None:
         extra = {k: row.pop(k) for k in list(row) if k.startswith("_")}
-        table.append(row)
+        try:
+            table.append(row)
+        except OSError as exc:        # disk full: the table keeps the rows before this one
+            raise output_error(exc, table.path, f"run {row['run_id']} just flown is not in it; "
+                               "the same command runs it again") from None
         stats.ran += 1
         stats.failed += row["status"] == "failed"
         if log is not None:
-            with open(log, "a") as f:
+            with contextlib.suppress(OSError), open(log, "a") as f:   # a log line: optional
                 f.write(json.dumps({"run_id": row["run_id"], "status": row["status"],
                                     "wall_s": extra.get("_wall_s"),
                                     "worker": extra.get("_worker"),
@@ -106,9 +112,15 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
 def scheduler_address(option: str | None) -> str | None:
     """--scheduler, else $COSIM_DASK_SCHEDULER, else None (a local cluster)."""
     addr = option or os.environ.get(SCHEDULER_ENV) or None
-    if addr is not None and "://" not in addr and ":" not in addr:
-        raise ScenarioError("--scheduler", addr, "a scheduler address like tcp://HOST:8786")
+    if addr is not None and not _ADDRESS.fullmatch(addr):
+        raise ScenarioError("--scheduler", addr, "a scheduler address like tcp://HOST:8786 "
+                            "(HOST a name, an IPv4 address or [IPv6])")
     return addr
+
+
+# [protocol://]host:port, the forms Dask's `Client(address)` takes
+_ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx|inproc)://)?"
+                      r"(?:[A-Za-z0-9_.-]+|\[[0-9A-Fa-f:.]+\]):[0-9]{1,5}")
 
 
 # ---------------------------------------------------------------------- executors
@@ -158,7 +170,7 @@ def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
     else:
         try:
             client = Client(addr, timeout="20s")
-        except OSError as exc:
+        except (OSError, ValueError) as exc:
             raise ScenarioError("--scheduler", addr, f"a reachable Dask scheduler ({exc})"
                                 ) from None
     try:

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from cosim.studies.deps import parse_value
+from cosim.studies.deps import parse_value, strict_json
 from cosim.studies.jobs import HEAD, TAIL
 
 Z95 = 1.959963984540054          # standard normal quantile of 0.975
@@ -124,7 +124,7 @@ def build_report(rows: list[dict[str, str]], manifest: dict[str, Any]) -> dict[s
 def write_report(rows: list[dict[str, str]], manifest: dict[str, Any], out: Path) -> dict:
     rep = build_report(rows, manifest)
     rep["plots"] = plot_study(rows, manifest, out, rep["main_metric"])
-    (out / "report.json").write_text(json.dumps(rep, indent=2) + "\n")
+    (out / "report.json").write_text(strict_json(rep, indent=2) + "\n")   # NaN -> null
     (out / "report.md").write_text(markdown(rep))
     return rep
 

@@ -13,10 +13,11 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 from pathlib import Path
 from typing import Any
 
-from cosim.errors import ScenarioError
+from cosim.errors import ScenarioError, output_error
 from cosim.studies.deps import with_set
 from cosim.studies.dists import Dist, run_draws
 from cosim.studies.engine import StudyStats, run_study
@@ -28,6 +29,18 @@ MANIFEST = "study.json"
 TABLE = "results.csv"
 # manifest keys that may change between two runs of the same study
 MAY_CHANGE = {"n", "command"}
+
+
+# A study has at most MAX_RUNS runs: its jobs are made (and a Monte Carlo study's draws checked)
+# before the first run starts, ~1 KB each; 1e5 runs of a 1-minute mission are ~70 core-days.
+MAX_RUNS = 100_000
+
+
+def check_grid(grid: dict[str, list[Any]]) -> None:
+    n = math.prod(len(v) for v in grid.values())
+    if n > MAX_RUNS:
+        raise ScenarioError("--set", " ".join(f"{k}=({len(v)} values)" for k, v in grid.items()),
+                            f"a grid of at most {MAX_RUNS} runs (this one: {n} runs)")
 
 
 def scenario_hash(raw: dict[str, Any]) -> str:
@@ -42,8 +55,9 @@ def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, An
                     *, mode: str = "mil", keep_runs: bool = False, mcap: bool = False
                     ) -> tuple[list[Job], dict[str, Any]]:
     """The jobs of an n-run study, every draw checked against its field's range first."""
-    if n < 1:
-        raise ScenarioError("-n", n, "an integer >= 1")
+    if not 1 <= n <= MAX_RUNS:
+        raise ScenarioError("-n", n, f"an integer in 1..{MAX_RUNS} (the draws of every run are "
+                            "made and checked before the first starts)")
     if not 0 <= seed <= 2**63 - 1:
         raise ScenarioError("--seed", seed, "an integer in [0, 2^63 - 1]")
     keys = [d.key for d in dists]
@@ -80,6 +94,7 @@ def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, An
 def sweep_jobs(sc, grid: dict[str, list[Any]], out: Path, *, mode: str = "mil",
                keep_runs: bool = False, mcap: bool = False) -> tuple[list[Job], dict[str, Any]]:
     """The Cartesian product of the values; keys with one value are fixed --sets."""
+    check_grid(grid)
     for key, values in grid.items():  # every value checked before any run starts
         for v in values:
             with_set(sc, {key: v})
@@ -103,15 +118,30 @@ def open_study(out: Path, manifest: dict[str, Any]) -> ResultsTable:
         raise ScenarioError("--out", str(out), "a folder (this path is a file)")
     out.mkdir(parents=True, exist_ok=True)
     mf = out / MANIFEST
+    for p in (mf, out / TABLE):
+        if p.exists() and not p.is_file():
+            raise ScenarioError("--out", str(out), f"a study folder whose {p.name} is a file "
+                                "(it is a folder: move it)")
     if mf.is_file():
-        old = json.loads(mf.read_text())
+        try:
+            old = json.loads(mf.read_text())
+        except (ValueError, OSError, RecursionError) as exc:
+            raise ScenarioError("--out", str(out), f"a study folder with a readable "
+                                f"{MANIFEST} ({type(exc).__name__}; a new --out, or remove "
+                                "the broken file)") from None
+        if not isinstance(old, dict):
+            raise ScenarioError("--out", str(out), f"a study folder whose {MANIFEST} holds a "
+                                "JSON object (a new --out, or remove the broken file)")
         for k in sorted(set(old) | set(manifest)):
             if k not in MAY_CHANGE and json.dumps(old.get(k), default=str) != json.dumps(
                     manifest.get(k), default=str):
                 raise ScenarioError("--out", str(out), f"a new folder, or the same settings: it "
                                     f"holds a study whose {k} was {old.get(k)!r}, not "
                                     f"{manifest.get(k)!r}")
-    mf.write_text(json.dumps(manifest, indent=2, default=str) + "\n")
+    try:
+        mf.write_text(json.dumps(manifest, indent=2, default=str) + "\n")
+    except OSError as exc:
+        raise output_error(exc, mf) from None
     try:
         return ResultsTable(out / TABLE, list(manifest["params"]))
     except ValueError as exc:
@@ -120,13 +150,26 @@ def open_study(out: Path, manifest: dict[str, Any]) -> ResultsTable:
 
 def run_in_folder(jobs: list[Job], manifest: dict[str, Any], out: Path, **engine) -> tuple[
         StudyStats, list[dict[str, str]], dict[str, Any] | None]:
-    """Run what is left, sort the table, write the report when every run has a row."""
-    table = open_study(out, manifest)
-    try:
-        stats = run_study(jobs, table, log=out / "runs.log", **engine)
-    finally:
-        rows = table.finish()
-    ids = {j.run_id for j in jobs}
-    rows = [r for r in rows if int(r["run_id"]) in ids]
-    report = write_report(rows, manifest, out) if len(rows) == len(ids) else None
+    """Run what is left, sort the table, write the report when every run has a row. The
+    folder is locked for the study: a second study into it fails at once (ScenarioError)."""
+    from cosim.outputs.folder import claim_run_folder
+
+    if out.exists() and not out.is_dir():
+        raise ScenarioError("--out", str(out), "a folder (this path is a file)")
+    with claim_run_folder(out, "--out", what="study"):
+        table = open_study(out, manifest)
+        try:
+            stats = run_study(jobs, table, log=out / "runs.log", **engine)
+        finally:
+            try:
+                rows = table.finish()
+            except OSError as exc:
+                raise output_error(exc, table.path, "it holds the rows written before") \
+                    from None
+        ids = {j.run_id for j in jobs}
+        rows = [r for r in rows if int(r["run_id"]) in ids]
+        try:
+            report = write_report(rows, manifest, out) if len(rows) == len(ids) else None
+        except OSError as exc:
+            raise output_error(exc, out / "report.md", f"every row is in {TABLE}") from None
     return stats, rows, report

@@ -52,11 +52,22 @@ EXECUTORS: dict[str, Callable[[int | None], Executor]] = {
 
 
 def parse_value(text: str) -> Any:
-    """A TOML value (number, bool, string, list); a bare word is a string."""
+    """A TOML value (number, bool, string, list); a bare word is a string. Nested at most
+    MAX_DEPTH deep (a deeper one would exhaust the recursion of the parser and the checks)."""
+    depth = deepest = 0
+    for ch in text:
+        depth += ch in "[{"
+        depth -= ch in "]}"
+        deepest = max(deepest, depth)
+    if deepest > MAX_DEPTH:
+        raise ScenarioError("value", text, f"a TOML value nested at most {MAX_DEPTH} deep")
     try:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+
+
+MAX_DEPTH = 32
 
 
 def split_values(text: str) -> list[str]:

@@ -43,7 +43,10 @@ class ResultsTable:
 
     # ------------------------------------------------------------------ reading
     def _load(self) -> None:
-        text = self.path.read_text()
+        try:
+            text = self.path.read_text()
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{self.path}: not UTF-8 text ({exc.reason})") from None
         complete = text if text.endswith("\n") else text[: text.rfind("\n") + 1]
         reader = csv.reader(io.StringIO(complete))
         header = next(reader, None)
@@ -53,7 +56,11 @@ class ResultsTable:
             raise ValueError(f"{self.path} has the columns {header[:len(self.fixed)]}, "
                              f"this study has {self.fixed}")
         self.columns = header
-        self.rows = [dict(zip(header, r, strict=True)) for r in reader if len(r) == len(header)]
+        try:       # rows of another length or without a run number are junk: not this study's
+            self.rows = [dict(zip(header, r, strict=True)) for r in reader
+                         if len(r) == len(header) and _run_number(r[0])]
+        except csv.Error as exc:         # e.g. a field longer than the csv module reads
+            raise ValueError(f"{self.path}: not a results table ({exc})") from None
         if complete != text:  # a torn last row: rewrite without it
             self._rewrite()
 
@@ -88,13 +95,21 @@ class ResultsTable:
     def _rewrite(self) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_name(self.path.name + ".tmp")
-        with open(tmp, "w", newline="") as f:
-            f.write(_line(self.columns))
-            for r in self.rows:
-                f.write(_line([r.get(c, "") for c in self.columns]))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, self.path)
+        try:
+            with open(tmp, "w", newline="") as f:
+                f.write(_line(self.columns))
+                for r in self.rows:
+                    f.write(_line([r.get(c, "") for c in self.columns]))
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)
+        except OSError:                 # disk full: the table on disk stays as it was
+            tmp.unlink(missing_ok=True)
+            raise
+
+
+def _run_number(text: str) -> bool:
+    return text.isascii() and text.isdigit()
 
 
 def _line(values: list[str]) -> str:

@@ -23,7 +23,7 @@ from mav.onboard.defs import (
     hz_to_us,
 )
 from mav.onboard.links import Chan, Outbox
-from mav.onboard.navigator import Navigator
+from mav.onboard.navigator import Navigator, speed_range
 from mav.onboard.status import VehicleStatus
 from mav.onboard.telemetry import Telemetry
 
@@ -96,7 +96,10 @@ class Commands:
         elif cmd == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             res = self.cmd.try_mode(RTL)
         elif cmd == M.MAV_CMD_DO_REPOSITION:
-            res = self.nav.reposition(p1, p2, p4, p5, p6, p7, frame)
+            # ground speed: the cruise parameter's range; below it (1e-30), the default
+            lo, hi = speed_range(0)
+            speed = min(p1, hi) if math.isfinite(p1) and p1 >= lo else math.nan
+            res = self.nav.reposition(speed, p2, p4, p5, p6, p7, frame)
         elif cmd == M.MAV_CMD_DO_CHANGE_SPEED:
             res = self.nav.change_speed(p1, p2)
         elif cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:

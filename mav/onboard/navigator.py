@@ -39,9 +39,20 @@ from mav.onboard.defs import (
 from mav.onboard.leg import Leg
 from mav.onboard.links import Outbox
 from mav.onboard.status import VehicleStatus
+from mav.params import ONBOARD_PARAMS
 
 RTL_IDLE, RTL_CLIMB, RTL_RETURN, RTL_DESCEND, RTL_WAIT, RTL_LAND, RTL_DONE = range(7)
 RTL_PHASE_NAMES = ("idle", "climb", "return", "descend", "wait", "land", "done")
+
+
+_SPEED_PARAMS = ("MPC_XY_CRUISE", "MPC_XY_CRUISE", "MPC_Z_V_AUTO_UP", "MPC_Z_V_AUTO_DN")
+_RANGES = {p.name: (p.min, p.max) for p in ONBOARD_PARAMS}
+
+
+def speed_range(kind: int) -> tuple[float, float]:
+    """(min, max) m/s a speed of DO_CHANGE_SPEED type `kind` (0/1 horizontal, 2 climb,
+    3 descent) may take: its parameter's range (PX4 clamps to its limits too)."""
+    return _RANGES[_SPEED_PARAMS[kind]]
 
 
 class Navigator:
@@ -245,12 +256,14 @@ class Navigator:
             return M.MAV_RESULT_DENIED
         if speed == -2.0:
             return M.MAV_RESULT_ACCEPTED
+        lo, hi = speed_range(int(kind))
         if speed == -1.0:
             v = NAN
-        elif speed > 0.0:
-            v = min(speed, 20.0)
+        elif speed >= lo:       # below the parameter's minimum (1e-30) a leg would never end
+            v = min(speed, hi)
         else:
-            self.out.statustext(f"Speed change denied: {speed:g} m/s", M.MAV_SEVERITY_WARNING)
+            self.out.statustext(f"Speed change denied: {speed:g} m/s (at least {lo:g})",
+                                M.MAV_SEVERITY_WARNING)
             return M.MAV_RESULT_DENIED
         k = int(kind)
         if k <= 1:

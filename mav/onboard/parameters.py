@@ -28,6 +28,8 @@ from mav.params import (
     read_param_file,
 )
 
+FLT_MIN = 1.1754943508222875e-38      # the smallest normal float32 (IEEE 754)
+
 
 class Parameters:
     def __init__(self, vs: VehicleStatus, outbox: Outbox, chans: list[Chan], for_us) -> None:
@@ -171,7 +173,13 @@ class Parameters:
         value = float(msg.param_value)
         env = self.outside_envelope(name, value)
         error = text = None
-        if env is not None and vs.armed:
+        if value != 0.0 and abs(value) < FLT_MIN:
+            # a subnormal float32 (< 1.18e-38 in magnitude) is no setting of any parameter
+            # (a corrupted or hostile value; as a capacity or a timeout it acts as 0 or
+            # divides into infinity): refused like a value out of range
+            error = M.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE
+            text = f"Param rejected: {name}: {value:g} is a subnormal number"
+        elif env is not None and vs.armed:
             vs.stats["param_denied_armed"] += 1
             error = M.MAV_PARAM_ERROR_PERMISSION_DENIED
             text = (f"{name} {value:g} refused while armed: in flight "

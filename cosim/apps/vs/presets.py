@@ -68,7 +68,7 @@ PRESETS: dict[str, dict[str, Any]] = {
 def resolve(params: dict[str, Any]) -> dict[str, Any]:
     """The app's parameters: DEFAULTS, then the preset's values, then the user's; checked."""
     name = params.get("preset", DEFAULTS["preset"])
-    if name not in PRESETS:
+    if not isinstance(name, str) or name not in PRESETS:
         raise ValueError(f"app.params.preset: got {name!r}; allowed: {', '.join(PRESETS)}")
     out = check_params({**PRESETS[name], **params}, DEFAULTS, "visual_servo")
     for k in ("l0", "linf", "l0_slope", "t_eps_px", "t_eps_final_px", "lambda_a", "lambda_m",

@@ -81,6 +81,8 @@ def teach_command(args) -> int:
         raise ScenarioError("app.params.keys", keys, "the [n, e, d, yaw_deg] poses to teach")
     detector, n_features = params["detector"], params["n_features"]
     out = Path(args.out or f"runs/visual-paths/{sc.name}")
+    if out.exists() and not out.is_dir():
+        raise ScenarioError("--out", str(out), "a folder for the visual path (this is a file)")
     poses = [tuple(float(v) for v in k) for k in keys]
     if not args.fly:
         VP.teach_by_render(sc, poses, out, detector, n_features)

@@ -4,9 +4,12 @@ Format (version 1), a folder:
 - `path.json`: {"format": "cosim-visual-path", "version": 1, "taught_by": "render" |
   "flight", "scenario": name, "world": name, "detector": "sift" | "gftt" | "orb",
   "n_features": int, "camera": {"width", "height", "fx", "fy", "cx", "cy", "mount_B"},
-  "keys": [{"image": "000.png", "pose": [n, e, d, yaw_deg]}, ...]}. The poses are the true
-  poses the key images were taken at (world NED, m; yaw from North): for metrics only, never
-  given to the controller.
+  "keys": [{"image": "000.png", "pose": [n, e, d, yaw_deg], "sha256": hash of the PNG file,
+  "features_sha256": hash of the key's features}, ...]}. The poses are the true poses the
+  key images were taken at (world NED, m; yaw from North): for metrics only, never given to
+  the controller. The hashes (issue 31) refuse a key image or features changed after
+  teaching; a hand-made folder without them has its features detected from the images.
+A repeat refuses a folder whose camera (size, intrinsics, mount) is not the scenario's.
 - `000.png`, `001.png`, ...: the key images (RGB as PNG), in the order they are repeated.
 - `features.npz`: for key i, `pts_i` (N x 2 float32 pixel positions) and `desc_i` (N x D
   descriptors) of the path's detector: precomputed so the repeat does not detect on keys.
@@ -17,6 +20,7 @@ listed pose, level (as in hover), with the camera's noise from a teach-only seed
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -60,6 +64,14 @@ def camera_dict(cfg) -> dict:
             "cx": cfg.cx, "cy": cfg.cy, "mount_B": list(cfg.mount_B)}
 
 
+def folder_of(value: str, source: str | None) -> Path:
+    """The folder an `app.params.visual_path` names: relative to the scenario file's folder."""
+    folder = Path(value)
+    if not folder.is_absolute() and source:
+        folder = Path(source).parent / folder
+    return folder
+
+
 def teach_by_render(scenario, poses, folder: Path, detector: str, n_features: int) -> Path:
     """Render the key images at `poses` ([n, e, d, yaw_deg] rows) and write the folder."""
     from cosim.sensors.camera import make_camera
@@ -78,8 +90,24 @@ def teach_by_render(scenario, poses, folder: Path, detector: str, n_features: in
                  taught_by="render", scenario=scenario.name, world=scenario.world.name)
 
 
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def features_hash(pts: np.ndarray, desc: np.ndarray) -> str:
+    """The hash of one key's features (dtype, shape and bytes of both arrays)."""
+    h = hashlib.sha256()
+    for a in (pts, desc):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
 def write(folder: Path, images, poses, camera: dict, detector: str, n_features: int, *,
           taught_by: str, scenario: str, world: str) -> Path:
+    """Write the folder; path.json holds the sha256 of each key image file and of its
+    features, so a key whose image or features were changed afterwards is refused."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     det = Detector(detector, n_features)
@@ -87,11 +115,14 @@ def write(folder: Path, images, poses, camera: dict, detector: str, n_features: 
     keys = []
     for i, (img, pose) in enumerate(zip(images, poses, strict=True)):
         name = f"{i:03d}.png"
-        if not cv2.imwrite(str(folder / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
-            raise OSError(f"could not write {folder / name}")
+        ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise OSError(f"could not encode {folder / name}")
+        (folder / name).write_bytes(png.tobytes())
         pts, desc = det.detect(gray_of(img))
         arrays[f"pts_{i}"], arrays[f"desc_{i}"] = pts, desc
-        keys.append({"image": name, "pose": [float(v) for v in pose]})
+        keys.append({"image": name, "pose": [float(v) for v in pose],
+                     "sha256": _sha256(png.tobytes()), "features_sha256": features_hash(pts, desc)})
     np.savez(folder / "features.npz", **arrays)
     meta = {"format": FORMAT, "version": VERSION, "taught_by": taught_by, "scenario": scenario,
             "world": world, "detector": detector, "n_features": int(n_features),
@@ -100,48 +131,164 @@ def write(folder: Path, images, poses, camera: dict, detector: str, n_features: 
     return folder
 
 
-def load(folder: Path | str) -> VisualPath:
-    """Read a visual path folder; ValueError naming the file and what is wrong."""
+def _finite(v, what: str, pj: Path, positive: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or (
+            positive and v <= 0):
+        raise ValueError(f"{pj}: {what} must be a finite number{' > 0' if positive else ''}"
+                         f" (got {str(v)[:40]!r})")
+    return float(v)
+
+
+def read_meta(folder: Path | str) -> dict:
+    """path.json of a visual path folder, every field checked: ValueError naming the file and
+    the field. Adds the parsed `_K`, `_size`, `_mount`, `_poses`."""
     folder = Path(folder)
     pj = folder / "path.json"
     try:
         meta = json.loads(pj.read_text())
     except FileNotFoundError:
         raise ValueError(f"{pj}: no visual path here (teach one with `cosim teach`)") from None
+    except (OSError, UnicodeDecodeError, RecursionError) as exc:
+        raise ValueError(f"{pj}: unreadable ({type(exc).__name__})") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{pj}: not JSON ({exc})") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT or meta.get("version") != 1:
         raise ValueError(f"{pj}: not a {FORMAT} version {VERSION} file")
+    cam = meta.get("camera")
+    if not isinstance(cam, dict):
+        raise ValueError(f"{pj}: camera must be a table of the taught camera")
+    w, h = cam.get("width"), cam.get("height")
+    for k, v in (("width", w), ("height", h)):
+        if isinstance(v, bool) or not isinstance(v, int) or not 16 <= v <= 4096:
+            raise ValueError(f"{pj}: camera.{k} must be an integer 16..4096 (got "
+                             f"{str(v)[:40]!r})")
+    fx, fy = (_finite(cam.get(k), f"camera.{k}", pj, positive=True) for k in ("fx", "fy"))
+    cx, cy = (_finite(cam.get(k), f"camera.{k}", pj) for k in ("cx", "cy"))
+    mount = cam.get("mount_B")
+    if not isinstance(mount, list) or len(mount) != 3:
+        raise ValueError(f"{pj}: camera.mount_B must be [x, y, z] (m)")
+    meta["_mount"] = tuple(_finite(v, "camera.mount_B", pj) for v in mount)
+    meta["_K"] = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    meta["_size"] = (w, h)
+    if meta.get("detector") not in DETECTORS:
+        raise ValueError(f"{pj}: detector must be one of {', '.join(DETECTORS)}")
+    n = meta.get("n_features")
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"{pj}: n_features must be an integer >= 1")
+    entries = meta.get("keys")
+    if not isinstance(entries, list) or not entries:
+        raise ValueError(f"{pj}: keys must be a non-empty list")
+    poses = []
+    for i, k in enumerate(entries):
+        if not isinstance(k, dict) or not isinstance(k.get("image"), str) or not k["image"] \
+                or Path(k["image"]).name != k["image"]:
+            raise ValueError(f"{pj}: keys[{i}].image must name a file of the folder")
+        pose = k.get("pose", [math.nan] * 4)
+        if not isinstance(pose, list) or len(pose) != 4:
+            raise ValueError(f"{pj}: keys[{i}].pose must be [n, e, d, yaw_deg]")
+        poses.append(tuple(_finite(v, f"keys[{i}].pose", pj) for v in pose))
+    meta["_poses"] = poses
+    return meta
+
+
+def _features(folder: Path, meta: dict) -> dict[int, tuple[np.ndarray, np.ndarray]] | None:
+    """The precomputed features, checked against the hashes in path.json; None when the
+    folder has no hashes (hand-made: the features are then detected from the images)."""
+    npz = folder / "features.npz"
+    entries = meta["keys"]
+    if not all(isinstance(k.get("features_sha256"), str) for k in entries):
+        return None
     try:
-        cam = meta["camera"]
-        K = np.array([[float(cam["fx"]), 0.0, float(cam["cx"])],
-                      [0.0, float(cam["fy"]), float(cam["cy"])], [0.0, 0.0, 1.0]])
-        size = (int(cam["width"]), int(cam["height"]))
-        mount = tuple(float(v) for v in cam["mount_B"])
-        detector = str(meta["detector"])
-        n_features = int(meta["n_features"])
-        entries = list(meta["keys"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{pj}: missing or bad field ({exc})") from None
-    if detector not in DETECTORS or not entries:
-        raise ValueError(f"{pj}: detector must be one of {DETECTORS} and keys not empty")
-    feats = np.load(folder / "features.npz") if (folder / "features.npz").exists() else None
+        with np.load(npz, allow_pickle=False) as f:
+            arrays = {name: f[name] for name in f.files}
+    except FileNotFoundError:
+        raise ValueError(f"{npz}: missing (path.json lists features for every key)") from None
+    except Exception as exc:         # not a zip of plain arrays (object arrays need pickle)
+        raise ValueError(f"{npz}: not a features file of numeric arrays "
+                         f"({type(exc).__name__})") from None
+    out = {}
+    for i, k in enumerate(entries):
+        pts, desc = arrays.get(f"pts_{i}"), arrays.get(f"desc_{i}")
+        if pts is None or desc is None or features_hash(pts, desc) != k["features_sha256"]:
+            raise ValueError(f"{npz}: the features of key {i} ({k['image']}) do not match "
+                             f"path.json keys[{i}].features_sha256 (changed after teaching; "
+                             "teach the path again)")
+        out[i] = (pts, desc)
+    return out
+
+
+def check_camera(meta: dict, cfg, folder: Path) -> None:
+    """The scenario's camera must be the taught one: same kind (front), image size,
+    intrinsics and mount. ValueError naming path.json and the field."""
+    pj = Path(folder) / "path.json"
+    if getattr(cfg, "kind", None) != "front":
+        raise ValueError(f"{pj}: taught with a front camera; the scenario has "
+                         f"{getattr(cfg, 'kind', 'no')} camera")
+    w, h = meta["_size"]
+    if (w, h) != (cfg.width, cfg.height):
+        raise ValueError(f"{pj}: camera.width x height {w}x{h} taught, the scenario's camera "
+                         f"is {cfg.width}x{cfg.height}")
+    K = meta["_K"]
+    for name, taught, now in (("fx", K[0, 0], cfg.fx), ("fy", K[1, 1], cfg.fy),
+                              ("cx", K[0, 2], cfg.cx), ("cy", K[1, 2], cfg.cy)):
+        if not math.isclose(taught, now, rel_tol=1e-6, abs_tol=1e-6):
+            raise ValueError(f"{pj}: camera.{name} {taught:g} taught, the scenario's camera has "
+                             f"{now:g}")
+    if not all(math.isclose(a, b, abs_tol=1e-9) for a, b in zip(meta["_mount"], cfg.mount_B,
+                                                                  strict=True)):
+        raise ValueError(f"{pj}: camera.mount_B {list(meta['_mount'])} taught, the scenario's "
+                         f"camera has {list(cfg.mount_B)}")
+
+
+def _image(folder: Path, meta: dict, i: int) -> np.ndarray:
+    k = meta["keys"][i]
+    path = folder / k["image"]
+    try:
+        data = path.read_bytes()
+    except OSError:
+        raise ValueError(f"{path}: missing or unreadable") from None
+    want = k.get("sha256")
+    if isinstance(want, str) and _sha256(data) != want:
+        raise ValueError(f"{path}: differs from the image taught (path.json keys[{i}].sha256); "
+                         "teach the path again")
+    bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
+    size = meta["_size"]
+    if bgr is None or (bgr.shape[1], bgr.shape[0]) != size:
+        raise ValueError(f"{path}: missing, unreadable or not {size[0]}x{size[1]}")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def check(folder: Path | str, camera=None) -> dict:
+    """A readable taught folder that fits `camera` (when given): path.json, each key image
+    against its hash, the features against theirs. The checked meta; ValueError otherwise."""
+    folder = Path(folder)
+    meta = read_meta(folder)
+    if camera is not None:
+        check_camera(meta, camera, folder)
+    for i in range(len(meta["keys"])):
+        _image(folder, meta, i)
+    _features(folder, meta)
+    return meta
+
+
+def load(folder: Path | str, camera=None) -> VisualPath:
+    """Read a visual path folder (checked as `check` does); ValueError naming the file and
+    what is wrong."""
+    folder = Path(folder)
+    meta = read_meta(folder)
+    if camera is not None:
+        check_camera(meta, camera, folder)
+    feats = _features(folder, meta)
     det = None
     keys = []
-    for i, k in enumerate(entries):
-        path = folder / str(k["image"])
-        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if bgr is None or (bgr.shape[1], bgr.shape[0]) != size:
-            raise ValueError(f"{path}: missing, unreadable or not {size[0]}x{size[1]}")
-        img = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    for i, pose in enumerate(meta["_poses"]):
+        img = _image(folder, meta, i)
         gray = gray_of(img)
-        if feats is not None and f"pts_{i}" in feats:
-            pts, desc = feats[f"pts_{i}"], feats[f"desc_{i}"]
+        if feats is not None:
+            pts, desc = feats[i]
         else:                                    # a hand-made folder: detect now
-            det = det or Detector(detector, n_features)
+            det = det or Detector(meta["detector"], meta["n_features"])
             pts, desc = det.detect(gray)
-        pose = tuple(float(v) for v in k.get("pose", [math.nan] * 4))
-        if len(pose) != 4:
-            raise ValueError(f"{pj}: keys[{i}].pose must be [n, e, d, yaw_deg]")
         keys.append(Key(img, gray, pts, desc, pose))
-    return VisualPath(keys, K, size, mount, detector, n_features, meta)
+    return VisualPath(keys, meta["_K"], meta["_size"], meta["_mount"], meta["detector"],
+                      meta["n_features"], meta)
