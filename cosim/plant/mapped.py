@@ -89,7 +89,7 @@ class MappedPlant:
     """An FMU plant with the interface of `cosim.plant.fmu.Plant` (`y`, `step`, `k`, `t`,
     `reset`, `close`), converted by its map. `x0, y0, yaw0`: the start on the floor (NED m,
     rad); with a `start` map they are the FMU's parameters, without one the master places
-    the FMU's origin (facing its x axis) there."""
+    the FMU's origin there, its x axis (the heading it starts with) turned to yaw0."""
 
     def __init__(self, vehicle, spec: PlantSpec, *, step_size: float = 0.005,
                  x0: float = 0.0, y0: float = 0.0, yaw0: float = 0.0) -> None:
@@ -112,10 +112,13 @@ class MappedPlant:
         self.map = m
         self._fmi3 = md.fmiVersion.startswith("3")
         self._start = (x0, y0, yaw0)
-        # the master places the FMU's origin unless the FMU takes the start as parameters
-        self._offset = not m.start and (x0, y0, yaw0) != (0.0, 0.0, 0.0)
-        self._q_yaw = (math.cos(0.5 * yaw0), 0.0, 0.0, math.sin(0.5 * yaw0))
-        self._cy, self._sy = math.cos(yaw0), math.sin(yaw0)
+        # the master places the FMU's origin unless the FMU takes the start as parameters: its
+        # frame turned by psi about the vertical, so that its x axis (the heading it starts
+        # with) points to yaw0 (ENU's x axis is east: 90 degrees in NED)
+        psi = yaw0 - (0.0 if m.world == "NED" else math.pi / 2)
+        self._offset = not m.start and (x0, y0, psi) != (0.0, 0.0, 0.0)
+        self._q_yaw = (math.cos(0.5 * psi), 0.0, 0.0, math.sin(0.5 * psi))
+        self._cy, self._sy = math.cos(psi), math.sin(psi)
         self._in = m.inputs
         self._in_cmd = [m.inputs[k] for k in (("u1", "u2", "u3", "u4") if m.command == "rotors"
                                               else ("thrust", "tau_x", "tau_y", "tau_z"))]

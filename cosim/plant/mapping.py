@@ -29,9 +29,9 @@ A scenario names any FMI 2.0 or 3.0 Co-Simulation FMU as the plant and says how 
     m = "mass"        # a string: the preset's field of that name; a number: as it is
 
     [vehicle.fmu_map.start]             # optional: its parameters that take the start pose
-    x = "x0"                            # (else the master puts its origin, facing its x
-    y = "y0"                            # axis, at [vehicle.start])
-    yaw = "psi0"
+    x = "x0"                            # (else the master puts its origin at [vehicle.start]
+    y = "y0"                            # and turns its x axis, the heading it starts with,
+    yaw = "psi0"                        # to the start's yaw)
 
 Units: a variable's unit is the one given in the map, else the one the FMU declares (its
 UnitDefinitions give the factor to SI), else SI. A rotor input with the unit of an angular
@@ -45,6 +45,7 @@ variable of the wrong causality or type, or a unit of the wrong dimension raises
 
 from __future__ import annotations
 
+import difflib
 import math
 import zipfile
 from dataclasses import dataclass, field
@@ -222,7 +223,7 @@ def check_map(m: dict, md, vehicle, where: str) -> PlantMap:
             raise ScenarioError(f, spec, "the FMU's variable name, or { name = ..., unit = ... }")
         mv = variables.get(name)
         if mv is None:
-            raise ScenarioError(f, name, f"a variable of the FMU ({_some(variables)})")
+            raise ScenarioError(f, name, f"a variable of the FMU ({_some(variables, name)})")
         if mv.causality not in causalities:
             raise ScenarioError(f, name, f"a variable with causality {' or '.join(causalities)}"
                                          f" (it is {mv.causality})")
@@ -269,7 +270,7 @@ def check_map(m: dict, md, vehicle, where: str) -> PlantMap:
         f = f"{where}.parameters.{k}"
         mv = variables.get(k)
         if mv is None or mv.causality != "parameter":
-            raise ScenarioError(f, val, f"a parameter of the FMU ({_some(variables)})")
+            raise ScenarioError(f, val, f"a parameter of the FMU ({_some(variables, k)})")
         if isinstance(val, str):
             if val not in fields:
                 raise ScenarioError(f, val, f"a number, or a field of the preset "
@@ -309,7 +310,10 @@ def _dim_name(d) -> str:
     return names.get(d, f"kg^{d[0]} m^{d[1]} s^{d[2]}")
 
 
-def _some(variables: dict) -> str:
-    names = sorted(variables)
+def _some(variables: dict, name: str) -> str:
+    """What the FMU has: the names closest to `name` first."""
+    close = difflib.get_close_matches(name, list(variables), n=3, cutoff=0.5)
+    names = close + [n for n in sorted(variables) if n not in close]
     more = f", ... {len(names) - 12} more" if len(names) > 12 else ""
-    return "it has " + ", ".join(names[:12]) + more
+    return ("did you mean " + " or ".join(close) + "? " if close else "") + "it has " + \
+        ", ".join(names[:12]) + more
