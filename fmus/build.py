@@ -5,9 +5,10 @@ and packs ``build/Quadrotor.fmu`` (modelDescription.xml, binaries/linux64/Quadro
 sources/). ``--fmi 3`` builds the same model as FMI 3.0 Co-Simulation, ``build/Quadrotor3.fmu``:
 model.c and fmi2.c with the FMI 2.0 names made internal (FMI2_FUNCTION_PREFIX) plus the FMI 3.0
 glue fmi3.c, binaries/x86_64-linux/Quadrotor.so and the description `fmus/fmi3md.py` writes
-from the FMI 2.0 one. The archive is deterministic (sorted entries, fixed timestamps and permissions), so
-two builds of the same sources give the same bytes. A build is skipped when a hash of the
-sources, the headers and the compiler flags matches the one recorded next to the FMU.
+from the FMI 2.0 one. The archive is deterministic (sorted entries, fixed timestamps and
+permissions), so two builds of the same sources give the same bytes. A build is skipped when a
+hash of the sources, the headers and the compiler flags matches the one recorded next to the
+FMU.
 
 Examples::
 

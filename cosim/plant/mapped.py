@@ -266,8 +266,8 @@ class MappedPlant:
         self._call("set inputs", lambda: self._set_real(self._in_vrs, vals))
         res = self._call("DoStep", lambda: self._do_step(t, self.step_size))
         if self._fmi3 and res[1]:
-            raise ComponentError("plant", f"the FMU asked to terminate at t = {t + self.step_size:.6g}"
-                                          f" s: {self._drain()}")
+            raise ComponentError("plant", f"the FMU asked to terminate at t = "
+                                          f"{t + self.step_size:.6g} s: {self._drain()}")
         self.k += 1
         return self._read()
 
@@ -309,6 +309,12 @@ class MappedPlant:
             p = (n0 + c * p[0] - s * p[1], e0 + s * p[0] + c * p[1], p[2])
             vel = (c * vel[0] - s * vel[1], s * vel[0] + c * vel[1], vel[2])
             q = qmul(self._q_yaw, q)
+        # q and -q are one attitude: keep the sign continuous (Euler angles wrapping at 180
+        # degrees, the frame products), starting with qw >= 0, as the FMU integrates it
+        qp = y[6:10]
+        dot = q[0] * qp[0] + q[1] * qp[1] + q[2] * qp[2] + q[3] * qp[3]
+        if dot < 0.0 or (dot != dot and q[0] < 0.0):
+            q = (-q[0], -q[1], -q[2], -q[3])
         y[0:3] = p
         y[3:6] = vel
         y[6:10] = q

@@ -270,7 +270,8 @@ def check_map(m: dict, md, vehicle, where: str) -> PlantMap:
         f = f"{where}.parameters.{k}"
         mv = variables.get(k)
         if mv is None or mv.causality != "parameter":
-            raise ScenarioError(f, val, f"a parameter of the FMU ({_some(variables, k)})")
+            params_of = {n: mv for n, mv in variables.items() if mv.causality == "parameter"}
+            raise ScenarioError(f, val, f"a parameter of the FMU ({_some(params_of, k)})")
         if isinstance(val, str):
             if val not in fields:
                 raise ScenarioError(f, val, f"a number, or a field of the preset "

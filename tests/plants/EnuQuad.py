@@ -69,9 +69,12 @@ class EnuQuad(Fmi2Slave):
     def deriv(self, s, cmd, wind):
         px, py, pz, vx, vy, vz, qw, qx, qy, qz, p, q, r = s[:13]
         w = s[13:17]
-        r00, r01, r02 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)
-        r10, r11, r12 = 2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)
-        r20, r21, r22 = 2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)
+        r00, r01, r02 = (1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz),
+                         2 * (qx * qz + qw * qy))
+        r10, r11, r12 = (2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz),
+                         2 * (qy * qz - qw * qx))
+        r20, r21, r22 = (2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx),
+                         1 - 2 * (qx * qx + qy * qy))
         if self.wrench:
             thrust, tx, ty, tz = self.thrust, self.torque_x, self.torque_y, self.torque_z
         else:
@@ -98,7 +101,7 @@ class EnuQuad(Fmi2Slave):
         dqx = 0.5 * (qw * p + qy * r - qz * q)
         dqy = 0.5 * (qw * q + qz * p - qx * r)
         dqz = 0.5 * (qw * r + qx * q - qy * p)
-        dw = [(c - wi) / self.tau_m for c, wi in zip(cmd, w)]
+        dw = [(c - wi) / self.tau_m for c, wi in zip(cmd, w, strict=True)]
         return [vx, vy, vz, *dv, dqw, dqx, dqy, dqz, dp, dq, dr, *dw]
 
     def do_step(self, current_time, step_size):
@@ -109,11 +112,11 @@ class EnuQuad(Fmi2Slave):
         s = self.s
         for _ in range(n):
             k1 = self.deriv(s, cmd, wind)
-            k2 = self.deriv([a + 0.5 * h * b for a, b in zip(s, k1)], cmd, wind)
-            k3 = self.deriv([a + 0.5 * h * b for a, b in zip(s, k2)], cmd, wind)
-            k4 = self.deriv([a + h * b for a, b in zip(s, k3)], cmd, wind)
+            k2 = self.deriv([a + 0.5 * h * b for a, b in zip(s, k1, strict=True)], cmd, wind)
+            k3 = self.deriv([a + 0.5 * h * b for a, b in zip(s, k2, strict=True)], cmd, wind)
+            k4 = self.deriv([a + h * b for a, b in zip(s, k3, strict=True)], cmd, wind)
             s = [a + h / 6.0 * (b1 + 2 * b2 + 2 * b3 + b4)
-                 for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)]
+                 for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4, strict=True)]
             nq = math.sqrt(sum(c * c for c in s[6:10]))
             s[6:10] = [c / nq for c in s[6:10]]
             if s[2] < 0.0:        # the floor: stop, level, keep the heading
