@@ -27,14 +27,13 @@ import math
 import shutil
 
 from cosim.errors import ComponentError
-from cosim.plant.fmu import OUTPUT_NAMES, Y_ON_GROUND
+from cosim.plant.fmu import OUTPUT_NAMES, Y_ON_GROUND, FmuPlant
 from cosim.plant.mapping import RATE, PlantMap, PlantSpec, own_map, read_description
 
 GROUND_EPS_M = 0.01      # m: without an on_ground output, "on the ground" is z_NED > -this
 _S = math.sqrt(0.5)
 _Q_ENU_TO_NED = (0.0, _S, _S, 0.0)   # rotation taking ENU coordinates to NED ones
 _Q_FRD_TO_FLU = (0.0, 1.0, 0.0, 0.0)  # pi about x: FRD <-> FLU
-_STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 
 
 # ------------------------------------------------------------------ frames (plain functions)
@@ -85,7 +84,7 @@ def attitude_to_ned_frd(q, world: str, body: str) -> tuple[float, float, float, 
 
 
 # ------------------------------------------------------------------ the plant
-class MappedPlant:
+class MappedPlant(FmuPlant):
     """An FMU plant with the interface of `cosim.plant.fmu.Plant` (`y`, `step`, `k`, `t`,
     `reset`, `close`), converted by its map. `x0, y0, yaw0`: the start on the floor (NED m,
     rad); with a `start` map they are the FMU's parameters, without one the master places
@@ -222,23 +221,6 @@ class MappedPlant:
                 shutil.rmtree(self._unzipdir, ignore_errors=True)
                 self._unzipdir = None
 
-    def __enter__(self) -> MappedPlant:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:
-            pass
-
-    @property
-    def t(self) -> float:
-        """Simulated time of the latest outputs, s (= k * step_size)."""
-        return self.k * self.step_size
-
     # ---- the tick --------------------------------------------------------------------------
     def step(self, u1: float, u2: float, u3: float, u4: float, wind_n: float = 0.0,
              wind_e: float = 0.0, wind_d: float = 0.0) -> list[float]:
@@ -347,22 +329,12 @@ class MappedPlant:
         from fmpy.logging import addLoggerProxy
 
         cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(self._log2)
+        cb.logger = fmi2CallbackLoggerTYPE(self._log)
         cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         addLoggerProxy(byref(cb))
         self._cb = cb            # kept alive as long as the instance
         return cb
 
-    def _log2(self, env, instance_name, status, category, message) -> None:
-        self._log3(env, status, category, message)
-
     def _log3(self, env, status, category, message) -> None:
-        text = message.decode("utf-8", "replace") if message else ""
-        label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
-        self._messages.append(f"[{label}] {text}")
-
-    def _drain(self) -> str:
-        msgs = "; ".join(self._messages)
-        self._messages.clear()
-        return msgs or "no message from the FMU"
+        self._log(env, None, status, category, message)
