@@ -118,7 +118,6 @@ class MappedPlant(FmuPlant):
         self._offset = not m.start and (x0, y0, psi) != (0.0, 0.0, 0.0)
         self._q_yaw = (math.cos(0.5 * psi), 0.0, 0.0, math.sin(0.5 * psi))
         self._cy, self._sy = math.cos(psi), math.sin(psi)
-        self._in = m.inputs
         self._in_cmd = [m.inputs[k] for k in (("u1", "u2", "u3", "u4") if m.command == "rotors"
                                               else ("thrust", "tau_x", "tau_y", "tau_z"))]
         self._in_wind = [m.inputs[k] for k in ("wind_x", "wind_y", "wind_z") if k in m.inputs]
@@ -165,11 +164,12 @@ class MappedPlant(FmuPlant):
             self._set_real, self._get_real = fmu.setReal, fmu.getReal
         self._fmu = fmu
         self._get_bool, self._do_step = fmu.getBoolean, fmu.doStep
-        reals, bools, ints = [], [], []
+        types = {mv.name: mv.type for mv in md.modelVariables}
+        by_type: dict[str, list] = {}          # "Real", "Boolean", "Int32", ... -> (vr, value)
         for name, vr, val in m.parameters:
             val = getattr(v, val) if isinstance(val, str) else val
-            (bools if isinstance(val, bool) else ints if isinstance(val, int)
-             and not self._real(name) else reals).append((vr, val))
+            by_type.setdefault(types[name], []).append((vr, val))
+        reals = by_type.pop("Float64" if self._fmi3 else "Real", [])
         if m.start:
             n, e, yaw = self._start
             x, y = (n, e) if m.world == "NED" else (e, n)
@@ -179,11 +179,11 @@ class MappedPlant(FmuPlant):
                 reals.append((s.vr, (val - s.offset) / s.factor))
         if reals:
             self._call("set parameters", lambda: self._set_real(*zip(*reals, strict=True)))
-        if bools:
-            self._call("set parameters", lambda: fmu.setBoolean(*zip(*bools, strict=True)))
-        if ints:
-            setter = fmu.setInt64 if self._fmi3 else fmu.setInteger
-            self._call("set parameters", lambda: setter(*zip(*ints, strict=True)))
+        for t, pairs in by_type.items():   # fmpy's setBoolean, setInteger, setInt32, ...
+            if t == "Enumeration":
+                t = "Int64" if self._fmi3 else "Integer"
+            setter = getattr(fmu, f"set{t}")
+            self._call("set parameters", lambda s=setter, p=pairs: s(*zip(*p, strict=True)))
         if self._fmi3:
             self._call("fmi3EnterInitializationMode", lambda: fmu.enterInitializationMode(
                 startTime=0.0))
@@ -192,10 +192,6 @@ class MappedPlant(FmuPlant):
             self._call("fmi2EnterInitializationMode", fmu.enterInitializationMode)
         self._call("ExitInitializationMode", fmu.exitInitializationMode)
         self._read()
-
-    def _real(self, name: str) -> bool:
-        return any(mv.name == name and mv.type in ("Real", "Float64")
-                   for mv in self._md.modelVariables)
 
     def reset(self) -> None:
         """Back to t = 0: a fresh instance of the FMU (any FMU can do that)."""

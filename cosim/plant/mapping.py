@@ -87,6 +87,8 @@ _ROTORS = {"u1": None, "u2": None, "u3": None, "u4": None}   # ONE or RATE
 _WRENCH = {"thrust": FORCE, "tau_x": TORQUE, "tau_y": TORQUE, "tau_z": TORQUE}
 _WIND = {"wind_x": VELOCITY, "wind_y": VELOCITY, "wind_z": VELOCITY}
 _START = {"x": LENGTH, "y": LENGTH, "yaw": ANGLE}
+_INTEGER_TYPES = ("Integer", "Enumeration", "Int8", "UInt8", "Int16", "UInt16", "Int32",
+                  "UInt32", "Int64", "UInt64")
 
 
 @dataclass(frozen=True)
@@ -280,6 +282,9 @@ def check_map(m: dict, md, vehicle, where: str) -> PlantMap:
                 raise ScenarioError(f, val, "true or false (a Boolean parameter)")
         elif mv.type in ("Real", "Float64"):
             val = number(p, k, f"{where}.parameters")
+        elif mv.type not in _INTEGER_TYPES:
+            raise ScenarioError(f, val, f"a Real, Boolean or integer parameter (it is "
+                                        f"{mv.type})")
         elif isinstance(val, bool) or not isinstance(val, int):
             raise ScenarioError(f, val, f"an integer (a {mv.type} parameter)")
         params.append((k, mv.valueReference, val))
