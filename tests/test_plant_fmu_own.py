@@ -222,6 +222,8 @@ def test_map_errors_name_the_variable(enu_fmu):
     msg = bad(enu_fmu, lambda m: m["parameters"].update(Jxy=1.0))           # not its name
     assert "vehicle.fmu_map.parameters.Jxy" in msg and "did you mean" in msg and "Jxx" in msg
     assert "pos_e" not in msg                                               # parameters only
+    msg = bad(enu_fmu, lambda m: m["inputs"].pop("wind_x"))
+    assert "wind_x, wind_y and wind_z" in msg                               # all or none
     raw = tomllib.loads((SCEN / "mambo_seed_wind.toml").read_text())
     mm = enu_map()
     del mm["inputs"]["wind_x"]

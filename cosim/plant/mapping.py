@@ -257,6 +257,9 @@ def check_map(m: dict, md, vehicle, where: str) -> PlantMap:
 
     cmd = _ROTORS if command == "rotors" else _WRENCH
     inputs = group("inputs", {**cmd, **_WIND}, set(cmd), ("input",))
+    wind = sorted(set(inputs) & set(_WIND))
+    if wind and len(wind) != len(_WIND):
+        raise ScenarioError(f"{where}.inputs", wind, "all of wind_x, wind_y and wind_z, or none")
     att = _QUAT if attitude == "quaternion" else _EULER
     outputs = group("outputs", {**_POS, **att, **_OPTIONAL_OUT}, set(_POS) | set(att),
                     ("output",))
