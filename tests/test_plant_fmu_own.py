@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from fmpy.validation import validate_fmu
 
-from cosim.errors import ScenarioError
+from cosim.errors import ComponentError, ScenarioError
 from cosim.outputs.report import summarize
 from cosim.plant.fmu import Plant
 from cosim.plant.mapped import (
@@ -90,6 +90,12 @@ def test_fmi3_build_steps_like_the_fmi2_fast_path():
         assert list(b.y) == y_end
 
 
+def test_fmi3_build_reports_the_fmus_message():
+    with MappedPlant(MAMBO, PlantSpec(None, 3, None)) as p:
+        with pytest.raises(ComponentError, match="input 'u3' must be a number"):
+            p.step(0.5, 0.5, math.nan, 0.5)
+
+
 def test_fmi3_scenario_flies_the_square_as_the_fmi2_one():
     res3, s3 = fly(load_scenario(SCEN / "scripted_square_fmi3.toml"))
     res2, _ = fly(load_scenario(SCEN / "scripted_square.toml"))
@@ -127,8 +133,11 @@ def test_pythonfmu_plant_flies_the_scripted_square(enu_fmu):
     assert s["metrics"]["position_error_max_m"] <= 0.15
 
 
-def test_pythonfmu_plant_flies_the_bebop2_square_in_sil(enu_fmu):
-    fly(scenario_on("bebop2_scripted_square.toml", enu_fmu, enu_map()), mode="sil")
+def test_pythonfmu_plant_flies_the_bebop2_square_in_sil_as_in_mil(enu_fmu):
+    sc = scenario_on("bebop2_scripted_square.toml", enu_fmu, enu_map())
+    sil, _ = fly(sc, mode="sil")
+    mil, _ = fly(sc, mode="mil")
+    assert np.array_equal(sil.series, mil.series, equal_nan=True)
 
 
 def test_pythonfmu_plant_flies_the_seed_mission(enu_fmu):
