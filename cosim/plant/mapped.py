@@ -133,9 +133,16 @@ class MappedPlant(FmuPlant):
         self._out = [m.outputs[k] for k in self._out_keys]
         self._out_vrs = [v.vr for v in self._out]
         self._og = m.outputs.get("on_ground")
+        # unit conversions, only where a unit is not SI: (index, factor, offset)
+        self._in_scaled = [(i, v.factor, v.offset)
+                           for i, v in enumerate(self._in_cmd + self._in_wind) if not v.identity]
+        self._out_scaled = [(i, v.factor, v.offset)
+                            for i, v in enumerate(self._out) if not v.identity]
+        # our own conventions, every output there: y is the FMU's outputs as they are
         self._identity = (m.world == "NED" and m.body == "FRD" and m.attitude == "quaternion"
                           and m.acceleration == "body" and not self._offset
-                          and all(v.identity for v in self._out))
+                          and not self._out_scaled
+                          and self._out_keys == list(OUTPUT_NAMES[:Y_ON_GROUND]))
         #: latest outputs in OUTPUT_NAMES order (updated in place by step())
         self.y: list[float] = [math.nan] * len(OUTPUT_NAMES)
         self._unzipdir = extract(str(self.fmu_path))
@@ -238,10 +245,10 @@ class MappedPlant(FmuPlant):
                 wn, we = self._cy * wind_n + self._sy * wind_e, -self._sy * wind_n + \
                     self._cy * wind_e
             si += world_swap((wn, we, wind_d), m.world)
-        vals = [(x - var.offset) / var.factor if not var.identity else x
-                for x, var in zip(si, self._in_cmd + self._in_wind, strict=True)]
+        for i, factor, offset in self._in_scaled:
+            si[i] = (si[i] - offset) / factor
         t = self.k * self.step_size
-        self._call("set inputs", lambda: self._set_real(self._in_vrs, vals))
+        self._call("set inputs", lambda: self._set_real(self._in_vrs, si))
         res = self._call("DoStep", lambda: self._do_step(t, self.step_size))
         if self._fmi3 and res[1]:
             raise ComponentError("plant", f"the FMU asked to terminate at t = "
@@ -251,14 +258,13 @@ class MappedPlant(FmuPlant):
 
     def _read(self) -> list[float]:
         raw = self._call("get outputs", lambda: self._get_real(self._out_vrs))
-        o = {k: (x if var.identity else var.factor * x + var.offset)
-             for k, x, var in zip(self._out_keys, raw, self._out, strict=True)}
-        y, m = self.y, self.map
+        for i, factor, offset in self._out_scaled:
+            raw[i] = factor * raw[i] + offset
+        y = self.y
         if self._identity:
-            for i, name in enumerate(OUTPUT_NAMES[:Y_ON_GROUND]):
-                y[i] = o.get(name, math.nan)
+            y[:Y_ON_GROUND] = raw
         else:
-            self._convert(o, y, m)
+            self._convert(dict(zip(self._out_keys, raw, strict=True)), y, self.map)
         if self._og is not None:
             og = self._call("get on_ground", lambda: self._get_bool([self._og.vr]))[0]
             y[Y_ON_GROUND] = 1.0 if og else 0.0
