@@ -2,14 +2,19 @@
 
 Compiles ``fmus/quadrotor/*.c`` with gcc against the FMI 2.0 headers shipped in the fmpy wheel
 and packs ``build/Quadrotor.fmu`` (modelDescription.xml, binaries/linux64/Quadrotor.so,
-sources/). The archive is deterministic (sorted entries, fixed timestamps and permissions), so
-two builds of the same sources give the same bytes. A build is skipped when a hash of the
-sources, the headers and the compiler flags matches the one recorded next to the FMU.
+sources/). ``--fmi 3`` builds the same model as FMI 3.0 Co-Simulation, ``build/Quadrotor3.fmu``:
+model.c and fmi2.c with the FMI 2.0 names made internal (FMI2_FUNCTION_PREFIX) plus the FMI 3.0
+glue fmi3.c, binaries/x86_64-linux/Quadrotor.so and the description `fmus/fmi3md.py` writes
+from the FMI 2.0 one. The archive is deterministic (sorted entries, fixed timestamps and
+permissions), so two builds of the same sources give the same bytes. A build is skipped when a
+hash of the sources, the headers and the compiler flags matches the one recorded next to the
+FMU.
 
 Examples::
 
     python -m fmus.build            # build if the sources changed, print the path
     python -m fmus.build --force    # always rebuild
+    python -m fmus.build --fmi 3    # the FMI 3.0 Co-Simulation build
     python -m fmus.build --golden   # regenerate fmus/quadrotor/Quadrotor_out.csv
 """
 
@@ -40,6 +45,10 @@ CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99", "-Wall", "-Wextra", "-fvisibili
 LIBS = ("-lm",)
 GOLDEN_CSV = SOURCE_DIR / "Quadrotor_out.csv"
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+FMI_VERSIONS = (2, 3)
+# the FMI 3.0 build: extra sources and flags (the FMI 2.0 functions become internal names)
+FMI3_SOURCES = ("fmi3.c",)
+FMI3_CFLAGS = ("-DFMI2_FUNCTION_PREFIX=Quadrotor2_",)
 
 
 class BuildError(RuntimeError):
@@ -55,26 +64,55 @@ def _fmi_headers_dir() -> pathlib.Path:
     return d
 
 
-def _platform_dir() -> str:
+def _platform_dir(fmi: int = 2) -> str:
     if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64"):
-        return "linux64"
+        return "linux64" if fmi == 2 else "x86_64-linux"
     raise BuildError(
         f"building the FMU is supported on linux x86_64 only, not {sys.platform}/"
         f"{platform.machine()}"
     )
 
 
-def source_hash() -> str:
+def source_hash(fmi: int = 2) -> str:
     """SHA-256 over the FMU sources, the FMI headers, the compiler flags and gcc's version."""
     h = hashlib.sha256()
-    for name in (*C_SOURCES, *HEADERS, "modelDescription.xml"):
+    for name in (*_sources(fmi), *HEADERS, "modelDescription.xml"):
         h.update(name.encode() + b"\0" + (SOURCE_DIR / name).read_bytes() + b"\0")
     hdr = _fmi_headers_dir()
-    for name in ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"):
+    headers = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+    if fmi == 3:
+        headers += ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
+        h.update((PACKAGE_DIR / "fmi3md.py").read_bytes())
+    for name in headers:
         h.update((hdr / name).read_bytes())
-    h.update(" ".join(CFLAGS + LIBS).encode())
+    h.update(" ".join(_cflags(fmi) + LIBS).encode())
     h.update(_gcc_version().encode())
     return h.hexdigest()
+
+
+def _check_fmi(fmi: int) -> None:
+    if fmi not in FMI_VERSIONS:
+        raise BuildError(f"FMI version {fmi!r}: this FMU is built as FMI 2 or 3")
+
+
+def _sources(fmi: int) -> tuple[str, ...]:
+    return C_SOURCES if fmi == 2 else C_SOURCES + FMI3_SOURCES
+
+
+def _cflags(fmi: int) -> tuple[str, ...]:
+    return CFLAGS if fmi == 2 else CFLAGS + FMI3_CFLAGS
+
+
+def _fmu_name(fmi: int) -> str:
+    return f"{MODEL_IDENTIFIER}.fmu" if fmi == 2 else f"{MODEL_IDENTIFIER}{fmi}.fmu"
+
+
+def _model_description(fmi: int) -> bytes:
+    if fmi == 2:
+        return (SOURCE_DIR / "modelDescription.xml").read_bytes()
+    from fmus.fmi3md import fmi3_model_description
+
+    return fmi3_model_description()
 
 
 def _gcc() -> str:
@@ -106,38 +144,41 @@ def _zip_bytes(files: dict[str, bytes]) -> bytes:
     return buf.getvalue()
 
 
-def build(force: bool = False, out_dir: pathlib.Path | None = None) -> pathlib.Path:
-    """Compile and pack the FMU; returns the path of ``Quadrotor.fmu``.
+def build(force: bool = False, out_dir: pathlib.Path | None = None,
+          fmi: int = 2) -> pathlib.Path:
+    """Compile and pack the FMU; returns the path of ``Quadrotor.fmu`` (`fmi` 3:
+    ``Quadrotor3.fmu``, the FMI 3.0 Co-Simulation build of the same model).
 
     Skips the work when the recorded source hash matches (unless `force`). Safe to run from
     several processes at once: everything is written to temporary files and moved into place
     with ``os.replace``.
     """
+    _check_fmi(fmi)
     out_dir = BUILD_DIR if out_dir is None else pathlib.Path(out_dir)
-    fmu = out_dir / f"{MODEL_IDENTIFIER}.fmu"
-    stamp = out_dir / f"{MODEL_IDENTIFIER}.fmu.sha256"
-    digest = source_hash()
+    fmu = out_dir / _fmu_name(fmi)
+    stamp = out_dir / f"{_fmu_name(fmi)}.sha256"
+    digest = source_hash(fmi)
     if not force and fmu.is_file() and stamp.is_file() and stamp.read_text().strip() == digest:
         return fmu
 
-    plat = _platform_dir()
+    plat = _platform_dir(fmi)
     gcc = _gcc()
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=out_dir, prefix=".build-") as tmp:
         so = pathlib.Path(tmp) / f"{MODEL_IDENTIFIER}.so"
         cmd = [
-            gcc, *CFLAGS, f"-I{_fmi_headers_dir()}", f"-I{SOURCE_DIR}",
-            *(str(SOURCE_DIR / c) for c in C_SOURCES), "-o", str(so), *LIBS,
+            gcc, *_cflags(fmi), f"-I{_fmi_headers_dir()}", f"-I{SOURCE_DIR}",
+            *(str(SOURCE_DIR / c) for c in _sources(fmi)), "-o", str(so), *LIBS,
         ]
         # compile from a fixed directory so no path of the temp dir ends up in the binary
         res = subprocess.run(cmd, capture_output=True, text=True, cwd=SOURCE_DIR, check=False)
         if res.returncode != 0:
             raise BuildError(f"gcc failed ({res.returncode}):\n{' '.join(cmd)}\n{res.stderr}")
         files = {
-            "modelDescription.xml": (SOURCE_DIR / "modelDescription.xml").read_bytes(),
+            "modelDescription.xml": _model_description(fmi),
             f"binaries/{plat}/{MODEL_IDENTIFIER}.so": so.read_bytes(),
         }
-        for name in (*C_SOURCES, *HEADERS):
+        for name in (*_sources(fmi), *HEADERS):
             files[f"sources/{name}"] = (SOURCE_DIR / name).read_bytes()
         data = _zip_bytes(files)
         tmp_fmu = pathlib.Path(tmp) / "out.fmu"
@@ -149,11 +190,13 @@ def build(force: bool = False, out_dir: pathlib.Path | None = None) -> pathlib.P
     return fmu
 
 
-def fmu_path(build_if_needed: bool = True) -> pathlib.Path:
-    """Path of ``<repo>/build/Quadrotor.fmu``, built (or rebuilt) first if `build_if_needed`."""
+def fmu_path(build_if_needed: bool = True, fmi: int = 2) -> pathlib.Path:
+    """Path of ``<repo>/build/Quadrotor.fmu`` (`fmi` 3: ``Quadrotor3.fmu``), built (or
+    rebuilt) first if `build_if_needed`."""
     if build_if_needed:
-        return build()
-    return BUILD_DIR / f"{MODEL_IDENTIFIER}.fmu"
+        return build(fmi=fmi)
+    _check_fmi(fmi)
+    return BUILD_DIR / _fmu_name(fmi)
 
 
 # ---- golden output ------------------------------------------------------------------------
@@ -256,21 +299,24 @@ def write_golden(path: pathlib.Path = GOLDEN_CSV) -> pathlib.Path:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m fmus.build",
-        description="Build build/Quadrotor.fmu from fmus/quadrotor (gcc, FMI 2.0 headers "
-        "from fmpy).",
+        description="Build build/Quadrotor.fmu (FMI 2.0) and build/Quadrotor3.fmu (FMI 3.0 "
+        "Co-Simulation) from fmus/quadrotor (gcc, FMI headers from fmpy).",
         epilog="examples:\n  python -m fmus.build\n  python -m fmus.build --force\n"
+        "  python -m fmus.build --fmi 3\n"
         "  python -m fmus.build --golden   # rewrite fmus/quadrotor/Quadrotor_out.csv",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("--force", action="store_true", help="rebuild even if nothing changed")
     ap.add_argument("--golden", action="store_true", help="regenerate the golden output CSV")
+    ap.add_argument("--fmi", type=int, choices=FMI_VERSIONS, default=None,
+                    help="build only this FMI version (default: both)")
     args = ap.parse_args(argv)
     try:
-        path = build(force=args.force)
+        for fmi in (FMI_VERSIONS if args.fmi is None else (args.fmi,)):
+            print(build(force=args.force, fmi=fmi))
     except BuildError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
-    print(path)
     if args.golden:
         print(write_golden())
     return 0

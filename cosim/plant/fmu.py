@@ -42,7 +42,7 @@ from cosim.errors import ComponentError
 from cosim.plant.vehicles import VehicleParams
 
 __all__ = [
-    "OUTPUT_NAMES", "INPUT_NAMES", "Plant", "PlantState", "bench_step",
+    "OUTPUT_NAMES", "INPUT_NAMES", "FmuPlant", "Plant", "PlantState", "bench_step",
     "Y_X", "Y_Y", "Y_Z", "Y_VX", "Y_VY", "Y_VZ", "Y_QW", "Y_QX", "Y_QY", "Y_QZ",
     "Y_P", "Y_Q", "Y_R", "Y_AX", "Y_AY", "Y_AZ",
     "Y_OMEGA1", "Y_OMEGA2", "Y_OMEGA3", "Y_OMEGA4", "Y_ON_GROUND",
@@ -88,7 +88,47 @@ class PlantState:
     fmu_state: bytes
 
 
-class Plant:
+class FmuPlant:
+    """What every plant shares (this one and `cosim.plant.mapped.MappedPlant`): the time from
+    the tick counter, the FMU's log messages for the errors raised, the context manager."""
+
+    k: int
+    step_size: float
+    _messages: collections.deque[str]
+
+    @property
+    def t(self) -> float:
+        """Simulated time of the latest outputs, s (= k * step_size)."""
+        return self.k * self.step_size
+
+    def _log(self, env, instance_name, status, category, message) -> None:
+        """The FMI 2.0 logger callback (FMI 3.0's has no instance name)."""
+        text = message.decode("utf-8", "replace") if message else ""
+        label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+        self._messages.append(f"[{label}] {text}")
+
+    def _drain(self) -> str:
+        msgs = "; ".join(self._messages)
+        self._messages.clear()
+        return msgs or "no message from the FMU"
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass
+
+
+class Plant(FmuPlant):
     """The Quadrotor FMU stepped at a fixed tick.
 
     Parameters
@@ -366,11 +406,6 @@ class Plant:
         else:
             self._stepper.k = value
 
-    @property
-    def t(self) -> float:
-        """Simulated time of the latest outputs, s (= k * step_size)."""
-        return self.k * self.step_size
-
     # ---- states -----------------------------------------------------------------------------
 
     def get_state(self) -> PlantState:
@@ -405,16 +440,6 @@ class Plant:
 
     # ---- errors and logging -----------------------------------------------------------------
 
-    def _log(self, env, instance_name, status, category, message) -> None:
-        text = message.decode("utf-8", "replace") if message else ""
-        label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
-        self._messages.append(f"[{label}] {text}")
-
-    def _drain(self) -> str:
-        msgs = "; ".join(self._messages)
-        self._messages.clear()
-        return msgs or "no message from the FMU"
-
     def _check(self, status: int, func: str) -> None:
         if status == 0:
             return
@@ -444,17 +469,6 @@ class Plant:
         finally:
             shutil.rmtree(self._unzipdir, ignore_errors=True)
 
-    def __enter__(self) -> Plant:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:
-            pass
 
 
 def bench_step(n: int = 20000, vehicle: VehicleParams | None = None) -> dict[str, float]:

@@ -16,6 +16,7 @@ from typing import Any
 
 from cosim.apps.registry import BUILTIN_APPS, check_app, check_inputs
 from cosim.errors import ScenarioError
+from cosim.plant.mapping import parse_plant
 from cosim.plant.vehicles import PHYSICAL_RANGES, PRESETS, get_vehicle
 from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
@@ -93,7 +94,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
 
     # vehicle
     v = table(raw, "vehicle", "", required=True)
-    no_unknown(v, {"preset", "overrides", "start"}, "vehicle")
+    no_unknown(v, {"preset", "overrides", "start", "fmu", "fmu_map", "fmi"}, "vehicle")
     preset = string(v, "preset", "vehicle", choices=tuple(sorted(PRESETS)))
     vehicle = get_vehicle(preset)
     ov = table(v, "overrides", "vehicle")
@@ -154,6 +155,8 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     wind_spec = parse_wind(table(raw, "wind", ""))
     wind = wind_spec.mean
     faults = parse_faults(table(raw, "faults", ""))
+    # your own plant FMU ([vehicle] fmu, fmu_map) or the FMI 3.0 build (fmi = 3); None: ours
+    plant = parse_plant(v, vehicle, base_dir, has_wind=any(wind) or not wind_spec.steady)
 
     # the flight stack's parameters at start (PX4-style names, mav/README.md "Parameters")
     ob = table(raw, "onboard", "")
@@ -204,7 +207,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         timing=timing, world=world, camera=camera, app=app, noise=noise,
         wind_ned_mps=wind, criteria=criteria, source=source, raw=raw, world_table=world_table,
         wind=wind_spec,
-        faults=faults, onboard_params=onboard_params,
+        faults=faults, onboard_params=onboard_params, plant=plant,
     )
 
 

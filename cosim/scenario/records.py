@@ -87,3 +87,5 @@ class Scenario:
     wind: Any = None                          # cosim.world.wind.WindSpec (mean = wind_ned_mps)
     faults: Any = None                        # cosim.sim.faults.FaultSpec ([faults]; falsy: none)
     onboard_params: tuple[tuple[str, float], ...] = ()   # [onboard.params]: set at start
+    plant: Any = None                         # cosim.plant.mapping.PlantSpec ([vehicle] fmu
+                                              # or fmi = 3); None: the FMI 2.0 plant

@@ -133,6 +133,12 @@ class Pacer:
 
 # ------------------------------------------------------------------ the parts, built once
 def build_plant(sc: Scenario) -> Plant:
+    if sc.plant is not None:    # a user's FMU or the FMI 3.0 build, through fmpy and the map
+        from cosim.plant.mapped import MappedPlant
+
+        with part("plant"):
+            return MappedPlant(sc.vehicle, sc.plant, step_size=sc.timing.tick_s, x0=sc.start.n,
+                               y0=sc.start.e, yaw0=math.radians(sc.start.yaw_deg))
     with part("plant"):
         return Plant(sc.vehicle, step_size=sc.timing.tick_s, x0=sc.start.n, y0=sc.start.e,
                      z0=0.0, yaw0=math.radians(sc.start.yaw_deg))
