@@ -69,7 +69,7 @@ def test_link_finder_sees_what_it_must():
 
 def test_mkdocs_build_strict(tmp_path):
     out = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet",
+        [sys.executable, "-m", "mkdocs", "build", "--strict",  # not --quiet: it hides warnings
          "--config-file", str(ROOT / "mkdocs.yml"), "--site-dir", str(tmp_path / "site")],
         cwd=ROOT, capture_output=True, text=True, timeout=300,
         env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},  # Material's banner, not a warning
