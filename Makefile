@@ -34,7 +34,7 @@ bench: setup
 
 # the documentation site (mkdocs.yml, docs/) into build/site; also built by the tests
 docs: setup
-	$(VENV)/bin/mkdocs build --strict
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
 
 # the figures of the docs and the README, made from real runs (about a minute)
 docs-figures: setup
