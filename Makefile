@@ -4,14 +4,14 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup fmu build demo test test-slow lint bench clean
+.PHONY: setup fmu build demo test test-slow lint bench docs docs-figures clean
 
 setup: $(STAMP) fmu build
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[test,docs]'
 	touch $(STAMP)
 
 fmu: $(STAMP)
@@ -35,6 +35,14 @@ test-slow: setup
 
 bench: setup
 	$(VENV)/bin/cosim bench
+
+# the documentation site (mkdocs.yml, docs/) into build/site; also built by the tests
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
+
+# the figures of the docs and the README, made from real runs (about a minute)
+docs-figures: setup
+	$(PY) docs/figures/make_figures.py
 
 clean:
 	rm -rf build runs

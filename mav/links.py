@@ -215,7 +215,7 @@ class UnixLink(UdpLink):
     """A non-blocking Unix-domain datagram endpoint bound to the file `path`: the same
     interface and semantics as `UdpLink` (`remote` a path; None: reply to the last sender),
     for the simulator link between two processes of one machine (no IP/UDP layers in the
-    kernel; in the seed mission it measured no faster than loopback UDP: README, Performance).
+    kernel; in the seed mission it measured no faster than loopback UDP: docs/performance.md).
     The file is removed on `close`. Linux and macOS; `path` must be short (108 bytes on
     Linux)."""
 

@@ -484,7 +484,8 @@ def test_closed_loop_yaw_rate(v):
 
 
 def test_closed_loop_mambo_template_preset_flies():
-    """The template's own gains also hold position on our plant (less damped, see README)."""
+    """The template's own gains also hold position on our plant (less damped, see
+    docs/papers/line-follower.md)."""
     P = plant_mod
     f = Flight(MAMBO, preset="template")
     sp = f.sp

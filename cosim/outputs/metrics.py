@@ -1,6 +1,6 @@
 """Mission metrics and pass criteria, computed from a run's recorded series.
 
-Definitions (also in the README):
+Definitions (also in docs/outputs.md, Metrics):
 - mission_time_s: from the app's take-off command to the final touchdown (s).
 - path error while following: horizontal distance from the vehicle to the part of the track
   centreline it should be on (cosim/outputs/progress.py: a cursor that follows the vehicle

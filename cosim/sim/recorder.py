@@ -18,7 +18,7 @@ import numpy as np
 
 from cosim.plant.fmu import OUTPUT_NAMES
 
-# the recorded columns, one row per tick (units: see the README's outputs section)
+# the recorded columns, one row per tick (units: docs/outputs.md)
 SERIES_COLUMNS = (
     ("t",) + OUTPUT_NAMES + ("u1", "u2", "u3", "u4", "est_x", "est_y", "est_z",
                              "sp_x", "sp_y", "sp_z", "phase")

@@ -84,7 +84,7 @@ PARAM_BURST = 16            # PARAM_VALUEs per link per tick while a list is bei
 # buffer and what overflows it is dropped by the kernel, counted as dropped_kernel_<link>).
 # 32 a tick is 6400 datagrams/s a link, far above any client's traffic, and at ~10 us each
 # (garbage, frames for other systems) 0.3 ms of a 5 ms tick; 256 made a flooded tick 9-12 ms
-# on a 2-core host (cosim bench --flood, README *Performance*)
+# on a 2-core host (cosim bench --flood, docs/performance.md)
 DRAIN_MAX = 32
 FRAMES_MAX = 32             # frames handled per datagram
 
