@@ -96,6 +96,15 @@ def test_fmi3_build_reports_the_fmus_message():
             p.step(0.5, 0.5, math.nan, 0.5)
 
 
+def test_closed_mapped_plant_refuses_to_step():
+    """As the default plant: no fmpy call into a freed instance after close."""
+    p = MappedPlant(MAMBO, PlantSpec(None, 3, None))
+    p.step(*(4 * [MAMBO.u_hover]))
+    p.close()
+    with pytest.raises(ComponentError, match="the plant is closed"):
+        p.step(*(4 * [MAMBO.u_hover]))
+
+
 def test_fmi3_scenario_flies_the_square_as_the_fmi2_one():
     res3, s3 = fly(load_scenario(SCEN / "scripted_square_fmi3.toml"))
     res2, _ = fly(load_scenario(SCEN / "scripted_square.toml"))

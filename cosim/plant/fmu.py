@@ -90,7 +90,8 @@ class PlantState:
 
 class FmuPlant:
     """What every plant shares (this one and `cosim.plant.mapped.MappedPlant`): the time from
-    the tick counter, the FMU's log messages for the errors raised, the context manager."""
+    the tick counter, the FMU's log messages for the errors raised, the refusal to step a
+    closed plant, the context manager."""
 
     k: int
     step_size: float
@@ -111,6 +112,10 @@ class FmuPlant:
         msgs = "; ".join(self._messages)
         self._messages.clear()
         return msgs or "no message from the FMU"
+
+    def _used_closed(self) -> None:
+        """A call into an FMU instance that is freed (or was never made) would crash."""
+        raise ComponentError("plant", "the plant is closed (or failed to start)")
 
     def close(self) -> None:
         raise NotImplementedError
@@ -346,10 +351,6 @@ class Plant(FmuPlant):
             self._check(st, "fmi2DoStep")
         self.k += 1
         return self._read_outputs()
-
-    def _used_closed(self) -> None:
-        """A call into an FMU instance that is freed (or was never made) would crash."""
-        raise ComponentError("plant", "the plant is closed (or failed to start)")
 
     def _read_outputs(self) -> list[float]:
         if self._closed:

@@ -228,6 +228,8 @@ class MappedPlant(FmuPlant):
     def step(self, u1: float, u2: float, u3: float, u4: float, wind_n: float = 0.0,
              wind_e: float = 0.0, wind_d: float = 0.0) -> list[float]:
         """Hold the inputs over one tick, advance t_k -> t_k+1; returns :attr:`y`."""
+        if self._fmu is None:     # closed: fmpy would call into a freed instance
+            self._used_closed()
         m, v = self.map, self.vehicle
         if m.command == "rotors":
             si = [u1, u2, u3, u4]
