@@ -6,8 +6,7 @@ commands; the commander `armed`, `mode`, `landed_state`, `home` and the setpoint
 offboard part the offboard setpoint and its time; the failsafe part its timers; the
 parameters part `own` and the derived limits. Telemetry only reads.
 
-A dataclass with __slots__: a misspelt attribute raises instead of adding a field, and the
-compiled tick reads and writes the fields by slot offset (mav/csrc/slots.c).
+A dataclass with __slots__: a misspelt attribute raises instead of adding a field.
 """
 
 from __future__ import annotations
