@@ -181,9 +181,10 @@ class QuadCascade:
         except KeyError:
             raise ValueError(f"unknown parameter {name!r} for {type(self).__name__}") from None
 
-    def set_param(self, name: str, value: float) -> None:
+    def set_param(self, name: str, value: object) -> None:
         """Set one parameter; it takes effect on the next update. ValueError if the name is
-        unknown or the value is non-finite or outside [min, max]."""
+        unknown, the value not a number, non-finite or outside [min, max] (`value` is an
+        object, not float: compiled, a float annotation would raise TypeError first)."""
         spec = self._specs.get(name)
         if spec is None:
             raise ValueError(f"unknown parameter {name!r} for {type(self).__name__}")
