@@ -36,6 +36,11 @@ _TICK_PARTS = (
     ("cosim.plant.fmu", "Plant", "step", "plant step", None, "_use_stepper"),
 )
 MASTER = "master loop itself (record, exit test, taps)"
+# compiled extension types cannot have a class attribute replaced: their instances are timed
+# one by one, wrapped as the function that makes them in a run returns them (module, name)
+_IMMUTABLE = 1 << 8          # Py_TPFLAGS_IMMUTABLETYPE
+MADE_BY = {"QuadCascade": ("mav.control", "make_controller"),
+           "Onboard": ("mav.onboard", "Onboard")}
 
 
 def _timing_attr(setup: Callable, attr: str, timed: Callable, label: str) -> Callable:
@@ -60,12 +65,31 @@ def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
         c = m if cls is None else getattr(m, cls)
         name = setup or meth
         orig = c.__dict__[name]
+        if cls in MADE_BY and isinstance(c, type) and c.__flags__ & _IMMUTABLE:
+            # a compiled extension type (immutable: its methods cannot be replaced): wrap the method
+            # on each instance its maker returns (an instance attribute; the calls that
+            # matter look the method up on the instance)
+            fmod, fname = MADE_BY[cls]
+            owner = importlib.import_module(fmod)
+            make = getattr(owner, fname)
+            saved.append((owner, fname, make))
+            setattr(owner, fname, _timed_instances(make, meth, timed, label))
+            continue
         saved.append((c, name, orig))
         if setup is not None:
             setattr(c, setup, _timing_attr(orig, meth, timed, label))
         else:
             setattr(c, meth, timed(orig, label))
     return saved
+
+
+def _timed_instances(make: Callable, attr: str, timed: Callable, label: str) -> Callable:
+    """`make` whose results have their `attr` timed under `label` (an instance attribute)."""
+    def wrapper(*a: Any, **kw: Any) -> Any:
+        obj = make(*a, **kw)
+        setattr(obj, attr, timed(getattr(obj, attr), label))
+        return obj
+    return wrapper
 
 
 def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
