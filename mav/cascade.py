@@ -50,6 +50,7 @@ from mav.types import Setpoint, VehicleState
 
 # (compiled: C doubles and C's libm, the functions Python's math module calls; the types of
 # the class's fields and of the records it reads are in cascade.pxd and types.pxd)
+f64 = cython.typedef(cython.double)       # the controller's arithmetic: C doubles
 _PI = cython.declare(cython.double, math.pi)
 _TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
 
@@ -259,36 +260,23 @@ class QuadCascade:
         self._n = 0
 
     # ---------------------------------------------------------------- hot path
-    @cython.locals(kp_p=cython.double, ki_p=cython.double, kd_p=cython.double, kp_r=cython.double,
-        ki_r=cython.double, kd_r=cython.double, i_lim=cython.double, kb=cython.double,
-        k_psi=cython.double, k_r=cython.double, r_max=cython.double, k_z=cython.double,
-        k_vz=cython.double, ki_zp=cython.double, ki_zvp=cython.double, ki_zv=cython.double,
-        zi_lim=cython.double, vz_max=cython.double, t_tot_max=cython.double, k_xy=cython.double,
-        k_vxy=cython.double, c_drag=cython.double, ki_vxy=cython.double, xy_i_lim=cython.double,
-        e_max=cython.double, v_max=cython.double, tilt_max=cython.double, weight=cython.double,
-        inv_g=cython.double, m0t=cython.double, m0m=cython.double, m0l=cython.double,
-        m1t=cython.double, m1m=cython.double, m1l=cython.double, m2t=cython.double,
-        m2m=cython.double, m2l=cython.double, m3t=cython.double, m3m=cython.double,
-        m3l=cython.double, my=cython.double, t_max=cython.double, c_u=cython.double,
-        arm_a=cython.double, dt=cython.double, qw=cython.double, qx=cython.double,
-        qy=cython.double, qz=cython.double, r33=cython.double, roll=cython.double,
-        sp_=cython.double, pitch=cython.double, yaw=cython.double, cy=cython.double,
-        sy=cython.double, vx=cython.double, vy=cython.double, vxb=cython.double,
-        vyb=cython.double, fx=cython.double, fy=cython.double, fxb=cython.double,
-        fyb=cython.double, v2=cython.double, f=cython.double, px=cython.double, py=cython.double,
-        ex=cython.double, ey=cython.double, exb=cython.double, eyb=cython.double,
-        vcx=cython.double, vcy=cython.double, i_n=cython.double, i_e=cython.double,
-        ixb=cython.double, iyb=cython.double, pitch_ref=cython.double, roll_ref=cython.double,
-        ax=cython.double, ay=cython.double, t2=cython.double, evx=cython.double,
-        evy=cython.double, i2=cython.double, vz=cython.double, fz=cython.double, zr=cython.double,
-        ez=cython.double, vzc=cython.double, i_z=cython.double, thrust=cython.double,
-        e_p=cython.double, e_r=cython.double, i_p=cython.double, i_r=cython.double,
-        tq_m=cython.double, tq_l=cython.double, yr=cython.double, rr=cython.double,
-        yref=cython.double, r_ff=cython.double, e_psi=cython.double, rc=cython.double,
-        tq_n=cython.double, b1=cython.double, b2=cython.double, b3=cython.double,
-        b4=cython.double, d=cython.double, h=cython.double, di=cython.double,
-        tilt_sat=cython.bint, pos_mode=cython.bint, limited=cython.bint, t_sat=cython.int,
-        n=cython.long)
+    @cython.locals(s=VehicleState, sp=Setpoint, out=list, kp_p=f64, ki_p=f64, kd_p=f64, kp_r=f64,
+                   ki_r=f64, kd_r=f64, i_lim=f64, kb=f64, k_psi=f64, k_r=f64, r_max=f64, k_z=f64,
+                   k_vz=f64, ki_zp=f64, ki_zvp=f64, ki_zv=f64, zi_lim=f64, vz_max=f64,
+                   t_tot_max=f64, k_xy=f64, k_vxy=f64, c_drag=f64, ki_vxy=f64, xy_i_lim=f64,
+                   e_max=f64, v_max=f64, tilt_max=f64, weight=f64, inv_g=f64, m0t=f64, m0m=f64,
+                   m0l=f64, m1t=f64, m1m=f64, m1l=f64, m2t=f64, m2m=f64, m2l=f64, m3t=f64,
+                   m3m=f64, m3l=f64, my=f64, t_max=f64, c_u=f64, arm_a=f64, dt=f64, qw=f64,
+                   qx=f64, qy=f64, qz=f64, r33=f64, roll=f64, sp_=f64, pitch=f64, yaw=f64, cy=f64,
+                   sy=f64, vx=f64, vy=f64, vxb=f64, vyb=f64, fx=f64, fy=f64, fxb=f64, fyb=f64,
+                   v2=f64, f=f64, px=f64, py=f64, ex=f64, ey=f64, exb=f64, eyb=f64, vcx=f64,
+                   vcy=f64, i_n=f64, i_e=f64, ixb=f64, iyb=f64, pitch_ref=f64, roll_ref=f64,
+                   ax=f64, ay=f64, t2=f64, evx=f64, evy=f64, i2=f64, vz=f64, fz=f64, zr=f64,
+                   ez=f64, vzc=f64, i_z=f64, thrust=f64, e_p=f64, e_r=f64, i_p=f64, i_r=f64,
+                   tq_m=f64, tq_l=f64, yr=f64, rr=f64, yref=f64, r_ff=f64, e_psi=f64, rc=f64,
+                   tq_n=f64, b1=f64, b2=f64, b3=f64, b4=f64, d=f64, h=f64, di=f64,
+                   tilt_sat=cython.bint, pos_mode=cython.bint, limited=cython.bint,
+                   t_sat=cython.int, n=cython.long)
     def update(self, s: VehicleState, sp: Setpoint, out: list[float]) -> None:
         """One control tick: state estimate + setpoint -> motor commands u1..u4 in out[0:4].
 

@@ -24,6 +24,7 @@ import hashlib
 import math
 import struct
 
+import cython
 from pymavlink.dialects.v20 import common as mavlink2
 
 try:  # pymavlink itself uses fastcrc when it is installed; so do we
@@ -135,6 +136,8 @@ assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
 
 
 # ----------------------------------------------------------------------------------- encoding
+@cython.locals(m=FastMsg, seq=cython.int, n=cython.Py_ssize_t, mid=cython.long,
+               crc=cython.long, buf=bytearray, sysid=cython.int, compid=cython.int)
 def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     """Frame a packed payload as MAVLink 2, as `mav.send(msg)` would (and advance mav.seq).
 
@@ -145,8 +148,8 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     seq = mav.seq
     mav.seq = (seq + 1) & 0xFF
     signing = mav.signing
-    p = payload.rstrip(b"\x00") or payload[:1]
     if signing.sign_outgoing:
+        p = payload.rstrip(b"\x00") or payload[:1]
         buf = _HDR.pack(MAGIC_V2, len(p), IFLAG_SIGNED, 0, seq, mav.srcSystem, mav.srcComponent)
         buf += m.id3 + p
         buf += _CRC.pack(crc16(buf[1:] + m.extra))
@@ -154,8 +157,29 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
         buf += hashlib.sha256(signing.secret_key + buf).digest()[:6]
         signing.timestamp += 1
         return buf
-    core = _HDR6.pack(len(p), 0, 0, seq, mav.srcSystem, mav.srcComponent) + m.id3 + p
-    return b"\xfd" + core + _CRC.pack(crc16(m.extra, crc16(core)))
+    # one buffer, filled in place: header, payload (trailing zeros trimmed), CRC_EXTRA where
+    # the checksum goes, then the checksum over bytes 1.. and CRC_EXTRA written over it
+    n = len(payload)
+    while n > 1 and payload[n - 1] == 0:
+        n -= 1
+    sysid = mav.srcSystem
+    compid = mav.srcComponent
+    buf = bytearray(n + 12)
+    buf[0] = 0xFD          # MAGIC_V2
+    buf[1] = n
+    buf[4] = seq
+    buf[5] = sysid
+    buf[6] = compid
+    mid = m.id
+    buf[7] = mid & 0xFF
+    buf[8] = (mid >> 8) & 0xFF
+    buf[9] = mid >> 16
+    buf[10:10 + n] = payload[:n]
+    buf[10 + n] = m.crc_extra
+    crc = crc16(buf[1:11 + n])
+    buf[10 + n] = crc & 0xFF
+    buf[11 + n] = crc >> 8
+    return bytes(buf)
 
 
 def pack(mav, m: FastMsg, *values) -> bytes:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import enum
 
+import cython
+
 from cosim.errors import ComponentError
 from cosim.plant.fmu import Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_Z
 
@@ -84,6 +86,8 @@ class ExitMonitor:
         self.body_radius = body_radius
         self.min_clearance: tuple[float, float, str] | None = None   # (m, t s, what)
 
+    @cython.locals(d=cython.double, qx=cython.double, qy=cython.double, n=cython.double,
+                   e=cython.double, airborne=cython.bint)
     def check(self, t: float, y, vz_before: float, u) -> Exit | None:
         """State `y` at t_k+1 = t + h; `vz_before` the vertical speed at t_k; `u` the motor
         commands held over the step. Runs every tick: the common case (flying, nothing to

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import math
 
+import cython
+
 from cosim.errors import ComponentError
 from cosim.plant.fmu import Y_QW, Y_QZ, Y_VZ, Y_X, Y_Z
 from cosim.sim.recorder import CHUNK
@@ -70,6 +72,7 @@ class Tick:
         except Exception as exc:   # the one place a part's failure is named
             raise ComponentError(self.stage, f"{type(exc).__name__}: {exc}") from exc
 
+    @cython.locals(t_us=cython.longlong, t=cython.double, vz=cython.double, y=list)
     def _run(self, k: int, wind: tuple[float, float, float]):
         t_us = k * self.h_us
         t = t_us * 1e-6

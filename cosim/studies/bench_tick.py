@@ -28,17 +28,19 @@ _TICK_PARTS = (
     ("cosim.sim.onboard", "OnboardHandle", "exchange", _HIL, None, None),
     ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL, None),
     ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", _HIL, None),
-    # the airframes' controllers: their base, compiled, is an extension type (immutable)
-    ("mav.control", "MamboController", "update", "  onboard controller", _HIL, None),
-    ("mav.control", "Bebop2Controller", "update", "  onboard controller", _HIL, None),
+    ("mav.cascade", "QuadCascade", "update", "  onboard controller", _HIL, None),
     ("mav.battery", "Battery", "step", "  onboard battery", _HIL, None),
     ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL, None),
     ("mav.hil", "HilSimulatorCodec", "decode_actuators", "HIL_ACTUATOR_CONTROLS decode", None,
      None),
     ("cosim.plant.fmu", "Plant", "step", "plant step", None, "_use_stepper"),
 )
-_INHERITED = object()   # _wrap: the method was the base class's
 MASTER = "master loop itself (record, exit test, taps)"
+# compiled extension types cannot have a class attribute replaced: their instances are timed
+# one by one, wrapped as the function that makes them in a run returns them (module, name)
+_IMMUTABLE = 1 << 8          # Py_TPFLAGS_IMMUTABLETYPE
+MADE_BY = {"QuadCascade": ("mav.control", "make_controller"),
+           "Onboard": ("mav.onboard", "Onboard")}
 
 
 def _timing_attr(setup: Callable, attr: str, timed: Callable, label: str) -> Callable:
@@ -62,8 +64,18 @@ def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
         m = importlib.import_module(mod)
         c = m if cls is None else getattr(m, cls)
         name = setup or meth
-        orig = getattr(c, name)   # the class's own, or inherited (then removed again)
-        saved.append((c, name, c.__dict__.get(name, _INHERITED)))
+        orig = c.__dict__[name]
+        if cls in MADE_BY and isinstance(c, type) and c.__flags__ & _IMMUTABLE:
+            # a compiled extension type (immutable: its methods cannot be replaced): wrap the method
+            # on each instance its maker returns (an instance attribute; the calls that
+            # matter look the method up on the instance)
+            fmod, fname = MADE_BY[cls]
+            owner = importlib.import_module(fmod)
+            make = getattr(owner, fname)
+            saved.append((owner, fname, make))
+            setattr(owner, fname, _timed_instances(make, meth, timed, label))
+            continue
+        saved.append((c, name, orig))
         if setup is not None:
             setattr(c, setup, _timing_attr(orig, meth, timed, label))
         else:
@@ -71,13 +83,13 @@ def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
     return saved
 
 
-def _unwrap(saved: list[tuple[Any, str, Any]]) -> None:
-    """Put back what `_wrap` replaced."""
-    for c, name, orig in reversed(saved):
-        if orig is _INHERITED:
-            delattr(c, name)
-        else:
-            setattr(c, name, orig)
+def _timed_instances(make: Callable, attr: str, timed: Callable, label: str) -> Callable:
+    """`make` whose results have their `attr` timed under `label` (an instance attribute)."""
+    def wrapper(*a: Any, **kw: Any) -> Any:
+        obj = make(*a, **kw)
+        setattr(obj, attr, timed(getattr(obj, attr), label))
+        return obj
+    return wrapper
 
 
 def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
@@ -142,7 +154,8 @@ def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
             try:
                 timed_res = run_scenario(sc, RunOptions(mode="mil"))
             finally:
-                _unwrap(saved)
+                for c, meth, orig in reversed(saved):
+                    setattr(c, meth, orig)
             if timed_res.ticks != res.ticks:
                 raise RuntimeError(f"timing {label!r} changed the flight "
                                    f"({timed_res.ticks} ticks)")

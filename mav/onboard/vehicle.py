@@ -22,6 +22,7 @@ offboard.py (setpoints), failsafe.py, parameters.py, commands.py, telemetry.py.
 
 from __future__ import annotations
 
+import cython
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
@@ -58,10 +59,11 @@ from mav.onboard.offboard import Offboard
 from mav.onboard.parameters import Parameters
 from mav.onboard.status import VehicleStatus
 from mav.onboard.telemetry import Telemetry
-from mav.types import VehicleState
+from mav.types import Setpoint, VehicleState
 
 M = mavlink2
 
+MAX_TIME_US = 1 << 62        # an ODOMETRY stamped later than this (146,000 years) is refused
 STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
          "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "hil_ignored", "hil_bad_values",
          "unknown_msgs", "unhandled_msgs", "not_for_us", "unsigned_rejected", "badsig_rejected",
@@ -257,6 +259,12 @@ class Onboard:
         self.parameters.load_file(path)
 
     # ------------------------------------------------------------------ the tick
+    @cython.locals(vs=VehicleStatus, s=VehicleState, sp=Setpoint, t_us=cython.longlong,
+                   dt_us=cython.longlong, x=cython.double, y=cython.double, z=cython.double,
+                   qw=cython.double, qx=cython.double, qy=cython.double, qz=cython.double,
+                   vx=cython.double, vy=cython.double, vz=cython.double, p=cython.double,
+                   q=cython.double, r=cython.double, chk=cython.double, frame_id=cython.int,
+                   child=cython.int, quality=cython.int, lost=cython.bint, u=list)
     def poll(self) -> bool:
         """Handle one waiting HIL datagram (see module docstring). False if none was waiting
         or it was not a usable ODOMETRY (then nothing else is touched)."""
@@ -272,6 +280,9 @@ class Onboard:
             od = None
         if od is None:
             self._hil_not_odometry(data)
+            return False
+        if not 0 <= od[0] < MAX_TIME_US:      # a clock beyond any flight: not a tick
+            st["hil_bad_values"] += 1
             return False
         (t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r, frame_id, child, quality) = od
         chk = x + y + z + qw + qx + qy + qz + vx + vy + vz + p + q + r
@@ -358,6 +369,7 @@ class Onboard:
         b.vz = sp.vz if sp.vz == sp.vz else 0.0
         return b
 
+    @cython.locals(vs=VehicleStatus, t=cython.longlong, mode=cython.int, armed=cython.bint)
     def _step_modes(self, t: int) -> None:
         """The modes' work for this tick, failsafes first (in PX4's order of precedence)."""
         vs = self.status

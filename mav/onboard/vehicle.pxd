@@ -1,0 +1,14 @@
+# Types Cython reads beside mav/onboard/vehicle.py (plain Python): the parts the tick touches
+# as C fields of the vehicle (the rest in its __dict__), so `poll` reaches the shared status
+# record, the state and the setpoint directly.
+from mav.onboard.status cimport VehicleStatus
+from mav.types cimport Setpoint, VehicleState
+
+
+cdef class Onboard:
+    cdef dict __dict__
+    cdef object __weakref__
+    cdef public VehicleStatus status
+    cdef public VehicleState _blind_state
+    cdef public object _hil, _api, _gcs, _hil_mav, input, telemetry, failsafe, commander
+    cdef public object navigator, manual, mission, vehicle, origin, stats
