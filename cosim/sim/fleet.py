@@ -333,7 +333,7 @@ def write_fleet(fr: FleetResult, *, mcap: bool = False) -> list[str]:
         if mcap:
             from cosim.outputs.mcap import McapRun
 
-            res.mcap = McapRun(res.run_dir / "run.mcap").finish(res)
+            res.mcap = McapRun(res.run_dir / "run.mcap", res.scenario).finish(res)
         write_run(res, res.run_dir, plots=False, extra={"sitl": sitl})
         res.recorded.path.unlink(missing_ok=True)
         n = len(sitl["respawns"])

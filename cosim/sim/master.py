@@ -31,7 +31,7 @@ import numpy as np
 from cosim.errors import ComponentError
 from cosim.outputs.folder import clean_run_folder
 from cosim.outputs.tlog import Tlog
-from cosim.plant.fmu import Plant
+from cosim.plant.fmu import Y_QW, Y_QZ, Y_X, Y_Z, Plant
 from cosim.scenario.records import Scenario
 from cosim.sensors.camera import PngSink, VideoSink, make_camera
 from cosim.sensors.odometry import OdometrySensor
@@ -216,7 +216,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     if opts.mcap:
         from cosim.outputs.mcap import McapRun
 
-        mcap = McapRun(run_dir / "run.mcap")
+        mcap = McapRun(run_dir / "run.mcap", sc)
 
     phases: list[str] = []
     exit_reason, message = ExitReason.TIME_LIMIT, "time limit reached"
@@ -241,7 +241,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             sinks.append(lambda k, t, img: (k // cam_every) % png_every == 0
                          and pngs.add(t, img))
         if mcap is not None:
-            sinks.append(lambda k, t, img: mcap.frame(t, img))
+            sinks.append(lambda k, t, img: mcap.frame(t, img, tick.y[Y_X:Y_Z + 1],
+                                                      tick.y[Y_QW:Y_QZ + 1]))
         tick = Tick(plant=plant, sensor=sensor, codec=HilSimulatorCodec(),
                     exchange=vehicle.exchange, gcs_recv=vehicle.gcs.recv, tlog=tlog,
                     spool=spool, monitor=monitor, h_us=h_us, app=app, camera=camera,
