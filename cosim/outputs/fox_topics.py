@@ -41,7 +41,7 @@ from cosim.outputs import fox_scene as fs
 from cosim.sim.recorder import COL
 
 NUM, INT, STR = "number", "integer", "string"
-# the JSON topics' fields; every field required except those marked optional below
+# the JSON topics' fields; a number may be missing (not finite), the fields in REQUIRED not
 JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
     "/vehicle/truth": ("cosim.VehicleTruth", {
         "t": NUM, "x": NUM, "y": NUM, "z": NUM, "vx": NUM, "vy": NUM, "vz": NUM,
@@ -53,7 +53,7 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
     "/app/phase": ("cosim.AppPhase", {"phase": STR, "index": INT}),
     "/app/vision": ("cosim.AppVision", {}),     # the app's frame columns (`Topics.vision`)
 }
-OPTIONAL = {"/app/setpoint": {"x", "y", "z"}, "/app/vision": None}   # None: all optional
+REQUIRED = {"/vehicle/truth": ("t",), "/app/phase": ("phase", "index")}
 TOPICS: dict[str, str] = {
     "/tf_static": "foxglove.FrameTransforms",
     "/tf": "foxglove.FrameTransforms",
@@ -68,11 +68,10 @@ MAVLINK = "/mavlink/"                     # + message name: one topic per MAVLin
 VISION_FIELDS = ("flag_track", "flag_marker", "e_x_px", "e_y_px")   # line follower's frames
 
 
-def json_schema(title: str, fields: dict[str, Any], optional=()) -> dict[str, Any]:
+def json_schema(title: str, fields: dict[str, Any], required=()) -> dict[str, Any]:
     """An object schema: each field of one JSON type (or a full schema), no other fields."""
     props = {k: v if isinstance(v, dict) else {"type": v} for k, v in fields.items()}
-    return {"title": title, "type": "object", "properties": props,
-            "required": [k for k in fields if optional is not None and k not in optional],
+    return {"title": title, "type": "object", "properties": props, "required": list(required),
             "additionalProperties": False}
 
 
@@ -102,53 +101,66 @@ class Topics:
         self.scene = SceneUpdateChannel(p + "/world/scene", context=ctx)
         self.image = RawImageChannel(p + "/camera/image", context=ctx)
         self.calibration = CameraCalibrationChannel(p + "/camera/calibration", context=ctx)
-        self.json = {topic: _channel(ctx, p + topic, json_schema(title, fields, OPTIONAL.get(
+        self.json = {topic: _channel(ctx, p + topic, json_schema(title, fields, REQUIRED.get(
             topic, ()))) for topic, (title, fields) in JSON_SCHEMAS.items() if fields}
         self.vision_fields: tuple[str, ...] = ()
         self._mav: dict[str, Channel] = {}
-        self._cal = None
+        self._static: tuple | None = None
 
     # ------------------------------------------------------------------ once
     def static(self, t_ns: int = 0) -> None:
         """The frames' static transform, the world and the vehicle model (a live view sends
-        them again now and then, for clients that connect later)."""
-        w = self.sc.world
-        self.tf_static.log(FrameTransforms(transforms=[fs.map_to_world(w)]), log_time=t_ns)
-        self.scene.log(fs.world_scene(w), log_time=t_ns)
-        self.model.log(fs.vehicle_model(self.sc.vehicle, self.body), log_time=t_ns)
+        them again now and then, for clients that connect later; built once)."""
+        if self._static is None:
+            w = self.sc.world
+            self._static = ((self.tf_static, FrameTransforms(transforms=[fs.map_to_world(w)])),
+                            (self.scene, fs.world_scene(w)),
+                            (self.model, fs.vehicle_model(self.sc.vehicle, self.body)))
+        for ch, msg in self._static:
+            ch.log(msg, log_time=t_ns)
 
     # ------------------------------------------------------------------ per tick
-    def row(self, r, phases: list[str]) -> None:
-        """One recorded tick (a row of the series, `recorder.SERIES_COLUMNS`)."""
+    def row(self, r, phases: list[str], pose: bool = True) -> None:
+        """One recorded tick (a row of the series, `recorder.SERIES_COLUMNS`); `pose`: also
+        the body frame and the pose (a fleet's live view sends those more often). A message
+        nobody takes (a live view without a client on its topic) is not even built."""
         c = COL
         t = float(r[c["t"]])
         t_ns = int(round(t * 1e9))
         x, y, z = float(r[c["x"]]), float(r[c["y"]]), float(r[c["z"]])
         q = (float(r[c["qw"]]), float(r[c["qx"]]), float(r[c["qy"]]), float(r[c["qz"]]))
-        self.state(t_ns, x, y, z, q)
-        roll, pitch, yaw = (math.degrees(a) for a in euler_from_quat(q))
+        if pose:
+            self.state(t_ns, x, y, z, q)
         j = self.json
-        j["/vehicle/truth"].log(
-            {"t": t, "x": x, "y": y, "z": z, "vx": float(r[c["vx"]]), "vy": float(r[c["vy"]]),
-             "vz": float(r[c["vz"]]), "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw,
-             "p": float(r[c["p"]]), "q": float(r[c["q"]]), "r": float(r[c["r"]]), "alt": -z},
-            log_time=t_ns)
-        j["/vehicle/estimate"].log({k: float(r[c["est_" + k]]) for k in ("x", "y", "z")},
-                                   log_time=t_ns)
-        j["/app/setpoint"].log(_finite({k: float(r[c["sp_" + k]]) for k in ("x", "y", "z")}),
-                               log_time=t_ns)
-        j["/vehicle/motors"].log({f"u{i}": float(r[c[f"u{i}"]]) for i in range(1, 5)},
-                                 log_time=t_ns)
-        pi = int(r[c["phase"]])
-        j["/app/phase"].log({"phase": phases[pi] if 0 <= pi < len(phases) else "none",
-                             "index": pi}, log_time=t_ns)
+        ch = j["/vehicle/truth"]
+        if ch.has_sinks():
+            roll, pitch, yaw = (math.degrees(a) for a in euler_from_quat(q))
+            ch.log(_finite({"t": t, "x": x, "y": y, "z": z, "vx": float(r[c["vx"]]),
+                            "vy": float(r[c["vy"]]), "vz": float(r[c["vz"]]),
+                            "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw,
+                            "p": float(r[c["p"]]), "q": float(r[c["q"]]),
+                            "r": float(r[c["r"]]), "alt": -z}), log_time=t_ns)
+        for topic, prefix, keys in (("/vehicle/estimate", "est_", ("x", "y", "z")),
+                                    ("/app/setpoint", "sp_", ("x", "y", "z")),
+                                    ("/vehicle/motors", "", ("u1", "u2", "u3", "u4"))):
+            ch = j[topic]
+            if ch.has_sinks():
+                ch.log(_finite({k: float(r[c[prefix + k]]) for k in keys}), log_time=t_ns)
+        ch = j["/app/phase"]
+        if ch.has_sinks():
+            pi = int(r[c["phase"]])
+            ch.log({"phase": phases[pi] if 0 <= pi < len(phases) else "none", "index": pi},
+                   log_time=t_ns)
 
     def state(self, t_ns: int, x: float, y: float, z: float, q) -> None:
         """The body frame and the pose at one instant."""
-        self.tf.log(FrameTransforms(transforms=[fs.body_in_world(t_ns, x, y, z, q, self.body)]),
-                    log_time=t_ns)
-        self.pose.log(PoseInFrame(timestamp=fs.ts(t_ns), frame_id=fs.WORLD, pose=Pose(
-            position=Vector3(x=x, y=y, z=z), orientation=fs.quaternion(q))), log_time=t_ns)
+        if self.tf.has_sinks():
+            self.tf.log(FrameTransforms(transforms=[fs.body_in_world(
+                t_ns, x, y, z, q, self.body)]), log_time=t_ns)
+        if self.pose.has_sinks():
+            self.pose.log(PoseInFrame(timestamp=fs.ts(t_ns), frame_id=fs.WORLD, pose=Pose(
+                position=Vector3(x=x, y=y, z=z), orientation=fs.quaternion(q))),
+                log_time=t_ns)
 
     # ------------------------------------------------------------------ per frame
     def frame(self, t: float, img: np.ndarray, p_W, q_WB) -> None:
@@ -160,19 +172,22 @@ class Topics:
         cfg = self.sc.camera
         h, w = img.shape[:2]
         stamp = fs.ts(t_ns)
-        R_WC, _ = camera_pose_W(cfg, p_W, q_WB)
-        R_BC = R_from_quat(q_WB).T @ R_WC
-        self.tf.log(FrameTransforms(transforms=[fs.camera_in_body(
-            t_ns, cfg.mount_B, R_BC, self.body, self.camera_frame)]), log_time=t_ns)
-        K = [float(v) for v in cfg.K().ravel()]
-        self.calibration.log(CameraCalibration(
-            timestamp=stamp, frame_id=self.camera_frame, width=w, height=h,
-            distortion_model="plumb_bob", D=[0.0] * 5, K=K,
-            R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-            P=K[0:3] + [0.0] + K[3:6] + [0.0] + K[6:9] + [0.0]), log_time=t_ns)
-        self.image.log(RawImage(timestamp=stamp, frame_id=self.camera_frame, width=w, height=h,
-                                encoding="rgb8", step=3 * w, data=img.tobytes()),
-                       log_time=t_ns)
+        if self.tf.has_sinks():
+            R_WC, _ = camera_pose_W(cfg, p_W, q_WB)
+            R_BC = R_from_quat(q_WB).T @ R_WC
+            self.tf.log(FrameTransforms(transforms=[fs.camera_in_body(
+                t_ns, cfg.mount_B, R_BC, self.body, self.camera_frame)]), log_time=t_ns)
+        if self.calibration.has_sinks():
+            K = [float(v) for v in cfg.K().ravel()]
+            self.calibration.log(CameraCalibration(
+                timestamp=stamp, frame_id=self.camera_frame, width=w, height=h,
+                distortion_model="plumb_bob", D=[0.0] * 5, K=K,
+                R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                P=K[0:3] + [0.0] + K[3:6] + [0.0] + K[6:9] + [0.0]), log_time=t_ns)
+        if self.image.has_sinks():
+            self.image.log(RawImage(timestamp=stamp, frame_id=self.camera_frame, width=w,
+                                    height=h, encoding="rgb8", step=3 * w, data=img.tobytes()),
+                           log_time=t_ns)
 
     def vision(self, record, columns=None) -> None:
         """One record of the app's frame log: (t, value per field...); `columns` (the app's
@@ -182,7 +197,7 @@ class Topics:
             self.vision_fields = tuple(columns)[1:] if columns else VISION_FIELDS
             title, _ = JSON_SCHEMAS["/app/vision"]
             self.json["/app/vision"] = _channel(self.ctx, self.prefix + "/app/vision", json_schema(
-                title, dict.fromkeys(self.vision_fields, NUM), None))
+                title, dict.fromkeys(self.vision_fields, NUM)))
         t_ns = int(round(float(record[0]) * 1e9))
         self.json["/app/vision"].log(_finite({k: float(v) for k, v in zip(
             self.vision_fields, record[1:], strict=False)}), log_time=t_ns)
@@ -229,4 +244,4 @@ def mavlink_schema(msg) -> dict[str, Any]:
             optional.add(k)
         fields[k] = ({"type": "array", "items": {"type": base}} if lengths[k] and base != STR
                      else base)
-    return json_schema(f"mavlink.{name}", fields, optional)
+    return json_schema(f"mavlink.{name}", fields, [k for k in fields if k not in optional])

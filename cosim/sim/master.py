@@ -243,6 +243,12 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         if mcap is not None:
             sinks.append(lambda k, t, img: mcap.frame(t, img, tick.y[Y_X:Y_Z + 1],
                                                       tick.y[Y_QW:Y_QZ + 1]))
+        live = None
+        if opts.live is not None:   # the live view: its topics, the frames as they come
+            with part("live view"):
+                live = opts.live.vehicle(sc, app=app)
+            sinks.append(lambda k, t, img: live.frame(t, img, tick.y[Y_X:Y_Z + 1],
+                                                      tick.y[Y_QW:Y_QZ + 1]))
         tick = Tick(plant=plant, sensor=sensor, codec=HilSimulatorCodec(),
                     exchange=vehicle.exchange, gcs_recv=vehicle.gcs.recv, tlog=tlog,
                     spool=spool, monitor=monitor, h_us=h_us, app=app, camera=camera,
@@ -253,6 +259,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         realtime, progress = opts.realtime, opts.progress
         loop0 = time.perf_counter()
         pacer = Pacer(opts.speed, loop0)
+        pace = pacer.wait
+        if live is not None:   # the live view logs the last recorded tick, then paces
+            pace = live.pacing(spool.rows, phases, pace if realtime else None)
+            realtime = True
         for k in range(n_ticks):
             if gusty is not None:
                 wind = gusty(k)
@@ -263,7 +273,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             if realtime or progress:
                 t = k * h_us * 1e-6
                 if realtime:
-                    pacer.wait(t + h)
+                    pace(t + h)
                 if progress and k % 2000 == 0:
                     show_progress(t, wall0, phases[tick.phase])
     except ComponentError as exc:
