@@ -172,7 +172,7 @@ def test_cosim_sitl_foxglove_serves_the_vehicle(tmp_path):
         z = [m.pose.position.z for _, m in client.got["/vehicle/pose"]]
         assert all(abs(v) < 0.01 for v in z)           # on the ground: nobody flies it
         (_, tfs), = client.got["/tf_static"][:1]
-        assert tfs.transforms[0].child_frame_id == "world"
+        assert [tf.child_frame_id for tf in tfs.transforms] == ["world", "body_flu"]
     finally:
         proc.terminate()
         proc.wait(10)

@@ -119,7 +119,10 @@ def _transform(tf) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _frames(topics) -> tuple[tuple, list, list]:
-    (static,) = [tf for _, m in topics["/tf_static"][2] for tf in m.transforms]
+    static, flu = [tf for _, m in topics["/tf_static"][2] for tf in m.transforms]
+    assert (flu.parent_frame_id, flu.child_frame_id) == ("body", "body_flu")
+    R_bf, _ = _transform(flu)
+    assert np.allclose(R_bf @ np.array([0.0, 0.0, 1.0]), [0.0, 0.0, -1.0])   # z up = -z FRD
     body = [(t, tf) for t, m in topics["/tf"][2] for tf in m.transforms
             if tf.child_frame_id == "body"]
     cam = [(t, tf) for t, m in topics["/tf"][2] for tf in m.transforms

@@ -9,6 +9,8 @@ Frames (the 3D panel's convention is z up):
 - ``world``: the simulator's world NED (x north, y east, z down), a static child of ``map``
   (``map_to_world``: a rotation of 180 deg about the (1, 1, 0) axis and the arena centre);
 - ``body``: the vehicle's body FRD, a child of ``world`` at the pose of each tick;
+- ``body_flu``: the same body with z up (x forward, y left, z up, ROS's base_link), a static
+  child of ``body``: the display frame to follow the vehicle with the view right way up;
 - ``camera``: the camera's optical frame (x image right, y image down, z along the optical
   axis, the convention of ``foxglove.CameraCalibration``), a child of ``body`` at the camera's
   mount (a stabilized camera turns against the body's roll and pitch, so its transform is
@@ -48,6 +50,7 @@ from foxglove.messages import (
 from cosim.frames import quat_from_euler, quat_from_R
 
 MAP, WORLD, BODY, CAMERA = "map", "world", "body", "camera"
+FLU = "_flu"                                # + body: the body frame z up (x fwd, y left)
 R_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 VEHICLE_RGBA = (1.0, 0.45, 0.0, 1.0)        # orange: the vehicle, easy to find in a view
 FLOOR_SLAB_M = 0.02                         # the floor's thickness, under z = 0
@@ -76,6 +79,13 @@ def map_to_world(world) -> FrameTransform:
     return FrameTransform(timestamp=T0, parent_frame_id=MAP, child_frame_id=WORLD,
                           translation=Vector3(x=-ce, y=-cn, z=0.0),
                           rotation=quaternion(quat_from_R(R_ENU_NED)))
+
+
+def flu_in_body(body: str = BODY) -> FrameTransform:
+    """The static transform of the z-up body frame: 180 deg about the body's x axis."""
+    return FrameTransform(timestamp=T0, parent_frame_id=body, child_frame_id=body + FLU,
+                          translation=Vector3(), rotation=Quaternion(x=1.0, y=0.0, z=0.0,
+                                                                     w=0.0))
 
 
 def body_in_world(t_ns: int, x: float, y: float, z: float, q_wxyz, child: str = BODY

@@ -113,7 +113,8 @@ class Topics:
         them again now and then, for clients that connect later; built once)."""
         if self._static is None:
             w = self.sc.world
-            self._static = ((self.tf_static, FrameTransforms(transforms=[fs.map_to_world(w)])),
+            self._static = ((self.tf_static, FrameTransforms(transforms=[
+                fs.map_to_world(w), fs.flu_in_body(self.body)])),
                             (self.scene, fs.world_scene(w)),
                             (self.model, fs.vehicle_model(self.sc.vehicle, self.body)))
         for ch, msg in self._static:

@@ -1,0 +1,85 @@
+"""A loopback HTTP server for the real-viewer test: the page (index.html, boot.js), the
+layout, the npm packages (/node/...) and one run's MCAP, with byte ranges (Foxglove reads a
+remote MCAP by ranges) and CORS. Not a test module itself."""
+
+from __future__ import annotations
+
+import contextlib
+import mimetypes
+import re
+import threading
+from collections.abc import Iterator
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def _handler(routes: dict[str, Path], node: Path):
+    class Handler(BaseHTTPRequestHandler):
+        def log_message(self, *args) -> None:   # quiet
+            pass
+
+        def _path(self) -> Path | None:
+            url = self.path.split("?", 1)[0]
+            if url in routes:
+                return routes[url]
+            if url.startswith("/node/"):
+                p = (node / url[len("/node/"):]).resolve()
+                if node.resolve() in p.parents and p.is_file():
+                    return p
+            return None
+
+        def do_GET(self) -> None:   # noqa: N802 (the stdlib's name)
+            p = self._path()
+            if p is None:
+                self.send_error(404)
+                return
+            size = p.stat().st_size
+            start, end = 0, size - 1
+            m = re.fullmatch(r"bytes=(\d*)-(\d*)", self.headers.get("Range", ""))
+            if m and (m.group(1) or m.group(2)):
+                if m.group(1):
+                    start = int(m.group(1))
+                    end = min(int(m.group(2)), size - 1) if m.group(2) else size - 1
+                else:
+                    start = max(size - int(m.group(2)), 0)
+                self.send_response(206)
+                self.send_header("Content-Range", f"bytes {start}-{end}/{size}")
+            else:
+                self.send_response(200)
+            ctype = mimetypes.guess_type(p.name)[0] or "application/octet-stream"
+            if p.suffix == ".wasm":
+                ctype = "application/wasm"
+            self.send_header("Content-Type", ctype)
+            self.send_header("Content-Length", str(end - start + 1))
+            self.send_header("Accept-Ranges", "bytes")
+            self.send_header("Access-Control-Allow-Origin", "*")
+            self.send_header("Access-Control-Expose-Headers", "Content-Range, Content-Length")
+            self.end_headers()
+            with open(p, "rb") as f:
+                f.seek(start)
+                left = end - start + 1
+                while left > 0:
+                    chunk = f.read(min(left, 1 << 20))
+                    if not chunk:
+                        break
+                    self.wfile.write(chunk)
+                    left -= len(chunk)
+
+    return Handler
+
+
+@contextlib.contextmanager
+def serve(mcap: Path, layout: Path, node: Path) -> Iterator[str]:
+    """Serve on 127.0.0.1, a free port; yields the base URL."""
+    routes = {"/": HERE / "index.html", "/index.html": HERE / "index.html",
+              "/boot.js": HERE / "boot.js", "/layout.json": layout, "/run.mcap": mcap}
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _handler(routes, node))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
