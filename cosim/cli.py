@@ -67,6 +67,7 @@ Without a visual_path, `cosim run` teaches by rendering into the run folder firs
   cosim bench --quick           a short smoke run
   cosim bench --flood           only SIL under a UDP flood (1-2 minutes)
   cosim bench --instructions    instructions per MIL tick, compiled vs Python reference
+  cosim bench --live            what the live view (--foxglove) costs the loop
                                 (needs Valgrind; 5-8 minutes; noise-free on a shared host)""",
 }
 
@@ -197,6 +198,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--instructions", action="store_true",
                    help="only the work per MIL tick in CPU instructions (Valgrind's "
                         "cachegrind), compiled and Python reference, and their ratio")
+    b.add_argument("--live", action="store_true",
+                   help="only the live view's cost (--foxglove): the seed mission's loop "
+                        "without it, with it unwatched, with a client on every topic")
     return p
 
 
@@ -322,13 +326,15 @@ def _dispatch(args) -> int:
     if args.cmd == "bench":
         from cosim.studies.bench import main as bench_main
 
-        if args.instructions and args.flood:
-            raise ScenarioError("bench", "--instructions --flood", "one of the two")
+        only = [f"--{k}" for k in ("instructions", "flood", "live") if getattr(args, k)]
+        if len(only) > 1:
+            raise ScenarioError("bench", " ".join(only), "one of --instructions, --flood, "
+                                "--live")
         if args.json is not None and args.json.is_dir():
             raise ScenarioError("--json", str(args.json), "a file path (this is a folder)")
 
         return bench_main(quick=args.quick, json_path=args.json, flood_only=args.flood,
-                          instructions=args.instructions)
+                          instructions=args.instructions, live_only=args.live)
     raise AssertionError(args.cmd)
 
 

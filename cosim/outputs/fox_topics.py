@@ -121,6 +121,11 @@ class Topics:
             ch.log(msg, log_time=t_ns)
 
     # ------------------------------------------------------------------ per tick
+    def watched(self) -> bool:
+        """Whether any per-tick or per-frame topic has a taker (a live view's client)."""
+        return any(ch.has_sinks() for ch in (self.tf, self.pose, self.image, self.calibration,
+                                             *self.json.values()))
+
     def row(self, r, phases: list[str], pose: bool = True) -> None:
         """One recorded tick (a row of the series, `recorder.SERIES_COLUMNS`); `pose`: also
         the body frame and the pose (a fleet's live view sends those more often). A message

@@ -74,6 +74,8 @@ class LiveVehicle:
         k = self.k = self.k + 1
         if k % EVERY:
             return
+        if k % STATIC_EVERY and not self.topics.watched():
+            return
         if rows:
             r = np.frombuffer(rows[-1], dtype="<f8")
             self.topics.row(r, phases)

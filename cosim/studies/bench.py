@@ -344,7 +344,18 @@ def format_report(res: dict[str, Any]) -> str:
 
 
 def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = False,
-         instructions: bool = False) -> int:
+         instructions: bool = False, live_only: bool = False) -> int:
+    if live_only:      # what the live view costs the loop (bench_live.py)
+        from cosim.studies.bench_live import bench_live, format_live
+
+        res = {"machine": machine(), "live": bench_live(**(
+            {"t_final_s": 5.0, "repeats": 1} if quick else {}))}
+        print("\n".join(format_live(res["live"])))
+        path = json_path or Path("runs") / "bench_live.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(res, indent=2))
+        print(f"figures written to {path}")
+        return 0
     if instructions:   # instructions per tick, now and before (bench_instr.py)
         from cosim.studies.bench_instr import ToolMissing, bench_instructions, format_instructions
 

@@ -76,6 +76,7 @@ def serve(mcap: Path, layout: Path, node: Path) -> Iterator[str]:
     routes = {"/": HERE / "index.html", "/index.html": HERE / "index.html",
               "/boot.js": HERE / "boot.js", "/layout.json": layout, "/run.mcap": mcap}
     server = ThreadingHTTPServer(("127.0.0.1", 0), _handler(routes, node))
+    server.handle_error = lambda *_: None      # a browser dropping a range read it no longer needs
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     try:
