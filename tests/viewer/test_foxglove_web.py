@@ -19,21 +19,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from viewer_http import serve
+from viewer_http import CHROMIUM, FLAGS, NODE, ROOT, run_url, serve
 
 from cosim.scenario.parse import load_scenario, with_set
 from cosim.sim.master import RunOptions, run_scenario
 from cosim.sim.recorder import COL
 
-ROOT = Path(__file__).resolve().parents[2]
-NODE = Path(os.environ.get("COSIM_VIEWER_DIR", Path.home() / ".cache" / "cosim-viewer")
-            ) / "node_modules"
-CHROMIUM = "/usr/bin/chromium"
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync",
-         # WebGL without a GPU: ANGLE on SwiftShader (Chromium no longer falls back to it
-         # by itself)
-         "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 T_SEEK_S = 8.0        # hovering by then
 WAIT_S = float(os.environ.get("COSIM_VIEWER_WAIT_S", 180.0))
 
@@ -89,9 +80,7 @@ def test_foxglove_studio_shows_the_run(tmp_path):
             page = browser.new_page(viewport={"width": 1600, "height": 1000})
             errors: list[str] = []
             page.on("pageerror", lambda e: errors.append(str(e)))
-            t = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(int(T_SEEK_S)))
-            page.goto(f"{base}/?ds=remote-file&ds.url={base}/run.mcap&layoutId=cosim"
-                      f"&time={t}.{int(T_SEEK_S % 1 * 1e9):09d}Z")
+            page.goto(run_url(base, T_SEEK_S))
             # the plot legend shows the altitude recorded at T_SEEK_S, to the last digit
             plot = page.locator(".mosaic-window").filter(has_text="position (world NED, m)")
             end = time.monotonic() + WAIT_S

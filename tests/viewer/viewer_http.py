@@ -1,18 +1,42 @@
-"""A loopback HTTP server for the real-viewer test: the page (index.html, boot.js), the
-layout, the npm packages (/node/...) and one run's MCAP, with byte ranges (Foxglove reads a
-remote MCAP by ranges) and CORS. Not a test module itself."""
+"""Foxglove Studio's web build on this machine, for the real-viewer test and for screenshots:
+a loopback HTTP server for the page (index.html, boot.js), the layout, the npm packages
+(/node/...) and one run's MCAP, with byte ranges (Foxglove reads a remote MCAP by ranges) and
+CORS; the headless Chromium flags; the URL that opens a run at a time with the layout.
+
+A screenshot of a run (for the docs), after `bash tests/viewer/setup.sh`:
+    .venv/bin/python tests/viewer/viewer_http.py runs/e1/run.mcap foxglove.png --time 10
+Not a test module itself."""
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import mimetypes
+import os
 import re
 import threading
+import time
 from collections.abc import Iterator
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+NODE = Path(os.environ.get("COSIM_VIEWER_DIR", Path.home() / ".cache" / "cosim-viewer")
+            ) / "node_modules"
+CHROMIUM = "/usr/bin/chromium"
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync",
+         # WebGL without a GPU: ANGLE on SwiftShader (Chromium no longer falls back to it
+         # by itself)
+         "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+def run_url(base: str, t_s: float) -> str:
+    """The page opening base/run.mcap at simulation time t_s (s) with the layout "cosim"."""
+    stamp = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(int(t_s)))
+    return (f"{base}/?ds=remote-file&ds.url={base}/run.mcap&layoutId=cosim"
+            f"&time={stamp}.{int(round(t_s % 1 * 1e9)):09d}Z")
 
 
 def _handler(routes: dict[str, Path], node: Path):
@@ -84,3 +108,26 @@ def serve(mcap: Path, layout: Path, node: Path) -> Iterator[str]:
     finally:
         server.shutdown()
         server.server_close()
+
+
+def main() -> None:
+    from playwright.sync_api import sync_playwright
+
+    p = argparse.ArgumentParser(description="a screenshot of a run in Foxglove Studio 1.48")
+    p.add_argument("mcap", type=Path)
+    p.add_argument("png", type=Path)
+    p.add_argument("--time", type=float, default=0.0, help="s of simulation time to show")
+    p.add_argument("--layout", type=Path, default=ROOT / "docs" / "cosim-layout.json")
+    p.add_argument("--wait", type=float, default=30.0, help="s to let it load and draw")
+    a = p.parse_args()
+    with serve(a.mcap, a.layout, NODE) as base, sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+        page = browser.new_page(viewport={"width": 1600, "height": 1000})
+        page.goto(run_url(base, a.time))
+        time.sleep(a.wait)
+        page.screenshot(path=str(a.png))
+        browser.close()
+
+
+if __name__ == "__main__":
+    main()
