@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup fmu build demo test test-slow lint bench clean
+.PHONY: setup fmu build demo test test-slow viewer-setup lint bench clean
 
 setup: $(STAMP) fmu build
 
@@ -30,8 +30,12 @@ test: setup
 	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -m "not slow"
 
-test-slow: setup
+# the slow checks include a real viewer (tests/viewer): chromium, Playwright, npm packages
+test-slow: setup viewer-setup
 	$(PY) -m pytest -m slow
+
+viewer-setup: setup
+	bash tests/viewer/setup.sh
 
 bench: setup
 	$(VENV)/bin/cosim bench
