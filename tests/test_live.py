@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SEED = ROOT / "scenarios" / "mambo_seed_track.toml"
 WAIT_S = 60.0
 WANT = ("/tf_static", "/tf", "/vehicle/pose", "/world/scene", "/camera/image",
-        "/camera/calibration", "/vehicle/truth", "/app/phase")
+        "/camera/calibration", "/vehicle/truth", "/app/phase", "/app/vision")
 
 
 class Client:
@@ -144,6 +144,12 @@ def test_a_client_receives_the_run_live_and_the_run_is_unchanged(tmp_path):
         assert pose.pose.position.z == s[k, 3] and pose.pose.position.x == s[k, 1]
     truth = client.got["/vehicle/truth"][-1][1]
     assert set(truth) >= {"t", "x", "y", "z"}
+    vision = dict(client.got["/app/vision"])          # the app's frame log, as it grows
+    log = {int(round(rec[0] * 1e9)): rec for rec in res.frame_log}
+    assert vision and set(vision) <= set(log)
+    for t_ns, v in vision.items():                    # (t, flag_track, flag_marker, e_x_px, ..)
+        assert v.get("flag_track") == log[t_ns][1] and v.get("e_x_px", log[t_ns][3]) == \
+            log[t_ns][3]
     # an image with its calibration, both in the camera frame
     (_, img), (_, cal) = client.got["/camera/image"][0], client.got["/camera/calibration"][0]
     assert (img.width, img.height, img.encoding) == (160, 120, "rgb8")
