@@ -4,7 +4,11 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
+<<<<<<< HEAD
 .PHONY: setup fmu build demo test test-slow lint bench docs docs-figures clean
+=======
+.PHONY: setup fmu build demo test test-slow viewer-setup lint bench clean
+>>>>>>> issue30
 
 setup: $(STAMP) fmu build
 
@@ -30,8 +34,12 @@ test: setup
 	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -m "not slow"
 
-test-slow: setup
+# the slow checks include a real viewer (tests/viewer): chromium, Playwright, npm packages
+test-slow: setup viewer-setup
 	$(PY) -m pytest -m slow
+
+viewer-setup: setup
+	bash tests/viewer/setup.sh
 
 bench: setup
 	$(VENV)/bin/cosim bench

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import errno
 import signal
 import sys
@@ -19,7 +20,8 @@ EXAMPLES = {
   cosim run scenarios/mambo_seed_track.toml --mode sil --out runs/seed-sil
   cosim run scenarios/mambo_turns.toml --set app.alpha=0.008 --set seed=3
   cosim run scenarios/mambo_seed_track.toml --realtime --speed 2 --video --png-every 5
-  cosim run scenarios/mambo_seed_track.toml --mcap      run.mcap for Foxglove / PlotJuggler""",
+  cosim run scenarios/mambo_seed_track.toml --mcap      run.mcap for Foxglove / PlotJuggler
+  cosim run scenarios/bebop2_vs_e1.toml --realtime --foxglove   watch it live (ws://...:8765)""",
     "validate": """examples:
   cosim validate scenarios/mambo_seed_track.toml
   cosim validate scenarios/*.toml""",
@@ -38,6 +40,7 @@ study options (--executor dask, --scheduler, --resume, --keep-runs, --retry-fail
                                               sysid 2, API to 14541, GCS bound on 18571
   cosim sitl -n 3                             three vehicles in one world: sysid 1, 2, 3
   cosim sitl --gcs-remote 127.0.0.1:14551 --gcs-bind 127.0.0.1:18571
+  cosim sitl --foxglove                       and watch it in Foxglove (ws://127.0.0.1:8765)
 ports of instance N, as PX4 SITL (sysid N+1):
   API link  sends to 14540+N from 14580+N   (MAVSDK: udpin://0.0.0.0:14540+N)
   GCS link  sends to 14550   from 18570+N   (QGroundControl sees every vehicle on 14550)
@@ -65,6 +68,7 @@ Without a visual_path, `cosim run` teaches by rendering into the run folder firs
   cosim bench --quick           a short smoke run
   cosim bench --flood           only SIL under a UDP flood (1-2 minutes)
   cosim bench --instructions    instructions per MIL tick, compiled vs Python reference
+  cosim bench --live            what the live view (--foxglove) costs the loop
                                 (needs Valgrind; 5-8 minutes; noise-free on a shared host)""",
 }
 
@@ -113,6 +117,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true")
     r.add_argument("--mcap", action="store_true",
                    help="also write run.mcap (Foxglove schemas; opens in Foxglove, PlotJuggler)")
+    _add_foxglove(r)
     r.add_argument("--quiet", action="store_true", help="no progress display")
 
     v = add("validate", help="check scenario files")
@@ -146,6 +151,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--out", type=Path, help="folder (default runs/sitl-<vehicle>); "
                    "instance N writes DIR/N/")
     t.add_argument("--mcap", action="store_true", help="also write run.mcap at the end")
+    _add_foxglove(t)
     t.add_argument("--signing-key", type=Path, metavar="FILE",
                    help="MAVLink 2 signing key file (32 bytes, or 64 hex digits): the vehicle "
                         "signs what it sends and rejects unsigned messages on both links")
@@ -193,7 +199,42 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--instructions", action="store_true",
                    help="only the work per MIL tick in CPU instructions (Valgrind's "
                         "cachegrind), compiled and Python reference, and their ratio")
+    b.add_argument("--live", action="store_true",
+                   help="only the live view's cost (--foxglove): the seed mission's loop "
+                        "without it, with it unwatched, with a client on every topic")
     return p
+
+
+def _add_foxglove(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="serve the run live to Foxglove / Lichtblick (Foxglove WebSocket "
+                        "protocol) on PORT (default 8765; 0: any free port); see "
+                        "docs/viewers.md")
+    p.add_argument("--foxglove-host", default="127.0.0.1", metavar="HOST",
+                   help="the live view's address (default 127.0.0.1, this machine only)")
+
+
+@contextlib.contextmanager
+def _live_view(args):
+    """The live view asked for by --foxglove (None without), stopped at the end."""
+    if args.foxglove is None:
+        yield None
+        return
+    if not 0 <= args.foxglove <= 65535:
+        raise ScenarioError("--foxglove", args.foxglove, "a port in 0..65535")
+    from cosim.outputs.live import LiveView
+
+    try:
+        live = LiveView(args.foxglove, args.foxglove_host)
+    except Exception as exc:
+        raise ScenarioError("--foxglove", f"{args.foxglove_host}:{args.foxglove}",
+                            f"an address the live view can listen on ({exc})") from None
+    print(f"cosim: live view on {live.url} (Foxglove / Lichtblick: Open connection -> "
+          f"Foxglove WebSocket)", file=sys.stderr, flush=True)
+    try:
+        yield live
+    finally:
+        live.close()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -304,13 +345,15 @@ def _dispatch(args) -> int:
     if args.cmd == "bench":
         from cosim.studies.bench import main as bench_main
 
-        if args.instructions and args.flood:
-            raise ScenarioError("bench", "--instructions --flood", "one of the two")
+        only = [f"--{k}" for k in ("instructions", "flood", "live") if getattr(args, k)]
+        if len(only) > 1:
+            raise ScenarioError("bench", " ".join(only), "one of --instructions, --flood, "
+                                "--live")
         if args.json is not None and args.json.is_dir():
             raise ScenarioError("--json", str(args.json), "a file path (this is a folder)")
 
         return bench_main(quick=args.quick, json_path=args.json, flood_only=args.flood,
-                          instructions=args.instructions)
+                          instructions=args.instructions, live_only=args.live)
     raise AssertionError(args.cmd)
 
 
@@ -343,11 +386,15 @@ def _run(args) -> int:
     _check_out_dir(out, "--out")
     if args.hil_transport != "udp" and args.mode != "sil":
         raise ScenarioError("--hil-transport", args.hil_transport, "only with --mode sil")
+    if args.foxglove is not None and not args.realtime:
+        raise ScenarioError("--foxglove", args.foxglove, "together with --realtime (a live "
+                            "view of a run faster than real time shows nothing useful)")
     opts = RunOptions(mode=args.mode, realtime=args.realtime, speed=args.speed,
                       hil_transport=args.hil_transport,
                       video=args.video, png_every=args.png_every, mcap=args.mcap,
                       progress=not args.quiet and sys.stderr.isatty(), out_dir=out)
-    with claim_run_folder(out):
+    with claim_run_folder(out), _live_view(args) as live:
+        opts.live = live
         res = run_scenario(sc, opts)
         summary = write_run(res, out, plots=not args.no_plots)
     print(one_screen(summary, out))
@@ -452,6 +499,7 @@ def _sitl(args) -> int:
     with contextlib.ExitStack() as held, stop_on_signals() as stop:
         for f in folders:
             held.enter_context(claim_run_folder(f))
+        so = dataclasses.replace(so, live=held.enter_context(_live_view(args)))
         fr = run_fleet(sc, so, stop)
         lines = write_fleet(fr, mcap=args.mcap)
     print("\n".join(lines))

@@ -45,21 +45,21 @@ def _read(path: Path):
 def test_topics_schemas_counts_and_sim_time(run):
     res, out = run
     kinds, msgs = _read(out / "run.mcap")
-    assert set(kinds) == set(TOPICS)
-    for topic, kind in TOPICS.items():
-        if kind == "json":
-            assert kinds[topic][1] == "json", topic
-        else:
-            assert kinds[topic] == (kind, "protobuf"), topic
+    mav = {t for t in kinds if t.startswith("/mavlink/")}
+    assert set(kinds) == set(TOPICS) | mav
+    for topic, name in TOPICS.items():
+        encoding = "protobuf" if name.startswith("foxglove.") else "json"
+        assert kinds[topic] == (name, encoding), topic
     n = Counter({t: len(m) for t, m in msgs.items()})
     assert n["/vehicle/pose"] == n["/vehicle/motors"] == res.ticks == 1200
     assert n["/camera/image"] == n["/app/vision"] == len(res.frame_log) == 30   # 5 Hz
-    assert n["/world/scene"] == 1
-    assert n["/mavlink"] == len(read_tlog(res.tlog.path))
+    assert n["/camera/calibration"] == 30 and n["/tf"] == 1200 + 30
+    assert n["/world/scene"] == n["/tf_static"] == n["/vehicle/model"] == 1
+    tlog = read_tlog(res.tlog.path)
+    assert sum(n[t] for t in mav) == len(tlog)         # every datagram, on its type's topic
     pose_t = [m.log_time for m in msgs["/vehicle/pose"]]
     assert pose_t == [k * 5_000_000 for k in range(res.ticks)]    # simulation time, ns
-    assert [m.log_time for m in msgs["/mavlink"]] == sorted(t * 1000 for t, _ in
-                                                           read_tlog(res.tlog.path))
+    assert sorted(m.log_time for t in mav for m in msgs[t]) == sorted(t * 1000 for t, _ in tlog)
 
 
 def test_json_topics_carry_the_recorded_values(run):
@@ -73,9 +73,10 @@ def test_json_topics_carry_the_recorded_values(run):
     assert [motors[f"u{i}"] for i in range(1, 5)] == [s[k, COL[f"u{i}"]] for i in range(1, 5)]
     phase = json.loads(msgs["/app/phase"][k].data)
     assert phase["phase"] == res.phases[int(s[k, -1])]
-    hb = [json.loads(m.data) for m in msgs["/mavlink"]]
-    assert any(d["mavpackettype"] == "HEARTBEAT" for d in hb)
-    assert any(d["mavpackettype"] == "SET_POSITION_TARGET_LOCAL_NED" for d in hb)
+    hb = [json.loads(m.data) for m in msgs["/mavlink/HEARTBEAT"]]
+    assert {d["mavpackettype"] for d in hb} == {"HEARTBEAT"} and {d["sysid"] for d in hb} >= {1}
+    sp = [json.loads(m.data) for m in msgs["/mavlink/SET_POSITION_TARGET_LOCAL_NED"]]
+    assert sp and all(isinstance(d["type_mask"], int) for d in sp)
 
 
 def test_image_payload_is_the_rendered_frame(run):

@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 
 from cosim.errors import ScenarioError
-from cosim.sensors.down import CameraConfig, DownwardCamera
-from cosim.sensors.front import FrontCamera, FrontCameraConfig
+from cosim.sensors.down import CameraConfig, DownwardCamera, _camera_pose
+from cosim.sensors.front import FrontCamera, FrontCameraConfig, camera_pose
 
 # kind -> (config record, renderer class); the renderer takes (world, config, seed=...)
 KINDS: dict[str, tuple[type, type]] = {
@@ -82,6 +82,13 @@ def make_camera(config: CameraConfigAny, world, seed: int) -> Renderer:
         if isinstance(config, cfg_type):
             return renderer(world, config, seed=seed)
     raise TypeError(f"no camera for config {type(config).__name__}")
+
+
+def camera_pose_W(config: CameraConfigAny, p_W, q_WB) -> tuple[np.ndarray, np.ndarray]:
+    """(R_WC, c_W): the camera's optical axes (columns: image right, image down, optical
+    axis) and its centre, world NED, at a body pose (a stabilized camera's turn with it)."""
+    pose = camera_pose if isinstance(config, FrontCameraConfig) else _camera_pose
+    return pose(config, p_W, q_WB)
 
 
 # ====================================================================== saving

@@ -96,6 +96,7 @@ class SitlOptions:
     speed: float = 1.0                     # simulated time / wall time
     links: tuple[Links, ...] = ()          # per vehicle; () = PX4's (`instance_links`)
     signing_key: bytes | None = None       # 32 bytes: every vehicle signs, rejects unsigned
+    live: Any = None                       # a cosim.outputs.live.LiveView serving the flight
 
 
 @dataclass
@@ -268,6 +269,10 @@ def run_fleet(sc: Scenario, so: SitlOptions, stop: Callable[[], bool] = lambda: 
         for k in range(so.count):
             vehicles.append(SitlVehicle(sc, so, k))
             log(f"cosim sitl: {vehicles[-1].describe()}")
+        lives = [] if so.live is None else [   # one vehicle: the topics of `cosim run`
+            so.live.vehicle(v.sc, *(() if so.count == 1 else (f"/v{v.instance}",
+                                                              f"body{v.instance}")))
+            for v in vehicles]
         loop0 = time.perf_counter()
         pacer = Pacer(so.speed, loop0)
         for k in range(n_ticks):
@@ -278,6 +283,9 @@ def run_fleet(sc: Scenario, so: SitlOptions, stop: Callable[[], bool] = lambda: 
             for v in vehicles:
                 with v.named():
                     v.step(k, wind, log)
+            for lv, v in zip(lives, vehicles, strict=False):   # lives: [] or one each
+                lv.sitl_tick((k + 1) * h_us * 1e-6, v.tick.y,
+                             v.spool.rows if k % SERIES_EVERY == 0 else None)
             ticks = k + 1
             pacer.wait(k * h_us * 1e-6 + h)
         if stop():
@@ -333,7 +341,7 @@ def write_fleet(fr: FleetResult, *, mcap: bool = False) -> list[str]:
         if mcap:
             from cosim.outputs.mcap import McapRun
 
-            res.mcap = McapRun(res.run_dir / "run.mcap").finish(res)
+            res.mcap = McapRun(res.run_dir / "run.mcap", res.scenario).finish(res)
         write_run(res, res.run_dir, plots=False, extra={"sitl": sitl})
         res.recorded.path.unlink(missing_ok=True)
         n = len(sitl["respawns"])

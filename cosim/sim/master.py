@@ -31,7 +31,7 @@ import numpy as np
 from cosim.errors import ComponentError
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.tlog import Tlog
-from cosim.plant.fmu import Plant
+from cosim.plant.fmu import Y_QW, Y_QZ, Y_X, Y_Z, Plant
 from cosim.scenario.records import Scenario
 from cosim.sensors.camera import PngSink, VideoSink, make_camera
 from cosim.sensors.odometry import OdometrySensor
@@ -226,7 +226,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     if opts.mcap:
         from cosim.outputs.mcap import McapRun
 
-        mcap = McapRun(run_dir / "run.mcap")
+        mcap = McapRun(run_dir / "run.mcap", sc)
 
     phases: list[str] = []
     exit_reason, message = ExitReason.TIME_LIMIT, "time limit reached"
@@ -251,7 +251,14 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             sinks.append(lambda k, t, img: (k // cam_every) % png_every == 0
                          and pngs.add(t, img))
         if mcap is not None:
-            sinks.append(lambda k, t, img: mcap.frame(t, img))
+            sinks.append(lambda k, t, img: mcap.frame(t, img, tick.y[Y_X:Y_Z + 1],
+                                                      tick.y[Y_QW:Y_QZ + 1]))
+        live = None
+        if opts.live is not None:   # the live view: its topics, the frames as they come
+            with part("live view"):
+                live = opts.live.vehicle(sc, app=app)
+            sinks.append(lambda k, t, img: live.frame(t, img, tick.y[Y_X:Y_Z + 1],
+                                                      tick.y[Y_QW:Y_QZ + 1]))
         tick = Tick(plant=plant, sensor=sensor, codec=HilSimulatorCodec(),
                     exchange=vehicle.exchange, gcs_recv=vehicle.gcs.recv, tlog=tlog,
                     spool=spool, monitor=monitor, h_us=h_us, app=app, camera=camera,
@@ -262,6 +269,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         realtime, progress = opts.realtime, opts.progress
         loop0 = time.perf_counter()
         pacer = Pacer(opts.speed, loop0)
+        pace = pacer.wait
+        if live is not None:   # the live view logs the last recorded tick, then paces
+            pace = live.pacing(spool.rows, phases, pace if realtime else None)
+            realtime = True
         for k in range(n_ticks):
             if gusty is not None:
                 wind = gusty(k)
@@ -272,7 +283,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             if realtime or progress:
                 t = k * h_us * 1e-6
                 if realtime:
-                    pacer.wait(t + h)
+                    pace(t + h)
                 if progress and k % 2000 == 0:
                     show_progress(t, wall0, phases[tick.phase])
     except ComponentError as exc:

@@ -344,7 +344,14 @@ def format_report(res: dict[str, Any]) -> str:
 
 
 def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = False,
-         instructions: bool = False) -> int:
+         instructions: bool = False, live_only: bool = False) -> int:
+    if live_only:      # what the live view costs the loop (bench_live.py)
+        from cosim.studies.bench_live import bench_live, format_live
+
+        res = {"machine": machine(), "live": bench_live(**(
+            {"t_final_s": 5.0, "repeats": 1} if quick else {}))}
+        print("\n".join(format_live(res["live"])))
+        return _write(res, json_path or Path("runs") / "bench_live.json")
     if instructions:   # instructions per tick, now and before (bench_instr.py)
         from cosim.studies.bench_instr import ToolMissing, bench_instructions, format_instructions
 
@@ -354,11 +361,7 @@ def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = 
             print(f"cosim bench: {exc}", file=sys.stderr)
             return 2
         print("\n".join(format_instructions(res["instructions"])))
-        path = json_path or Path("runs") / "bench_instructions.json"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(res, indent=2))
-        print(f"figures written to {path}")
-        return 0
+        return _write(res, json_path or Path("runs") / "bench_instructions.json")
     if flood_only:     # the flood figure alone (issue 14 item 9)
         res = {"machine": machine(), "quick": quick,
                "flood": bench_flood(**(QUICK_FLOOD if quick else {}))}
@@ -368,7 +371,12 @@ def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = 
     else:
         res = run(quick)
         print(format_report(res))
-    path = json_path or Path("runs") / ("bench_flood.json" if flood_only else "bench.json")
+    return _write(res, json_path or Path("runs") / ("bench_flood.json" if flood_only
+                                                    else "bench.json"))
+
+
+def _write(res: dict[str, Any], path: Path) -> int:
+    """The figures as JSON at path (its folder made); exit status 0."""
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(res, indent=2))
     print(f"figures written to {path}")

@@ -1,0 +1,253 @@
+"""The topics of a run for Foxglove-protocol viewers (Foxglove, Lichtblick, PlotJuggler), one
+set of channels on a Foxglove SDK `Context`: the MCAP file (`mcap.py`) and the live view
+(`live.py`) log through the same `Topics`, so both carry the same topics and schemas.
+
+Every topic has a schema: Foxglove's well-known schemas (protobuf) for frames, poses, the
+scene, images and the camera calibration; a JSON Schema for each JSON topic (`JSON_SCHEMAS`,
+and one per MAVLink message type, `mavlink_schema`), so a viewer knows each field's type and
+can plot it (`/vehicle/truth.z`). A value that is not a number (NaN: a setpoint not commanded)
+is left out of its message rather than sent as null: the schema says "number", and the
+viewers' JSON Schema readers take one type per field.
+
+Frames and the 3D scene: `fox_scene.py`. Times are simulation time (ns since t = 0).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+from foxglove import Channel, Context, Schema
+from foxglove.channels import (
+    CameraCalibrationChannel,
+    FrameTransformsChannel,
+    PoseInFrameChannel,
+    RawImageChannel,
+    SceneUpdateChannel,
+)
+from foxglove.messages import (
+    CameraCalibration,
+    FrameTransforms,
+    Pose,
+    PoseInFrame,
+    RawImage,
+    Vector3,
+)
+
+from cosim.frames import R_from_quat, euler_from_quat
+from cosim.outputs import fox_scene as fs
+from cosim.sim.recorder import COL
+
+NUM, INT, STR = "number", "integer", "string"
+# the JSON topics' fields; a number may be missing (not finite), the fields in REQUIRED not
+JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
+    "/vehicle/truth": ("cosim.VehicleTruth", {
+        "t": NUM, "x": NUM, "y": NUM, "z": NUM, "vx": NUM, "vy": NUM, "vz": NUM,
+        "roll_deg": NUM, "pitch_deg": NUM, "yaw_deg": NUM, "p": NUM, "q": NUM, "r": NUM,
+        "alt": NUM}),
+    "/vehicle/estimate": ("cosim.VehicleEstimate", {"x": NUM, "y": NUM, "z": NUM}),
+    "/app/setpoint": ("cosim.Setpoint", {"x": NUM, "y": NUM, "z": NUM}),
+    "/vehicle/motors": ("cosim.Motors", {"u1": NUM, "u2": NUM, "u3": NUM, "u4": NUM}),
+    "/app/phase": ("cosim.AppPhase", {"phase": STR, "index": INT}),
+    "/app/vision": ("cosim.AppVision", {}),     # the app's frame columns (`Topics.vision`)
+}
+REQUIRED = {"/vehicle/truth": ("t",), "/app/phase": ("phase", "index")}
+TOPICS: dict[str, str] = {
+    "/tf_static": "foxglove.FrameTransforms",
+    "/tf": "foxglove.FrameTransforms",
+    "/vehicle/pose": "foxglove.PoseInFrame",
+    "/vehicle/model": "foxglove.SceneUpdate",
+    "/world/scene": "foxglove.SceneUpdate",
+    "/camera/image": "foxglove.RawImage",
+    "/camera/calibration": "foxglove.CameraCalibration",
+    **{topic: name for topic, (name, _) in JSON_SCHEMAS.items()},
+}
+MAVLINK = "/mavlink/"                     # + message name: one topic per MAVLink message type
+VISION_FIELDS = ("flag_track", "flag_marker", "e_x_px", "e_y_px")   # line follower's frames
+
+
+def json_schema(title: str, fields: dict[str, Any], required=()) -> dict[str, Any]:
+    """An object schema: each field of one JSON type (or a full schema), no other fields."""
+    props = {k: v if isinstance(v, dict) else {"type": v} for k, v in fields.items()}
+    return {"title": title, "type": "object", "properties": props, "required": list(required),
+            "additionalProperties": False}
+
+
+def _channel(ctx: Context, topic: str, schema: dict[str, Any]) -> Channel:
+    return Channel(topic, message_encoding="json", context=ctx, schema=Schema(
+        name=schema["title"], encoding="jsonschema",
+        data=json.dumps(schema).encode()))
+
+
+def _finite(d: dict[str, float]) -> dict[str, float]:
+    return {k: v for k, v in d.items() if math.isfinite(v)}
+
+
+class Topics:
+    """The channels of one vehicle's run on `ctx`; `prefix` namespaces them (a fleet's
+    vehicles: "/v1"), `body` names its body frame."""
+
+    def __init__(self, ctx: Context, scenario, *, prefix: str = "", body: str = fs.BODY
+                 ) -> None:
+        self.ctx, self.sc, self.prefix, self.body = ctx, scenario, prefix, body
+        self.camera_frame = fs.CAMERA if body == fs.BODY else f"{body}_{fs.CAMERA}"
+        p = prefix
+        self.tf_static = FrameTransformsChannel(p + "/tf_static", context=ctx)
+        self.tf = FrameTransformsChannel(p + "/tf", context=ctx)
+        self.pose = PoseInFrameChannel(p + "/vehicle/pose", context=ctx)
+        self.model = SceneUpdateChannel(p + "/vehicle/model", context=ctx)
+        self.scene = SceneUpdateChannel(p + "/world/scene", context=ctx)
+        self.image = RawImageChannel(p + "/camera/image", context=ctx)
+        self.calibration = CameraCalibrationChannel(p + "/camera/calibration", context=ctx)
+        self.json = {topic: _channel(ctx, p + topic, json_schema(title, fields, REQUIRED.get(
+            topic, ()))) for topic, (title, fields) in JSON_SCHEMAS.items() if fields}
+        self.vision_fields: tuple[str, ...] = ()
+        self._mav: dict[str, Channel] = {}
+        self._static: tuple | None = None
+
+    # ------------------------------------------------------------------ once
+    def static(self, t_ns: int = 0) -> None:
+        """The frames' static transform, the world and the vehicle model (a live view sends
+        them again now and then, for clients that connect later; built once)."""
+        if self._static is None:
+            w = self.sc.world
+            self._static = ((self.tf_static, FrameTransforms(transforms=[
+                fs.map_to_world(w), fs.flu_in_body(self.body)])),
+                            (self.scene, fs.world_scene(w)),
+                            (self.model, fs.vehicle_model(self.sc.vehicle, self.body)))
+        for ch, msg in self._static:
+            ch.log(msg, log_time=t_ns)
+
+    # ------------------------------------------------------------------ per tick
+    def watched(self) -> bool:
+        """Whether any per-tick or per-frame topic has a taker (a live view's client)."""
+        return any(ch.has_sinks() for ch in (self.tf, self.pose, self.image, self.calibration,
+                                             *self.json.values()))
+
+    def row(self, r, phases: list[str], pose: bool = True) -> None:
+        """One recorded tick (a row of the series, `recorder.SERIES_COLUMNS`); `pose`: also
+        the body frame and the pose (a fleet's live view sends those more often). A message
+        nobody takes (a live view without a client on its topic) is not even built."""
+        c = COL
+        t = float(r[c["t"]])
+        t_ns = int(round(t * 1e9))
+        x, y, z = float(r[c["x"]]), float(r[c["y"]]), float(r[c["z"]])
+        q = (float(r[c["qw"]]), float(r[c["qx"]]), float(r[c["qy"]]), float(r[c["qz"]]))
+        if pose:
+            self.state(t_ns, x, y, z, q)
+        j = self.json
+        ch = j["/vehicle/truth"]
+        if ch.has_sinks():
+            roll, pitch, yaw = (math.degrees(a) for a in euler_from_quat(q))
+            ch.log(_finite({"t": t, "x": x, "y": y, "z": z, "vx": float(r[c["vx"]]),
+                            "vy": float(r[c["vy"]]), "vz": float(r[c["vz"]]),
+                            "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw,
+                            "p": float(r[c["p"]]), "q": float(r[c["q"]]),
+                            "r": float(r[c["r"]]), "alt": -z}), log_time=t_ns)
+        for topic, prefix, keys in (("/vehicle/estimate", "est_", ("x", "y", "z")),
+                                    ("/app/setpoint", "sp_", ("x", "y", "z")),
+                                    ("/vehicle/motors", "", ("u1", "u2", "u3", "u4"))):
+            ch = j[topic]
+            if ch.has_sinks():
+                ch.log(_finite({k: float(r[c[prefix + k]]) for k in keys}), log_time=t_ns)
+        ch = j["/app/phase"]
+        if ch.has_sinks():
+            pi = int(r[c["phase"]])
+            ch.log({"phase": phases[pi] if 0 <= pi < len(phases) else "none", "index": pi},
+                   log_time=t_ns)
+
+    def state(self, t_ns: int, x: float, y: float, z: float, q) -> None:
+        """The body frame and the pose at one instant."""
+        if self.tf.has_sinks():
+            self.tf.log(FrameTransforms(transforms=[fs.body_in_world(
+                t_ns, x, y, z, q, self.body)]), log_time=t_ns)
+        if self.pose.has_sinks():
+            self.pose.log(PoseInFrame(timestamp=fs.ts(t_ns), frame_id=fs.WORLD, pose=Pose(
+                position=Vector3(x=x, y=y, z=z), orientation=fs.quaternion(q))),
+                log_time=t_ns)
+
+    # ------------------------------------------------------------------ per frame
+    def frame(self, t: float, img: np.ndarray, p_W, q_WB) -> None:
+        """A camera frame (H x W x 3 RGB) taken at body pose (p_W, q_WB): the image, the
+        camera's calibration and its frame's transform from the body."""
+        from cosim.sensors.camera import camera_pose_W
+
+        t_ns = int(round(t * 1e9))
+        cfg = self.sc.camera
+        h, w = img.shape[:2]
+        stamp = fs.ts(t_ns)
+        if self.tf.has_sinks():
+            R_WC, _ = camera_pose_W(cfg, p_W, q_WB)
+            R_BC = R_from_quat(q_WB).T @ R_WC
+            self.tf.log(FrameTransforms(transforms=[fs.camera_in_body(
+                t_ns, cfg.mount_B, R_BC, self.body, self.camera_frame)]), log_time=t_ns)
+        if self.calibration.has_sinks():
+            K = [float(v) for v in cfg.K().ravel()]
+            self.calibration.log(CameraCalibration(
+                timestamp=stamp, frame_id=self.camera_frame, width=w, height=h,
+                distortion_model="plumb_bob", D=[0.0] * 5, K=K,
+                R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                P=K[0:3] + [0.0] + K[3:6] + [0.0] + K[6:9] + [0.0]), log_time=t_ns)
+        if self.image.has_sinks():
+            self.image.log(RawImage(timestamp=stamp, frame_id=self.camera_frame, width=w,
+                                    height=h, encoding="rgb8", step=3 * w, data=img.tobytes()),
+                           log_time=t_ns)
+
+    def vision(self, record, columns=None) -> None:
+        """One record of the app's frame log: (t, value per field...); `columns` (the app's
+        `frame_columns`, "t" first; default: the line follower's) name the fields, and the
+        channel's schema is made from them on the first record."""
+        if "/app/vision" not in self.json:
+            self.vision_fields = tuple(columns)[1:] if columns else VISION_FIELDS
+            title, _ = JSON_SCHEMAS["/app/vision"]
+            self.json["/app/vision"] = _channel(self.ctx, self.prefix + "/app/vision", json_schema(
+                title, dict.fromkeys(self.vision_fields, NUM)))
+        t_ns = int(round(float(record[0]) * 1e9))
+        self.json["/app/vision"].log(_finite({k: float(v) for k, v in zip(
+            self.vision_fields, record[1:], strict=False)}), log_time=t_ns)
+
+    # ------------------------------------------------------------------ MAVLink
+    def mavlink(self, msg, t_ns: int) -> None:
+        """A decoded pymavlink message on its type's topic (channel made on first use)."""
+        name = msg.get_type()
+        ch = self._mav.get(name)
+        if ch is None:
+            ch = self._mav[name] = _channel(self.ctx, self.prefix + MAVLINK + name,
+                                            mavlink_schema(msg))
+        d: dict[str, Any] = {"mavpackettype": name, "sysid": msg.get_srcSystem(),
+                             "compid": msg.get_srcComponent()}
+        for k in msg.get_fieldnames():
+            v = getattr(msg, k)
+            if isinstance(v, float):
+                if math.isfinite(v):
+                    d[k] = v
+            elif isinstance(v, list):
+                if all(not isinstance(e, float) or math.isfinite(e) for e in v):
+                    d[k] = v
+            elif isinstance(v, bytes):
+                d[k] = v.decode("utf-8", "replace")
+            else:
+                d[k] = v
+        ch.log(d, log_time=t_ns)
+
+
+_MAV_TYPES = {"float": NUM, "double": NUM, "char": STR}
+
+
+def mavlink_schema(msg) -> dict[str, Any]:
+    """The JSON Schema of one MAVLink message type, from pymavlink's field definitions: C
+    integers -> integer, float/double -> number, char[N] -> string, other arrays -> arrays.
+    Floats (NaN is left out) and arrays holding NaN are optional."""
+    name = msg.get_type()
+    fields: dict[str, Any] = {"mavpackettype": STR, "sysid": INT, "compid": INT}
+    optional = set()
+    lengths = dict(zip(msg.ordered_fieldnames, msg.array_lengths, strict=True))  # wire order
+    for k, ctype in zip(msg.fieldnames, msg.fieldtypes, strict=True):
+        base = _MAV_TYPES.get(ctype, INT)
+        if base == NUM:
+            optional.add(k)
+        fields[k] = ({"type": "array", "items": {"type": base}} if lengths[k] and base != STR
+                     else base)
+    return json_schema(f"mavlink.{name}", fields, [k for k in fields if k not in optional])

@@ -1,0 +1,116 @@
+"""The live view: a run's topics served while it flies, through the Foxglove SDK's WebSocket
+server (the Foxglove WebSocket protocol), for Foxglove or Lichtblick ("Open connection" ->
+Foxglove WebSocket -> ws://127.0.0.1:PORT) next to the ground station that flies it.
+
+The topics and schemas are the MCAP file's (`fox_topics.Topics`), but for the MAVLink topics
+(the ground station shows those). `cosim run --realtime --foxglove [PORT]` and
+`cosim sitl --foxglove [PORT]`; loopback by default, port 0 picks a free port (`port`).
+
+The lockstep is never held up by a viewer: logging hands each message to the SDK, which
+queues it per subscribed client (up to `BACKLOG` messages; a slow client loses the oldest)
+and sends it from its own threads; nothing is encoded for a channel no client subscribed.
+What the loop pays is the logging call: the last recorded tick every `EVERY` ticks (50 Hz at
+h = 5 ms), each camera frame, the app's new vision records, and the static messages (frames,
+world, vehicle) again every `STATIC_EVERY` ticks for clients that connect later.
+`cosim bench --live` measures it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import foxglove
+import numpy as np
+from foxglove import Context
+
+from cosim.outputs import fox_scene as fs
+from cosim.outputs.fox_topics import Topics
+from cosim.plant.fmu import Y_QW, Y_QX, Y_QY, Y_QZ, Y_X, Y_Y, Y_Z
+
+DEFAULT_PORT = 8765          # Foxglove's default for a WebSocket connection
+EVERY = 4                    # ticks between two live ticks (50 Hz at h = 5 ms)
+STATIC_EVERY = 400           # ticks between two sends of the static messages (2 s)
+BACKLOG = 256                # messages queued per client before the oldest are dropped
+
+
+class LiveView:
+    """A WebSocket server on `host:port` (0: any free port; `port` then says which)."""
+
+    def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1") -> None:
+        self.ctx = Context()
+        self.server = foxglove.start_server(name="cosim", host=host, port=port,
+                                            context=self.ctx, message_backlog_size=BACKLOG)
+        self.host = host
+        self.port = self.server.port
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def vehicle(self, scenario, prefix: str = "", body: str = fs.BODY, app=None
+                ) -> LiveVehicle:
+        """The topics of one vehicle (a fleet's: one `prefix` and body frame each)."""
+        return LiveVehicle(Topics(self.ctx, scenario, prefix=prefix, body=body), app)
+
+    def close(self) -> None:
+        self.server.stop()
+
+
+class LiveVehicle:
+    """One vehicle's live topics; the loop calls `tick` (through `pacing`) and `frame`."""
+
+    def __init__(self, topics: Topics, app=None) -> None:
+        self.topics = topics
+        self.frame_log = getattr(app, "frame_log", None)
+        self.columns = getattr(app, "frame_columns", None)
+        self.k = 0
+        self._vision = 0
+        topics.static()
+
+    def tick(self, rows: list[bytes], phases: list[str]) -> None:
+        """After a tick: every EVERY ticks the last recorded row (if the recorder has one
+        in memory: `SeriesSpool.rows`), the app's new vision records; now and then the
+        static messages again."""
+        k = self.k = self.k + 1
+        if k % EVERY:
+            return
+        if k % STATIC_EVERY and not self.topics.watched():
+            return
+        if rows:
+            r = np.frombuffer(rows[-1], dtype="<f8")
+            self.topics.row(r, phases)
+            if k % STATIC_EVERY == 0:
+                self.topics.static(int(round(float(r[0]) * 1e9)))
+        log = self.frame_log
+        if log is not None and len(log) > self._vision:
+            for rec in log[self._vision:]:
+                self.topics.vision(rec, self.columns)
+            self._vision = len(log)
+
+    def pacing(self, rows: list[bytes], phases: list[str],
+               wait: Callable[[float], None] | None) -> Callable[[float], None]:
+        """The loop's pacing call with the live tick first (`wait` None: not real time)."""
+        tick = self.tick
+        if wait is None:
+            return lambda t: tick(rows, phases)
+
+        def pace(t: float) -> None:
+            tick(rows, phases)
+            wait(t)
+        return pace
+
+    def frame(self, t: float, img, p_W, q_WB) -> None:
+        self.topics.frame(t, img, p_W, q_WB)
+
+    def sitl_tick(self, t: float, y, rows: list[bytes] | None) -> None:
+        """A fleet vehicle's tick: its pose at t (plant outputs y) every EVERY ticks, and
+        the rest of a row when one was recorded this tick (`rows`: one every few ticks)."""
+        k = self.k = self.k + 1
+        if rows:
+            self.topics.row(np.frombuffer(rows[-1], dtype="<f8"), ["none"], pose=False)
+        if k % EVERY == 0:
+            t_ns = int(round(t * 1e9))
+            self.topics.state(t_ns, float(y[Y_X]), float(y[Y_Y]), float(y[Y_Z]),
+                              (float(y[Y_QW]), float(y[Y_QX]), float(y[Y_QY]), float(y[Y_QZ])))
+            if k % STATIC_EVERY == 0:
+                self.topics.static(t_ns)

@@ -1,0 +1,123 @@
+"""A run opened in a real viewer: Foxglove Studio 1.48's web build (npm
+`@foxglove/studio-base`) in headless Chromium (Debian's `chromium`, driven by Playwright's
+Python package), loading run.mcap over HTTP with the shipped layout docs/cosim-layout.json,
+the way a user opens a run (docs/viewers.md). Checks that a plot panel resolves a JSON field
+(its legend shows the recorded altitude at the chosen time, its line is drawn) and that the
+3D panel draws the vehicle above the floor.
+
+Slow and optional: install what it needs first with `bash tests/viewer/setup.sh` (Debian
+chromium, the `viewer` extra, the npm packages into ~/.cache/cosim-viewer or
+$COSIM_VIEWER_DIR); then `.venv/bin/pytest -m slow tests/viewer`. Without them it fails and
+says what is missing (it is not skipped: a slow check that cannot run is a failure)."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from viewer_http import CHROMIUM, FLAGS, NODE, ROOT, run_url, serve
+
+from cosim.scenario.parse import load_scenario, with_set
+from cosim.sim.master import RunOptions, run_scenario
+from cosim.sim.recorder import COL
+
+T_SEEK_S = 8.0        # hovering by then
+WAIT_S = float(os.environ.get("COSIM_VIEWER_WAIT_S", 180.0))
+
+pytestmark = pytest.mark.slow
+
+
+def _missing() -> str | None:
+    if not Path(CHROMIUM).exists():
+        return f"{CHROMIUM} (apt-get install chromium)"
+    if not (NODE / "@foxglove" / "studio-base" / "assets" / "index.js").exists():
+        return f"{NODE}/@foxglove/studio-base (npm)"
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        return "playwright (pip install -e '.[viewer]')"
+    return None
+
+
+def _rgb(png: bytes) -> np.ndarray:
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB).astype(int)
+
+
+def test_foxglove_studio_shows_the_run(tmp_path):
+    missing = _missing()
+    assert missing is None, f"run `bash tests/viewer/setup.sh` first: missing {missing}"
+    from playwright.sync_api import sync_playwright
+
+    sc = with_set(load_scenario(ROOT / "scenarios" / "mambo_seed_track.toml"),
+                  {"timing.t_final_s": 10.0})
+    res = run_scenario(sc, RunOptions(out_dir=tmp_path / "run", mcap=True))
+    k = int(round(T_SEEK_S / sc.timing.tick_s))
+    alt = -float(res.series[k, COL["z"]])
+    assert alt > 0.8                                    # flying at the seek time
+    # the shipped layout, its 3D view aimed at where the vehicle flies (the map frame's
+    # origin is the arena's centre, z up) from a little above, grid off
+    layout = json.loads((ROOT / "docs" / "cosim-layout.json").read_text())
+    a = sc.world.arena
+    x, y = (float(res.series[k, COL["y"]]) - 0.5 * (a[2] + a[3]),
+            float(res.series[k, COL["x"]]) - 0.5 * (a[0] + a[1]))
+    view = layout["configById"]["3D!scene"]
+    assert view["followTf"] == "map"
+    view["cameraState"].update(targetOffset=[x, y, alt], distance=2.0, phi=75.0,
+                               thetaOffset=0.0)
+    view["layers"]["grid"]["visible"] = False
+    (tmp_path / "layout.json").write_text(json.dumps(layout))
+
+    with serve(res.mcap, tmp_path / "layout.json", NODE) as base, sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1600, "height": 1000})
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(run_url(base, T_SEEK_S))
+            # the plot legend shows the altitude recorded at T_SEEK_S, to the last digit
+            plot = page.locator(".mosaic-window").filter(has_text="position (world NED, m)")
+            end = time.monotonic() + WAIT_S
+            while repr(alt) not in plot.inner_text():
+                assert time.monotonic() < end, (plot.inner_text(), errors)
+                time.sleep(1.0)
+            # its line (the altitude series is magenta in the layout; the chart draws it
+            # darker, about (114, 23, 114)) is drawn: more magenta than the legend's 8 x 8
+            # px swatch
+            while True:
+                png = plot.screenshot()
+                img = _rgb(png)
+                r, g, b = img[..., 0], img[..., 1], img[..., 2]
+                if ((abs(r - b) < 15) & (r - g > 50)).sum() > 200:
+                    break
+                (tmp_path / "plot.png").write_bytes(png)
+                assert time.monotonic() < end, tmp_path / "plot.png"
+                time.sleep(1.0)
+            # the 3D panel: the vehicle (orange) above the floor (grey)
+            scene = page.locator(".mosaic-window").filter(has_text="3D").first
+            while True:
+                png = scene.screenshot()
+                (tmp_path / "scene.png").write_bytes(png)
+                img = _rgb(png)
+                r, g, b = img[..., 0], img[..., 1], img[..., 2]
+                # the vehicle's orange, lit from one side: (188, 82, 0) down to (47, 21, 0)
+                orange = (r > 40) & (g > 0.25 * r) & (g < 0.7 * r) & (b < 0.15 * r + 5)
+                grey = (abs(r - g) < 10) & (abs(g - b) < 10) & (r > 90) & (r < 215)
+                if orange.sum() > 30 and (grey.sum(axis=1) > 0.6 * grey.shape[1]).any():
+                    break
+                assert time.monotonic() < end, (orange.sum(), grey.sum(), tmp_path / "scene.png",
+                                                errors)
+                time.sleep(1.0)
+            rows_v = np.nonzero(orange.any(axis=1))[0]
+            # floor rows: grey across most of the panel (not the grey of a tooltip)
+            rows_f = np.nonzero(grey.sum(axis=1) > 0.6 * grey.shape[1])[0]
+            assert rows_v.max() < rows_f.min(), (rows_v, rows_f, tmp_path / "scene.png")
+            assert not errors, errors
+        finally:
+            browser.close()
