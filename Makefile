@@ -4,11 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-<<<<<<< HEAD
-.PHONY: setup fmu build demo test test-slow lint bench docs docs-figures clean
-=======
-.PHONY: setup fmu build demo test test-slow viewer-setup lint bench clean
->>>>>>> issue30
+.PHONY: setup fmu build demo test test-slow viewer-setup lint bench docs docs-figures clean
 
 setup: $(STAMP) fmu build
 
