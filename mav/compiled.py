@@ -29,6 +29,7 @@ import importlib.machinery
 import importlib.util
 import mmap
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -42,12 +43,36 @@ class CompiledError(ImportError):
     """COSIM_COMPILED=1 and a listed module is not built from its current source."""
 
 
-def source_hash(py: Path) -> str:
-    """SHA-256 of a module's source: the `.py` and, when there is one, its `.pxd`."""
-    h = hashlib.sha256(py.read_bytes())
-    pxd = py.with_suffix(".pxd")
-    if pxd.is_file():
-        h.update(b"\0pxd\0" + pxd.read_bytes())
+_CIMPORT = re.compile(r"^\s*(?:from\s+([\w.]+)\s+cimport|cimport\s+([\w.]+))", re.M)
+
+
+def _pxd_closure(pxd: Path) -> list[Path]:
+    """`pxd` and every project .pxd it cimports, directly or not: the C layouts compiled into
+    a module (a field added to a record's .pxd changes the code of every module that cimports
+    it, so it is part of their source)."""
+    seen: dict[Path, None] = {}
+    todo = [pxd]
+    while todo:
+        f = todo.pop()
+        if f in seen or not f.is_file():
+            continue
+        seen[f] = None
+        root = f.parent
+        while (root / "__init__.py").is_file():
+            root = root.parent
+        for a, b in _CIMPORT.findall(f.read_text(encoding="utf-8")):
+            dep = root.joinpath(*(a or b).split(".")).with_suffix(".pxd")
+            if dep.is_file():
+                todo.append(dep)
+    return sorted(seen)
+
+
+def source_hash(src: Path) -> str:
+    """SHA-256 of a module's source: the `.py` (or a binding's `.c`) and, when there is one,
+    its `.pxd` with every project `.pxd` that one cimports."""
+    h = hashlib.sha256(src.read_bytes())
+    for pxd in _pxd_closure(src.with_suffix(".pxd")):
+        h.update(b"\0pxd\0" + pxd.name.encode() + b"\0" + pxd.read_bytes())
     return h.hexdigest()
 
 

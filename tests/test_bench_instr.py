@@ -78,7 +78,7 @@ Ir
 --------------------------------------------------------------------------------
 3,121,409,499 (100.0%)  PROGRAM TOTALS
 11,495,308,473 (368.2%)  /tmp/Python-3.11.7/Python/ceval.c:_PyEval_EvalFrameDefault'2 [/lib/x]
- 2,000,000,000 (64.07%)  ???:__pyx_pw_5cosim_3sim_4tick_4Tick_5_run [/w/cosim/sim/tick.so]
+ 2,000,000,000 (64.07%)  ???:__pyx_pw_5cosim_3sim_4tick_4Tick_3run [/w/cosim/sim/tick.so]
    518,703,574 (16.62%)  ???:__pyx_pw_5cosim_3sim_7onboard_13OnboardHandle_9exchange [/w/x.so]
    214,704,656 ( 6.88%)  ???:Stepper_step [/work/main/cosim/plant/_fmi2step.so]
     55,000,000 ( 1.76%)  ???:__pyx_pw_3mav_3hil_17HilSimulatorCodec_3encode_odometry [/w/h.so]
@@ -90,7 +90,7 @@ Ir
 
 def test_parts_from_callgrind_inclusive_counts():
     incl = bench_instr.parse_inclusive(ANNOTATE)
-    tick = "__pyx_pw_5cosim_3sim_4tick_4Tick_5_run"
+    tick = "__pyx_pw_5cosim_3sim_4tick_4Tick_3run"
     assert incl[tick] == 2_000_000_000
     assert incl["__pyx_pw_3mav_6client_14OffboardClient_5poll"] == 84_917_734
     assert incl["_PyEval_EvalFrameDefault"] == 11_495_308_473 and "PROGRAM" not in incl

@@ -144,3 +144,25 @@ def test_this_test_run_is_compiled():
     assert compiled.mode() == "compiled", compiled.describe()
     assert all(compiled.module_status(src, so) == "fresh"
                for src, so in compiled.compiled_modules().values())
+
+
+def test_a_changed_record_layout_makes_every_module_that_cimports_it_stale(tmp_path):
+    """A field added to a .pxd changes the C code of every module that cimports it (they read
+    the fields at fixed offsets): such modules count as changed too, so a stale build is
+    never loaded with the new layout (it corrupted memory once: tick.so with an old tlog.pxd)."""
+    from mav import compiled
+
+    pkg = tmp_path / "pkgy"
+    (pkg / "sub").mkdir(parents=True)
+    for f in (pkg / "__init__.py", pkg / "sub" / "__init__.py"):
+        f.write_text("")
+    (pkg / "rec.py").write_text("class R:\n    pass\n")
+    (pkg / "rec.pxd").write_text("cdef class R:\n    cdef public double x\n")
+    (pkg / "sub" / "user.py").write_text("def f(r):\n    return r.x\n")
+    (pkg / "sub" / "user.pxd").write_text("from pkgy.rec cimport R\n")
+    (pkg / "other.py").write_text("def g():\n    return 1\n")
+    user, other = pkg / "sub" / "user.py", pkg / "other.py"
+    before = compiled.source_hash(user), compiled.source_hash(other)
+    (pkg / "rec.pxd").write_text("cdef class R:\n    cdef public double x, y\n")
+    assert compiled.source_hash(user) != before[0]        # cimports rec: changed
+    assert compiled.source_hash(other) == before[1]       # does not: unchanged

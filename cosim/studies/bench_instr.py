@@ -68,7 +68,7 @@ PART_SYMBOLS = (
     ("  app: client poll (telemetry in)", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+poll"),
     ("  app: client setpoint out", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+_setpoint"),
 )
-_TAIL = r"__pyx_pw_5cosim_3sim_4tick_\d+Tick_\d+_run"
+_TAIL = r"__pyx_pw_5cosim_3sim_4tick_\d+Tick_\d+run"   # Tick.run (its _run is a C call)
 _INCL = re.compile(r"^\s*([\d,]+)\s+\([\d. ]+%\)\s+\S*?:(\w+)(?:\.\w+)*(?:'\d+)?(?:\s|$)")
 
 
