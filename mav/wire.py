@@ -150,13 +150,14 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     signing = mav.signing
     if signing.sign_outgoing:
         p = payload.rstrip(b"\x00") or payload[:1]
-        buf = _HDR.pack(MAGIC_V2, len(p), IFLAG_SIGNED, 0, seq, mav.srcSystem, mav.srcComponent)
-        buf += m.id3 + p
-        buf += _CRC.pack(crc16(buf[1:] + m.extra))
-        buf += _SIGN_TS.pack(signing.link_id, signing.timestamp)[:7]
-        buf += hashlib.sha256(signing.secret_key + buf).digest()[:6]
+        signed = _HDR.pack(MAGIC_V2, len(p), IFLAG_SIGNED, 0, seq, mav.srcSystem,
+                           mav.srcComponent)
+        signed += m.id3 + p
+        signed += _CRC.pack(crc16(signed[1:] + m.extra))
+        signed += _SIGN_TS.pack(signing.link_id, signing.timestamp)[:7]
+        signed += hashlib.sha256(signing.secret_key + signed).digest()[:6]
         signing.timestamp += 1
-        return buf
+        return signed
     # one buffer, filled in place: header, payload (trailing zeros trimmed), CRC_EXTRA where
     # the checksum goes, then the checksum over bytes 1.. and CRC_EXTRA written over it
     n = len(payload)
