@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import errno
 import signal
 import sys
 import threading
 from pathlib import Path
 
+from cosim.cli_checks import check_out_dir, check_speed, live_view
 from cosim.errors import OutputError, ScenarioError
 from mav.compiled import CompiledError
 
@@ -214,29 +214,6 @@ def _add_foxglove(p: argparse.ArgumentParser) -> None:
                    help="the live view's address (default 127.0.0.1, this machine only)")
 
 
-@contextlib.contextmanager
-def _live_view(args):
-    """The live view asked for by --foxglove (None without), stopped at the end."""
-    if args.foxglove is None:
-        yield None
-        return
-    if not 0 <= args.foxglove <= 65535:
-        raise ScenarioError("--foxglove", args.foxglove, "a port in 0..65535")
-    from cosim.outputs.live import LiveView
-
-    try:
-        live = LiveView(args.foxglove, args.foxglove_host)
-    except Exception as exc:
-        raise ScenarioError("--foxglove", f"{args.foxglove_host}:{args.foxglove}",
-                            f"an address the live view can listen on ({exc})") from None
-    print(f"cosim: live view on {live.url} (Foxglove / Lichtblick: Open connection -> "
-          f"Foxglove WebSocket)", file=sys.stderr, flush=True)
-    try:
-        yield live
-    finally:
-        live.close()
-
-
 def main(argv: list[str] | None = None) -> int:
     try:
         return _main(argv)
@@ -333,7 +310,9 @@ def _dispatch(args) -> int:
 
         return montecarlo(args)
     if args.cmd == "sitl":
-        return _sitl(args)
+        from cosim.cli_sitl import sitl
+
+        return sitl(args)
     if args.cmd == "render":
         from cosim.sensors.view import render_command
 
@@ -369,7 +348,7 @@ def _run(args) -> int:
         sc = with_set(sc, {k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
     if args.seed is not None:
         sc = with_set(sc, {"seed": args.seed})
-    _check_speed(args.speed)
+    check_speed(args.speed)
     if args.speed != 1.0 and not args.realtime:
         raise ScenarioError("--speed", args.speed, "only with --realtime")
     if args.png_every < 0:
@@ -383,7 +362,7 @@ def _run(args) -> int:
               f" (its encoder drops an odd last column / row); --png-every keeps every pixel",
               file=sys.stderr)
     out = args.out or Path("runs") / f"{sc.name}-{args.mode}"
-    _check_out_dir(out, "--out")
+    check_out_dir(out, "--out")
     if args.hil_transport != "udp" and args.mode != "sil":
         raise ScenarioError("--hil-transport", args.hil_transport, "only with --mode sil")
     if args.foxglove is not None and not args.realtime:
@@ -393,7 +372,7 @@ def _run(args) -> int:
                       hil_transport=args.hil_transport,
                       video=args.video, png_every=args.png_every, mcap=args.mcap,
                       progress=not args.quiet and sys.stderr.isatty(), out_dir=out)
-    with claim_run_folder(out), _live_view(args) as live:
+    with claim_run_folder(out), live_view(args) as live:
         opts.live = live
         res = run_scenario(sc, opts)
         summary = write_run(res, out, plots=not args.no_plots)
@@ -427,7 +406,7 @@ def _sweep(args) -> int:
     if args.workers is not None and args.workers < 1:
         raise ScenarioError("--workers", args.workers, "an integer >= 1")
     out = args.out or Path("runs") / f"sweep-{sc.name}"
-    _check_out_dir(out, "--out")
+    check_out_dir(out, "--out")
     from cosim.outputs.folder import claim_run_folder
 
     with claim_run_folder(out, "--out", what="study"):   # one sweep per folder at a time
@@ -441,135 +420,6 @@ def _sweep(args) -> int:
     print(table.read_text())
     print(f"sweep outputs in {out}")
     return 0 if all(r["passed"] for r in results) else 1
-
-
-def _sitl(args) -> int:
-    from cosim.outputs.folder import claim_run_folder
-    from cosim.scenario.parse import parse_scenario
-    from cosim.sim.fleet import (
-        MAX_INSTANCE,
-        SitlOptions,
-        instance_links,
-        run_fleet,
-        stop_on_signals,
-        write_fleet,
-    )
-    from cosim.sim.master import ExitReason
-
-    def hp(s: str | None, name: str) -> tuple[str, int] | None:
-        if s is None:
-            return None
-        host, _, port = s.rpartition(":")
-        if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-            raise ScenarioError(name, s, "HOST:PORT with a port in 0..65535")
-        return host, int(port)
-
-    _check_speed(args.speed)
-    if not 0 <= args.instance <= MAX_INSTANCE:
-        raise ScenarioError("--instance", args.instance, f"0..{MAX_INSTANCE} (sysid N+1)")
-    if not 1 <= args.count <= MAX_INSTANCE + 1 - args.instance:
-        raise ScenarioError("--count", args.count, f"1..{MAX_INSTANCE + 1 - args.instance} "
-                            f"(the last sysid is at most {MAX_INSTANCE + 1})")
-    if not (args.spacing >= 0 and args.spacing < 1e3):
-        raise ScenarioError("--spacing", args.spacing, "m in [0, 1000)")
-    given = {f: hp(getattr(args, f), "--" + f.replace("_", "-"))
-             for f in ("api_bind", "api_remote", "gcs_bind", "gcs_remote")}
-    links = tuple(instance_links(args.instance + k, k, **given) for k in range(args.count))
-    for name, (bind, remote) in links[-1].items():   # an explicit port + k still a port
-        for what, (_, port) in (("bind", bind), ("remote", remote)):
-            if port > 65535:
-                raise ScenarioError(f"--{name}-{what}", port - args.count + 1,
-                                    f"a port that leaves room for {args.count} vehicles")
-    key = read_signing_key(args.signing_key, "--signing-key") if args.signing_key else None
-    sc = parse_scenario({
-        "name": f"sitl-{args.vehicle}",
-        "vehicle": {"preset": args.vehicle},
-        "world": _world_table(args.world),
-        "timing": {"t_final_s": args.duration},
-        "criteria": {"must_complete": False},
-    }, source=str(Path.cwd() / "sitl.toml"))
-    out = args.out or Path("runs") / sc.name
-    _check_out_dir(out, "--out")
-    so = SitlOptions(out_dir=out, instance=args.instance, count=args.count,
-                     spacing_m=args.spacing, speed=args.speed, links=links, signing_key=key)
-    _check_spawns(sc, so)
-    print(f"cosim sitl: {args.count} x {args.vehicle} in world {args.world}; Ctrl-C to stop",
-          file=sys.stderr, flush=True)
-    folders = [out / str(args.instance + k) for k in range(args.count)]
-    with contextlib.ExitStack() as held, stop_on_signals() as stop:
-        for f in folders:
-            held.enter_context(claim_run_folder(f))
-        so = dataclasses.replace(so, live=held.enter_context(_live_view(args)))
-        fr = run_fleet(sc, so, stop)
-        lines = write_fleet(fr, mcap=args.mcap)
-    print("\n".join(lines))
-    if fr.exit_reason is ExitReason.COMPONENT_ERROR:
-        print(f"cosim sitl: failed: {fr.message}", file=sys.stderr)
-        return 1
-    if fr.exit_reason is ExitReason.STOPPED:
-        names = "/".join(signal.Signals(s).name for s in stop.signals[:1])
-        print(f"cosim sitl: {fr.message}" + (f" ({names})" if names else ""))
-    else:
-        print(f"cosim sitl: {fr.message}")
-    return 0
-
-
-def _check_spawns(sc, so) -> None:
-    """Every vehicle's start clear of walls, boxes and columns (3D worlds)."""
-    from cosim.sim.fleet import start_offset
-
-    scene = sc.world.scene
-    if scene is None or scene.empty:
-        return
-    for k in range(so.count):
-        e = sc.start.e + start_offset(k, so.spacing_m)
-        gap, what = scene.clearance(sc.start.n, e, 0.0, sc.vehicle.body_radius)
-        if gap < 0.0:
-            raise ScenarioError("--count" if k else "--world", so.count if k else sc.name,
-                                f"vehicles whose starts are clear: vehicle {k} would start at "
-                                f"N {sc.start.n:.2f} E {e:.2f} m, in the {what}")
-
-
-def read_signing_key(path: Path, flag: str) -> bytes:
-    """A MAVLink 2 signing key from a file: 32 raw bytes, or 64 hex digits (whitespace ok)."""
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        raise ScenarioError(flag, str(path), f"a readable key file ({exc.strerror})") from None
-    if len(raw) == 32:
-        return raw
-    try:
-        key = bytes.fromhex(raw.decode("ascii").strip())
-    except (UnicodeDecodeError, ValueError):
-        key = b""
-    if len(key) != 32:
-        raise ScenarioError(flag, str(path), "a file of 32 bytes or 64 hex digits")
-    return key
-
-
-def _check_speed(speed: float) -> None:
-    if not (speed > 0 and speed < float("inf")):
-        raise ScenarioError("--speed", speed, "a finite number > 0")
-
-
-def _check_out_dir(out: Path, flag: str) -> None:
-    try:
-        is_file = out.exists() and not out.is_dir()
-    except OSError as exc:             # a name too long, ...
-        raise ScenarioError(flag, str(out), f"a usable folder name ({exc.strerror})") from None
-    if is_file:
-        raise ScenarioError(flag, str(out), "a folder (this path is a file)")
-
-
-def _world_table(world: str) -> dict:
-    """The [world] table naming a world file or a built-in world (its start pose is the
-    vehicle's: the scenario parser takes it from the world)."""
-    p = Path(world)
-    if not p.suffix:
-        p = Path(__file__).resolve().parent.parent / "scenarios" / "worlds" / f"{world}.toml"
-    if not p.is_file():
-        raise ScenarioError("--world", world, "a world file or a built-in world name")
-    return {"file": str(p.resolve())}
 
 
 if __name__ == "__main__":

@@ -117,7 +117,7 @@ def test_sitl_signing_key_file_reaches_the_vehicle(tmp_path):
     import subprocess
     import sys
 
-    from cosim.cli import read_signing_key
+    from cosim.cli_sitl import read_signing_key
     from cosim.errors import ScenarioError
     from cosim.outputs.tlog import Tlog
     from cosim.scenario.parse import load_scenario

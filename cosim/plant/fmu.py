@@ -31,9 +31,7 @@ import ctypes
 import math
 import pathlib
 import shutil
-import statistics
 import struct
-import time
 import weakref
 from ctypes import POINTER, byref, c_char, c_double, c_int, c_size_t, c_uint, c_void_p
 from dataclasses import dataclass
@@ -42,7 +40,7 @@ from cosim.errors import ComponentError
 from cosim.plant.vehicles import VehicleParams
 
 __all__ = [
-    "OUTPUT_NAMES", "INPUT_NAMES", "FmuPlant", "Plant", "PlantState", "bench_step",
+    "OUTPUT_NAMES", "INPUT_NAMES", "FmuPlant", "Plant", "PlantState",
     "Y_X", "Y_Y", "Y_Z", "Y_VX", "Y_VY", "Y_VZ", "Y_QW", "Y_QX", "Y_QY", "Y_QZ",
     "Y_P", "Y_Q", "Y_R", "Y_AX", "Y_AY", "Y_AZ",
     "Y_OMEGA1", "Y_OMEGA2", "Y_OMEGA3", "Y_OMEGA4", "Y_ON_GROUND",
@@ -469,47 +467,3 @@ class Plant(FmuPlant):
             self._fmu.freeInstance()
         finally:
             shutil.rmtree(self._unzipdir, ignore_errors=True)
-
-
-
-def bench_step(n: int = 20000, vehicle: VehicleParams | None = None) -> dict[str, float]:
-    """Time ``Plant.step`` (set inputs + doStep(5 ms) + get outputs) and a bare doStep.
-
-    Returns medians (and minima) over batches of 1000 steps, in microseconds per step:
-    ``{"step_us", "step_us_min", "do_step_us", "do_step_us_min", "n"}``. Report, do not gate:
-    on a loaded machine the numbers are dominated by scheduling noise (compare the minima).
-    """
-    from cosim.plant.vehicles import MAMBO
-
-    vehicle = MAMBO if vehicle is None else vehicle
-    u = vehicle.u_hover
-    batch = 1000
-    with Plant(vehicle, z0=-1.0, omega0=vehicle.omega_hover) as plant:
-        per_step = []
-        for _ in range(max(1, n // batch)):
-            t0 = time.perf_counter()
-            for _ in range(batch):
-                plant.step(u, u, u, u)
-            per_step.append((time.perf_counter() - t0) / batch * 1e6)
-        plant.reset()
-        plant.step(u, u, u, u)  # the inputs stay set for the bare doSteps below
-        do_step, comp, h = plant._do_step, plant._comp, plant.step_size
-        bare = []
-        k = plant.k
-        for _ in range(max(1, n // batch)):
-            t0 = time.perf_counter()
-            for _ in range(batch):
-                do_step(comp, k * h, h, 1)
-                k += 1
-            bare.append((time.perf_counter() - t0) / batch * 1e6)
-    return {
-        "step_us": statistics.median(per_step),
-        "step_us_min": min(per_step),
-        "do_step_us": statistics.median(bare),
-        "do_step_us_min": min(bare),
-        "n": float(n),
-    }
-
-
-if __name__ == "__main__":  # python -m cosim.plant.fmu  -> prints the benchmark
-    print(bench_step())
