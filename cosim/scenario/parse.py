@@ -21,6 +21,8 @@ from cosim.plant.vehicles import PRESETS, get_vehicle
 from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
 from cosim.sensors.camera import parse_camera
+from cosim.sensors.spec import TABLES as SENSOR_TABLES
+from cosim.sensors.spec import parse_sensors
 from cosim.sim.exits import ExitReason
 from cosim.sim.faults import parse_faults
 from cosim.world.floor import World
@@ -125,7 +127,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
 
     # sensors / wind / faults
     s = table(raw, "sensors", "")
-    no_unknown(s, {"odometry_noise"}, "sensors")
+    no_unknown(s, {"odometry_noise", "feed", "flow_floor", "gps", *SENSOR_TABLES}, "sensors")
     n = table(s, "odometry_noise", "sensors")
     no_unknown(n, {"pos_std_m", "vel_std_mps", "att_std_rad", "rate_std_radps"},
                 "sensors.odometry_noise")
@@ -144,6 +146,9 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     ob = table(raw, "onboard", "")
     no_unknown(ob, {"params"}, "onboard")
     onboard_params = _onboard_params(table(ob, "params", "onboard"), preset)
+    sensors = parse_sensors(s, preset)
+    if sensors.hil and "EKF2_TYPE" not in dict(onboard_params):   # the vehicle's estimator
+        onboard_params += (("EKF2_TYPE", 1.0),)
 
     # criteria
     c = table(raw, "criteria", "")
@@ -188,7 +193,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         timing=timing, world=world, camera=camera, app=app, noise=noise,
         wind_ned_mps=wind, criteria=criteria, source=source, raw=raw, world_table=world_table,
         wind=wind_spec,
-        faults=faults, onboard_params=onboard_params,
+        faults=faults, onboard_params=onboard_params, sensors=sensors,
     )
 
 

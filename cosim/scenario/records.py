@@ -87,3 +87,4 @@ class Scenario:
     wind: Any = None                          # cosim.world.wind.WindSpec (mean = wind_ned_mps)
     faults: Any = None                        # cosim.sim.faults.FaultSpec ([faults]; falsy: none)
     onboard_params: tuple[tuple[str, float], ...] = ()   # [onboard.params]: set at start
+    sensors: Any = None                       # cosim.sensors.spec.SensorsSpec ([sensors])

@@ -83,6 +83,8 @@ class RunResult:
     min_clearance: tuple[float, float, str] | None = None   # 3D worlds: (m, t s, to what)
     frame_columns: tuple[str, ...] | None = None   # the app's names for frame_log fields
     reference_poses: list[tuple[float, ...]] | None = None   # the app's taught path (n,e,d,yaw)
+    estimate: np.ndarray | None = None         # sensor-fed runs: the vehicle's estimate per
+                                               # tick (cosim/sim/estimate.ESTIMATE_COLUMNS)
     _tmp: Any = field(default=None, repr=False)   # owns the temporary spool folder
 
     @property
@@ -228,7 +230,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     phases: list[str] = []
     phase_idx: dict[str, int] = {}
     exit_reason, message = ExitReason.TIME_LIMIT, "time limit reached"
-    plant = vehicle = app = monitor = None
+    plant = vehicle = app = monitor = feed = None
     pacer = None                 # real-time mode: the wall-clock pacing and its host stalls
     wall0 = time.perf_counter()
     loop0 = None
@@ -256,9 +258,16 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         check_exit = monitor.check
         on_tick = app.on_tick if app is not None else None
         realtime, progress, png_every = opts.realtime, opts.progress, opts.png_every
+        feed = None
+        if sc.sensors is not None and sc.sensors.hil:   # sensor messages, the vehicle estimates
+            from cosim.sim.estimate import SensorFeed
+
+            feed = SensorFeed(sc, h)
+            measure, decode_actuators = feed.measure, feed.decode
+            encode_odometry = encode_valid = encode_lost = feed.encode
         tail = make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool,
                          plant_step, gusty, (wind_n, wind_e, wind_d), (home_n, home_e),
-                         monitor) if hooks is None else None
+                         monitor) if hooks is None and feed is None else None
         tail_run = tail.run if tail is not None else None
         loop0 = time.perf_counter()
         pacer = Pacer(opts.speed, loop0)
@@ -390,6 +399,9 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         reference_poses=list(getattr(app, "reference_poses", None) or []) or None,
         _tmp=(tmp, spool_tmp),
     )
+    if feed is not None:
+        res.estimate = feed.array()
+        res.faults = sorted(res.faults + feed.fired())
     if mcap is not None:
         res.mcap = mcap.finish(res)
     return res

@@ -27,6 +27,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from mav import fastpath, wire
 from mav.airframe import Airframe, get_airframe
 from mav.battery import BATTERIES, Battery
+from mav.estimator import Estimator
 from mav.onboard.commander import Commander
 from mav.onboard.commands import Commands
 from mav.onboard.config import OnboardConfig
@@ -154,10 +155,12 @@ class Onboard:
         if cfg.param_file:
             prm.load_file(cfg.param_file)
         prm.apply()
+        # the estimator (EKF2_TYPE 1: the vehicle flies on HIL_SENSOR & co., mav/estimator/)
+        self.estimator = Estimator(vs.own, self.stats, self.geo)
         # the tick compiled (mav/csrc/tick.c: `poll` below, statement for statement), when the
         # extension is loaded and `compiled_tick` is on (tests turn it off to compare)
         fp = fastpath.lib
-        if fp is not None and self.compiled_tick:
+        if fp is not None and self.compiled_tick and not self.estimator.enabled:
             self.poll = fp.Tick(self).run
 
     # ------------------------------------------------------------------ public helpers
@@ -280,6 +283,9 @@ class Onboard:
             od = wire.decode_odometry(data)
         except Exception:   # defensive: the decoder is total on bytes, but never crash here
             od = None
+        est_fed = od is None and self.estimator.enabled   # a sensor-fed tick: the estimate
+        if est_fed:
+            od = self.estimator.on_hil(data)
         if od is None:
             self._hil_not_odometry(data)
             return False
@@ -356,8 +362,11 @@ class Onboard:
         pl = wire.HIL_CTRL_PACK(t_us, 1, u[0], u[1], u[2], u[3],
                                 HIL_MODE_ARMED if vs.armed else HIL_MODE_DISARMED)
         fo = wire._fp_frame_on
-        self._hil.send((fo is not None and fo(self._hil_mav, _HIL_ID, _HIL_EXTRA, pl))
-                       or wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
+        ans = ((fo is not None and fo(self._hil_mav, _HIL_ID, _HIL_EXTRA, pl))
+               or wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
+        if est_fed:   # the estimate after it, for the simulator's logs
+            ans += self.estimator.odometry_frame(self._hil_mav, t_us)
+        self._hil.send(ans)
         st["ticks"] += 1
         return True
 

@@ -1,0 +1,79 @@
+"""The onboard estimator, a part of its own (like PX4's EKF2): the vehicle hands it each
+sensor-fed HIL datagram, it answers the state estimate.
+
+    est = Estimator(vs.own, vs.stats, geo)
+    od = est.on_hil(data)      # data: HIL_SENSOR + HIL_OPTICAL_FLOW + DISTANCE_SENSOR (+ HIL_GPS)
+                               # -> the same 17-tuple wire.decode_odometry gives (quality -1:
+                               #    position lost), or None if the datagram had no HIL_SENSOR
+    est.update(sensor_msgs, t_us) -> TemplateEstimator (the estimate in its fields)
+    est.odometry_frame(mav, t_us) -> ODOMETRY bytes of the estimate (the HIL answer's tail)
+
+Which estimator: the parameter EKF2_TYPE (0: none, the vehicle flies on ODOMETRY; 1: the
+Minidrone template's filters, `template.py`, for both the Mambo and the Bebop 2: the same
+sensor set, so the same structure; an EKF is future work). The truth in HIL_STATE_QUATERNION
+is never read here.
+"""
+
+from __future__ import annotations
+
+import math
+
+from mav import hil_sensors as hs
+from mav import wire
+from mav.estimator.template import TemplateEstimator
+
+__all__ = ["Estimator", "TemplateEstimator"]
+
+FRAME_LOCAL_NED = 1
+_ID_IMU, _ID_FLOW = hs.HIL_SENSOR.id, hs.HIL_OPTICAL_FLOW.id
+_ID_RNG, _ID_GPS = hs.DISTANCE_SENSOR.id, hs.HIL_GPS.id
+
+
+def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
+
+
+class Estimator:
+    def __init__(self, own: dict[str, float], stats: dict[str, int], geo) -> None:
+        self.own, self.stats, self.geo = own, stats, geo
+        self.impl = TemplateEstimator(own, stats)
+        stats.setdefault("est_bad_frames", 0)
+        stats.setdefault("est_lost", 0)
+
+    @property
+    def enabled(self) -> bool:
+        return self.own.get("EKF2_TYPE", 0.0) >= 1.0
+
+    def update(self, msgs: dict[int, tuple], t_us: int) -> TemplateEstimator:
+        e = self.impl
+        e.update(msgs.get(_ID_IMU), msgs.get(_ID_FLOW), msgs.get(_ID_RNG), msgs.get(_ID_GPS),
+                 self.geo, t_us)
+        return e
+
+    def on_hil(self, data: bytes) -> tuple | None:
+        if not self.enabled or not hs.is_sensor_bundle(data):
+            return None
+        msgs, bad = hs.decode_bundle(data)
+        self.stats["est_bad_frames"] += bad
+        imu = msgs.get(_ID_IMU)
+        if imu is None:
+            return None
+        t_us = imu[0]
+        e = self.update(msgs, t_us)
+        self.stats["est_lost"] += e.lost
+        qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)
+        return (t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p, e.q, e.r,
+                FRAME_LOCAL_NED, FRAME_LOCAL_NED, -1 if e.lost else 100)
+
+    def odometry_frame(self, mav, t_us: int) -> bytes:
+        """The estimate as ODOMETRY (estimator_type VIO... here MAV_ESTIMATOR_TYPE_NAIVE, 1),
+        appended to the HIL answer so the simulator logs truth and estimate side by side."""
+        e = self.impl
+        qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)
+        return wire.encode_odometry(mav, t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz,
+                                    e.p, e.q, e.r, estimator_type=1,
+                                    quality=-1 if e.lost else 100)
