@@ -22,11 +22,18 @@ ESTIMATE_COLUMNS = ("est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "es
 _ROW = struct.Struct(f"<{len(ESTIMATE_COLUMNS)}d")
 
 
+def floor_textured(world) -> bool:
+    """`flow_floor = "auto"`: competition tiles or a room's textured floor give the flow
+    features; a plain floor (the flat worlds' default grey) does not."""
+    room = world.scene.room
+    return world.floor_texture != "plain" or (room is not None and room.floor.kind != "plain")
+
+
 class SensorFeed:
     def __init__(self, sc, h: float) -> None:
         spec = sc.sensors
         floor = spec.flow_floor
-        textured = (sc.world.floor_texture != "plain") if floor == "auto" else floor == "textured"
+        textured = floor_textured(sc.world) if floor == "auto" else floor == "textured"
         faults = sc.faults.sensors if sc.faults else ()
         self.home = (sc.start.n, sc.start.e)
         self.suite = SensorSuite(spec, sc.seed, h, self.home, textured, faults)
