@@ -34,7 +34,7 @@ class SensorFeed:
         spec = sc.sensors
         floor = spec.flow_floor
         textured = floor_textured(sc.world) if floor == "auto" else floor == "textured"
-        faults = sc.faults.sensors if sc.faults else ()
+        faults = getattr(sc.faults, "sensors", ()) or ()
         self.home = (sc.start.n, sc.start.e)
         self.suite = SensorSuite(spec, sc.seed, h, self.home, textured, faults)
         self.est = [math.nan, math.nan, math.nan]
