@@ -35,6 +35,7 @@ from foxglove.messages import (
     Vector3,
 )
 
+from cosim.sim.estimate import ESTIMATE_COLUMNS
 from cosim.sim.recorder import COL
 
 TOPICS = {
@@ -84,8 +85,11 @@ class McapRun:
         self._scene(SceneUpdateChannel("/world/scene", context=ctx), res.scenario.world)
         phases = res.phases
         c = COL
+        est = res.estimate          # sensor-fed: the rest of the vehicle's estimate
+        k = -1
         for block in res.recorded.blocks():
             for row in block:
+                k += 1
                 t_ns = int(round(row[c["t"]] * 1e9))
                 x, y, z = row[c["x"]], row[c["y"]], row[c["z"]]
                 pose.log(PoseInFrame(
@@ -97,9 +101,11 @@ class McapRun:
                 json_ch["/vehicle/truth"].log(
                     {"t": row[c["t"]], "x": x, "y": y, "z": z, "vx": row[c["vx"]],
                      "vy": row[c["vy"]], "vz": row[c["vz"]]}, log_time=t_ns)
-                json_ch["/vehicle/estimate"].log(
-                    {"x": row[c["est_x"]], "y": row[c["est_y"]], "z": row[c["est_z"]]},
-                    log_time=t_ns)
+                e = {"x": row[c["est_x"]], "y": row[c["est_y"]], "z": row[c["est_z"]]}
+                if est is not None and k < len(est):
+                    e.update({n[4:]: _num(float(v)) for n, v in
+                              zip(ESTIMATE_COLUMNS[3:], est[k, 3:], strict=True)})
+                json_ch["/vehicle/estimate"].log(e, log_time=t_ns)
                 json_ch["/app/setpoint"].log(
                     {k: _num(row[c["sp_" + k]]) for k in ("x", "y", "z")}, log_time=t_ns)
                 json_ch["/vehicle/motors"].log(

@@ -90,17 +90,14 @@ class SensorSuite:
     # ------------------------------------------------------------------ one tick
     def encode(self, t_us: int, y) -> bytes:
         """The datagram sent at t_us: this tick's readings are queued and the one
-        `delay_ticks` old is sent (the first tick's repeated until the queue fills)."""
+        `delay_ticks` old is sent (the first tick's repeated until the queue fills), then the
+        truth of this tick (HIL_STATE_QUATERNION, not delayed)."""
         data = self.read(t_us, y)
+        truth = data.pop()
         q = self.queue
         q.append(data)
-        d = self.p.delay_ticks
-        if len(q) > d:
-            return self._restamp(q.pop(0), t_us)
-        return self._restamp(q[0], t_us)
-
-    def _restamp(self, parts: list, t_us: int) -> bytes:
-        return b"".join(f(t_us) for f in parts)
+        parts = q.pop(0) if len(q) > self.p.delay_ticks else q[0]
+        return b"".join([f(t_us) for f in parts]) + truth(t_us)
 
     def read(self, t_us: int, y) -> list:
         """The readings of y(t_k) as closures that encode them at a given stamp (the delay
