@@ -20,6 +20,9 @@ from cosim.studies.bench_common import SEED
 _HIL = "HIL exchange (onboard)"
 _TICK_PARTS = (
     ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None, "__init__"),
+    # sensor-fed (feed = "hil"): the sensor models, the vehicle's estimator, the answer split
+    ("cosim.sensors.suite", "SensorSuite", "encode", "sensor models + HIL_SENSOR & co.", None,
+     None),
     ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None, None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None, None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None, None),
@@ -29,6 +32,8 @@ _TICK_PARTS = (
      "app on_tick", "__init__"),
     ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None, "__init__"),
     ("cosim.sim.onboard", "OnboardHandle", "exchange_call", _HIL, None, None),
+    ("mav.estimator", "Estimator", "on_hil", "  onboard estimator (decode + filters)", _HIL,
+     None),
     ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL, None),
     ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", _HIL, None),
     ("mav.cascade", "QuadCascade", "update", "  onboard controller", _HIL, "__init__"),
@@ -37,6 +42,7 @@ _TICK_PARTS = (
     ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL, None),
     ("mav.wire", None, "decode_hil_actuator_controls", "HIL_ACTUATOR_CONTROLS decode", None,
      None),
+    ("cosim.sim.estimate", "SensorFeed", "decode", "HIL answer + estimate decode", None, None),
     ("cosim.plant.fmu", "Plant", "step", "plant step", None, "_use_stepper"),
 )
 MASTER = "master loop itself (record, exit test, taps)"
@@ -84,7 +90,8 @@ def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
     return saved
 
 
-def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
+def bench_tick_breakdown(repeats: int = 3, sets: dict[str, Any] | None = None
+                         ) -> dict[str, Any]:
     """Where the MIL tick of the seed mission goes, in us per tick (averaged over the run).
 
     One part timed per run: each part of `_TICK_PARTS` is wrapped in a timer alone, in its own
@@ -100,10 +107,12 @@ def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
     timers' Python frames called from the compiled tick cost far more than a timer measured
     alone, and that went into the master loop's and the onboard tick's figures.)
     """
-    from cosim.scenario.parse import load_scenario
+    from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import RunOptions, run_scenario
 
     sc = load_scenario(SEED)
+    if sets:           # e.g. {"sensors.feed": "hil"}: the tick of the sensor-fed mission
+        sc = with_set(sc, sets)
     acc: dict[str, list[int]] = {}
     clock = time.perf_counter_ns
 
@@ -162,7 +171,7 @@ def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
     # a part never called on its own is not a row: the compiled tick (mav/csrc/tick.c) runs
     # the drain of setpoints, the modes and the battery step inside its one call, so they
     # are in "HIL exchange (onboard): rest" then
-    labels = [(lb, pa) for lb, pa in labels if calls[lb] > 0 or pa is None]
+    labels = [(lb, pa) for lb, pa in labels if calls[lb] > 0]
     parts = {lb: min(got[lb]) for lb, _ in labels}
     for label, parent in labels:
         if parent is not None:
