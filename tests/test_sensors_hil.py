@@ -161,3 +161,43 @@ def test_bad_sensor_fault_is_named():
     with pytest.raises(ScenarioError) as ei:
         _square(**{"faults.sensor": [{"kind": "gyro_saturation", "start_s": 1.0}]})
     assert ei.value.field == "faults.sensor[0].value"
+
+
+def test_estimator_status_flags_follow_the_aiding():
+    from pymavlink.dialects.v20 import common as M
+
+    est, st = _estimator()
+    su = SensorSuite(SensorsSpec(feed="hil"), 0, 0.005, (0.0, 0.0), True)
+    k = 0
+    for z in [0.0] * 20 + [-0.01 * i for i in range(1, 101)] + [-1.0] * 100:   # climb to 1 m
+        est.on_hil(su.encode(k * 5000, _y(z)))
+        k += 1
+    f = est.status_flags()
+    good = (M.ESTIMATOR_ATTITUDE | M.ESTIMATOR_VELOCITY_HORIZ | M.ESTIMATOR_POS_HORIZ_REL
+            | M.ESTIMATOR_POS_VERT_AGL | M.ESTIMATOR_VELOCITY_VERT | M.ESTIMATOR_POS_VERT_ABS)
+    assert f == good, bin(f)
+    su.faults = (SensorFaultFor("flow_loss", k * 0.005),)
+    for _ in range(300):                          # 1.5 s without flow: position lost
+        od = est.on_hil(su.encode(k * 5000, _y(-1.0)))
+        k += 1
+    f = est.status_flags()
+    assert f & M.ESTIMATOR_CONST_POS_MODE and not f & M.ESTIMATOR_POS_HORIZ_REL
+    assert od[16] == -1 and est.impl.lost
+
+
+def SensorFaultFor(kind: str, start_s: float):
+    from cosim.sensors.faults import SensorFault
+
+    return SensorFault(kind, start_s, 1e9, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+
+
+def test_estimator_status_on_request_on_odometry():
+    from pymavlink.dialects.v20 import common as M
+    from test_onboard_rig import Rig
+
+    rig = Rig()
+    rig.tick(3)
+    rig.cmd(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_ESTIMATOR_STATUS)
+    rig.tick()
+    es = rig.last("gcs", "ESTIMATOR_STATUS")
+    assert es.flags & M.ESTIMATOR_POS_HORIZ_REL and es.flags & M.ESTIMATOR_ATTITUDE

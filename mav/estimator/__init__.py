@@ -18,9 +18,11 @@ from __future__ import annotations
 
 import math
 
+from pymavlink.dialects.v20 import common as M
+
 from mav import hil_sensors as hs
 from mav import wire
-from mav.estimator.template import TemplateEstimator
+from mav.estimator.template import CAL_TICKS, TemplateEstimator
 
 __all__ = ["Estimator", "TemplateEstimator"]
 
@@ -43,6 +45,30 @@ class Estimator:
         self.impl = TemplateEstimator(own, stats)
         stats.setdefault("est_bad_frames", 0)
         stats.setdefault("est_lost", 0)
+
+    @property
+    def active(self) -> bool:
+        """It has had sensor messages (the vehicle flies on it)."""
+        return self.impl.n > 0
+
+    def status_flags(self) -> int:
+        """ESTIMATOR_STATUS_FLAGS of the estimate: attitude once calibrated, vertical from the
+        barometer, height above ground while the sonar is fused, horizontal velocity and
+        relative position while the flow (or GPS) aids it, else constant-position mode."""
+        e = self.impl
+        t = e.t_us
+        f = M.ESTIMATOR_VELOCITY_VERT | M.ESTIMATOR_POS_VERT_ABS
+        if e.n >= CAL_TICKS:
+            f |= M.ESTIMATOR_ATTITUDE
+        if 0 <= t - e.rng_us < 200_000:
+            f |= M.ESTIMATOR_POS_VERT_AGL
+        if e.aid_us > 0 and not e.lost and t - e.aid_us < e.noaid_us:
+            f |= M.ESTIMATOR_VELOCITY_HORIZ | M.ESTIMATOR_POS_HORIZ_REL
+        else:
+            f |= M.ESTIMATOR_CONST_POS_MODE
+        if 0 < e.gps_us and t - e.gps_us < 1_000_000:
+            f |= M.ESTIMATOR_POS_HORIZ_ABS
+        return f
 
     @property
     def enabled(self) -> bool:

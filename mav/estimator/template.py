@@ -86,6 +86,8 @@ class TemplateEstimator:
         self.pzz, self.pzv, self.pvv = 1.0, 0.0, 1.0       # altitude covariance
         self.pvx = self.pvy = 1.0                          # velocity variances
         self.aid_us = 0                                    # last flow / GPS fused
+        self.rng_us = -(1 << 62)                           # last sonar fused
+        self.gps_us = 0                                    # last GPS fix fused
         self.rng_rej_since = -1
         self.lost = False
 
@@ -254,6 +256,7 @@ class TemplateEstimator:
                 self.z, self.rng_rej_since = zm, -1
             return
         self.rng_rej_since = -1
+        self.rng_us = t_us
         st["est_rng_fused"] += 1
         self._z_fuse(zm, self.r_rng)
 
@@ -306,4 +309,4 @@ class TemplateEstimator:
         self.x += w * (n - self.x)
         self.y += w * (e - self.y)
         st["est_gps_fused"] += 1
-        self.aid_us = t_us
+        self.aid_us = self.gps_us = t_us

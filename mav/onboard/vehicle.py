@@ -156,7 +156,7 @@ class Onboard:
             prm.load_file(cfg.param_file)
         prm.apply()
         # the estimator (EKF2_TYPE 1: the vehicle flies on HIL_SENSOR & co., mav/estimator/)
-        self.estimator = Estimator(vs.own, self.stats, self.geo)
+        self.estimator = tel.estimator = Estimator(vs.own, self.stats, self.geo)
         # the tick compiled (mav/csrc/tick.c: `poll` below, statement for statement), when the
         # extension is loaded and `compiled_tick` is on (tests turn it off to compare)
         fp = fastpath.lib
