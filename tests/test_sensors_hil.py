@@ -201,3 +201,36 @@ def test_estimator_status_on_request_on_odometry():
     rig.tick()
     es = rig.last("gcs", "ESTIMATOR_STATUS")
     assert es.flags & M.ESTIMATOR_POS_HORIZ_REL and es.flags & M.ESTIMATOR_ATTITUDE
+
+
+def test_interpreted_equals_compiled_with_sensors_on(monkeypatch):
+    from mav import reference
+
+    sc = _square(**{"timing.t_final_s": 6.0})
+    compiled = run_scenario(sc, RunOptions())
+    monkeypatch.setenv("COSIM_FMI2STEP", "0")          # the plant through ctypes, too
+    with reference.python():
+        interpreted = run_scenario(sc, RunOptions())
+    assert compiled.series.tobytes() == interpreted.series.tobytes()
+    assert compiled.estimate.tobytes() == interpreted.estimate.tobytes()
+    assert compiled.tlog.read() == interpreted.tlog.read()
+
+
+def test_gps_fixes_reach_the_estimate():
+    res = run_scenario(_square(**{"sensors.gps.enabled": True, "timing.t_final_s": 8.0}),
+                       RunOptions())
+    st = res.onboard_stats
+    # 5 Hz, every fix (the first one twice: the one-tick delay line starts full of it)
+    assert st["est_gps_fused"] == 8.0 / 0.2 + 1 and st["est_rej_gps"] == 0
+
+
+def test_flow_lost_in_flight_is_a_lost_position_and_the_vehicle_lands():
+    sc = _square(**{"timing.t_final_s": 30.0, "faults.sensor": [
+        {"kind": "flow_loss", "start_s": 8.0}]})
+    res = run_scenario(sc, RunOptions())
+    st = res.onboard_stats
+    lost = res.estimate[:, -1]
+    t = res.series[:, 0]
+    assert lost[t < 8.0].sum() == 0 and lost[(t > 9.5) & (t < 10.0)].all()
+    assert st["odometry_lost"] > 0                   # the vehicle's failsafe saw it
+    assert res.series[-1, 3] > -0.05                 # landed (z ~ 0), COM_POS_FS_DELAY later

@@ -127,7 +127,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
 
     # sensors / wind / faults
     s = table(raw, "sensors", "")
-    no_unknown(s, {"odometry_noise", "feed", "flow_floor", "gps", *SENSOR_TABLES}, "sensors")
+    no_unknown(s, {"odometry_noise", "feed", "flow_floor", *SENSOR_TABLES}, "sensors")
     n = table(s, "odometry_noise", "sensors")
     no_unknown(n, {"pos_std_m", "vel_std_mps", "att_std_rad", "rate_std_radps"},
                 "sensors.odometry_noise")

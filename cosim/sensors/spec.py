@@ -7,9 +7,10 @@ scenario's `[sensors]` table (validated; a bad value names its field, exit 2).
                                # HIL_GPS and the vehicle's own estimator
     flow_floor = "auto"        # auto (the world's floor_texture: competition tiles are
                                # textured, a plain floor is not) | textured | plain
-    gps = false                # a GPS receiver (outdoor worlds)
     [sensors.imu]              # any field of SensorParams below, by sensor table
     acc_noise = [0.2, 0.2, 0.2]
+    [sensors.gps]
+    enabled = true             # a GPS receiver (outdoor worlds; default none)
 
 Mambo numbers: reference/minidrone.md §2.1 (the template's sensorsVars.m): IMU second order
 190 rad/s / 0.707, scale factors, +-50 m/s^2 and +-10 rad/s limits, band-limited white noise
@@ -125,9 +126,10 @@ def parse_sensors(s: Mapping[str, Any], vehicle: str) -> SensorsSpec:
         t = s[tname]
         if not isinstance(t, Mapping):
             raise ScenarioError(where, t, "a table")
-        no_unknown(t, set(names), where)
+        no_unknown(t, set(names) | ({"enabled"} if tname == "gps" else set()), where)
         for k in t:
-            ov[k] = _value(t, k, where)
+            if k != "enabled":
+                ov[k] = _value(t, k, where)
     if ov:
         p = replace(p, **ov)
     if p.range_max_m <= p.range_min_m:
@@ -136,7 +138,8 @@ def parse_sensors(s: Mapping[str, Any], vehicle: str) -> SensorsSpec:
     return SensorsSpec(feed=string(s, "feed", "sensors", "truth", ("truth", "hil")),
                        flow_floor=string(s, "flow_floor", "sensors", "auto",
                                          ("auto", "textured", "plain")),
-                       gps=boolean(s, "gps", "sensors", False), params=p)
+                       gps=boolean(s.get("gps", {}), "enabled", "sensors.gps", False),
+                       params=p)
 
 
 def _value(t: Mapping, k: str, where: str) -> Any:

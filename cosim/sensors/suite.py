@@ -15,7 +15,7 @@ bit, MIL or SIL.
   160 x 120 frame of a plain floor is noise. The floor's texture sets the quality instead:
   `flow_quality_textured` / `flow_quality_plain` (a plain floor gives 0: the flow fails, as
   PX4's does); tilt or rate beyond the sensor's limits give 0 too;
-- GPS (outdoor worlds, `[sensors] gps = true`): position and velocity with white noise;
+- GPS (outdoor worlds, `[sensors.gps] enabled = true`): position and velocity with white noise;
 - HIL_STATE_QUATERNION: the truth, for the logs.
 
 Every reading is delayed `delay_ticks` ticks (the template: one 5 ms sample).
