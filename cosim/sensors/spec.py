@@ -156,6 +156,8 @@ def _value(t: Mapping, k: str, where: str) -> Any:
 
         lo, hi = INTS[k]
         return integer(t, k, where, lo=lo, hi=hi)
+    if k == "imu_wn":        # below Nyquist at 5 ms (pi / h = 628 rad/s): the discrete filter
+        return number(t, k, where, lo=1.0, hi=600.0)
     if k in ("flow_quality_textured", "flow_quality_plain"):
         return number(t, k, where, lo=0.0, hi=255.0)
     lo_open = k in ("imu_wn", "imu_zeta", "acc_max", "gyro_max", "baro_gain", "range_max_m")
