@@ -146,6 +146,8 @@ def test_sensor_faults_reach_the_estimate_and_are_counted():
     ({"range": {"range_min_m": 5.0}}, None, "sensors.range.range_max_m"),
     ({"flow": {"flow_every": 0}}, None, "sensors.flow.flow_every"),
     ({"baro": {"typo": 1}}, None, "sensors.baro.typo"),
+    ({"imu": {"imu_wn": 2000.0}}, None, "sensors.imu.imu_wn"),     # above Nyquist
+    ({"gps": {"enabled": 1}}, None, "sensors.gps.enabled"),
 ])
 def test_bad_sensor_fields_are_named(table, value, field):
     raw = dict(load_scenario(SQUARE).raw)

@@ -22,13 +22,44 @@ class Gauss:
         self.buf: list[float] = []
         self.i = 0
 
-    def next(self) -> float:
+    def take(self, n: int) -> list[float]:
+        """The next n samples (n <= BLOCK)."""
         i = self.i
-        if i >= len(self.buf):
+        j = i + n
+        if j > len(self.buf):
             self.buf = self.rng.standard_normal(BLOCK).tolist()
-            i = 0
-        self.i = i + 1
-        return self.buf[i]
+            i, j = 0, n
+        self.i = j
+        return self.buf[i:j]
+
+
+class Imu3:
+    """Three axes of one IMU sensor: the second-order dynamics (`SecondOrder`'s filter, its
+    states in flat lists), then scale, bias, noise and the limit, in one call per tick."""
+
+    __slots__ = ("c", "st", "scale", "noise", "gauss")
+
+    def __init__(self, wn: float, zeta: float, h: float, x0: tuple[float, ...],
+                 scale: tuple[float, ...], noise: tuple[float, ...], gauss: Gauss) -> None:
+        f = SecondOrder(wn, zeta, h)
+        self.c = (f.b0, f.b1, f.b2, f.a1, f.a2)
+        self.st = [v for x in x0 for v in (x, x, x, x)]       # per axis x1, x2, y1, y2
+        self.scale, self.noise, self.gauss = scale, noise, gauss
+
+    def read(self, u0: float, u1: float, u2: float, bias: tuple[float, ...],
+             lim: float) -> tuple[float, float, float]:
+        b0, b1, b2, a1, a2 = self.c
+        st, sc, ns = self.st, self.scale, self.noise
+        nz = self.gauss.take(3)
+        out = [0.0, 0.0, 0.0]
+        for i, u in ((0, u0), (1, u1), (2, u2)):
+            j = 4 * i
+            x1, x2, y1, y2 = st[j], st[j + 1], st[j + 2], st[j + 3]
+            y = b0 * u + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2
+            st[j], st[j + 1], st[j + 2], st[j + 3] = u, x1, y, y1
+            v = y * sc[i] + bias[i] + ns[i] * nz[i]
+            out[i] = lim if v > lim else -lim if v < -lim else v
+        return out[0], out[1], out[2]
 
 
 class SecondOrder:
@@ -55,6 +86,3 @@ class SecondOrder:
         self.y2, self.y1 = self.y1, y
         return y
 
-
-def clamp(v: float, lim: float) -> float:
-    return lim if v > lim else -lim if v < -lim else v

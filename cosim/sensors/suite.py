@@ -43,7 +43,7 @@ from cosim.plant.fmu import (
     Y_Y,
     Y_Z,
 )
-from cosim.sensors.imu import Gauss, SecondOrder, clamp
+from cosim.sensors.imu import Gauss, Imu3
 from cosim.sensors.spec import SensorsSpec
 from mav import hil_sensors as hs
 from mav.hil import SIM_COMPID, SIM_SYSID
@@ -68,8 +68,11 @@ class SensorSuite:
         self.n = [Gauss(seed, i) for i in range(8)]   # imu acc, gyro, baro, mag, range, flow,
         self.home = home                               # gps, faults
         g = 9.81
-        self.acc_f = [SecondOrder(p.imu_wn, p.imu_zeta, h, x0) for x0 in (0.0, 0.0, -g)]
-        self.gyro_f = [SecondOrder(p.imu_wn, p.imu_zeta, h) for _ in range(3)]
+        self.acc = Imu3(p.imu_wn, p.imu_zeta, h, (0.0, 0.0, -g), p.acc_scale, p.acc_noise,
+                        self.n[0])
+        self.gyro = Imu3(p.imu_wn, p.imu_zeta, h, (0.0, 0.0, 0.0), p.gyro_scale, p.gyro_noise,
+                         self.n[1])
+        self.range_cm = (int(p.range_min_m * 100), int(p.range_max_m * 100))
         self.flow_base = p.flow_quality_textured if floor_textured else p.flow_quality_plain
         self.flow_acc = [0.0, 0.0, 0.0, 0.0, 0.0]      # integrated x, y, gyro x, y, z
         self.flow_n = 0
@@ -122,11 +125,6 @@ class SensorSuite:
         r21 = 2 * (qy * qz + qw * qx)
         r22 = 1 - 2 * (qx * qx + qy * qy)
         # IMU
-        na, ng = n[0], n[1]
-        acc = [0.0, 0.0, 0.0]
-        gyr = [0.0, 0.0, 0.0]
-        f_true = (y[Y_AX], y[Y_AY], y[Y_AZ])
-        w_true = (pr, qr, rr)
         bias_a, bias_g, gsat = p.acc_bias, p.gyro_bias, p.gyro_max
         for f in act:
             if f.kind == "imu_bias":
@@ -134,39 +132,35 @@ class SensorSuite:
                 bias_g = tuple(b + v for b, v in zip(bias_g, f.gyro, strict=True))
             elif f.kind == "gyro_saturation":
                 gsat = min(gsat, f.value[0])
-        for i in range(3):
-            a = self.acc_f[i].step(f_true[i])
-            acc[i] = clamp(a * p.acc_scale[i] + bias_a[i] + p.acc_noise[i] * na.next(),
-                           p.acc_max)
-            w = self.gyro_f[i].step(w_true[i])
-            gyr[i] = clamp(w * p.gyro_scale[i] + bias_g[i] + p.gyro_noise[i] * ng.next(), gsat)
+        acc = self.acc.read(y[Y_AX], y[Y_AY], y[Y_AZ], bias_a, p.acc_max)
+        gyr = self.gyro.read(pr, qr, rr, bias_g, gsat)
         # barometer
         height = -y[Y_Z]
-        pa = p.baro_p0_pa - p.baro_gain * height + p.baro_noise_pa * n[2].next()
+        pa = p.baro_p0_pa - p.baro_gain * height + p.baro_noise_pa * n[2].take(1)[0]
         for f in act:
             if f.kind == "baro_drift":
                 pa += f.value[0] * (t - f.start_s)
         p_alt = (p.baro_p0_pa - pa) / p.baro_gain
         # magnetometer
         mx, my, mz = p.mag_field
-        nm = n[3]
-        mag = [r00 * mx + r10 * my + r20 * mz + p.mag_noise * nm.next(),
-               r01 * mx + r11 * my + r21 * mz + p.mag_noise * nm.next(),
-               r02 * mx + r12 * my + r22 * mz + p.mag_noise * nm.next()]
+        sm = p.mag_noise
+        n0, n1, n2 = n[3].take(3)
+        mag = (r00 * mx + r10 * my + r20 * mz + sm * n0, r01 * mx + r11 * my + r21 * mz + sm * n1,
+               r02 * mx + r12 * my + r22 * mz + sm * n2)
         for f in act:
             if f.kind == "mag_interference":
-                mag = [m + v for m, v in zip(mag, f.value, strict=True)]
-        parts = [_sensor(mav, tuple(acc), tuple(gyr), tuple(mag), pa * 0.01, p_alt)]
+                mag = tuple(m + v for m, v in zip(mag, f.value, strict=True))
+        parts = [_sensor(mav, acc, gyr, mag, pa * 0.01, p_alt)]
         # range finder (down) and flow share the slant distance along body z
         tilt_c = r22                               # cos(roll) cos(pitch)
         slant = height / tilt_c if tilt_c > 0.05 else math.inf
         if k % p.range_every == 0:
-            rng = slant + p.range_noise_m * n[4].next()
-            echo = p.range_min_m <= rng <= p.range_max_m and not any(
-                f.kind == "sonar_dropout" for f in act)
+            rng = slant + p.range_noise_m * n[4].take(1)[0]
+            echo = p.range_min_m <= rng <= p.range_max_m and not (act and any(
+                f.kind == "sonar_dropout" for f in act))
             self.counts["range_echoes" if echo else "range_none"] += 1
-            parts.append(_distance(mav, int(p.range_min_m * 100), int(p.range_max_m * 100),
-                                   int(round(rng * 100)) if echo else 0,
+            lo, hi = self.range_cm
+            parts.append(_distance(mav, lo, hi, int(round(rng * 100)) if echo else 0,
                                    100 if echo else hs.NO_ECHO))
         # optical flow: body velocity over the slant distance, plus the body rates
         vx, vy, vz = y[Y_VX], y[Y_VY], y[Y_VZ]
@@ -175,8 +169,9 @@ class SensorSuite:
         d = max(slant, 0.05)
         nf, h = n[5], self.h
         fa = self.flow_acc
-        fa[0] += (pr - vby / d + p.flow_noise_rad_s * nf.next()) * h
-        fa[1] += (qr + vbx / d + p.flow_noise_rad_s * nf.next()) * h
+        n0, n1 = nf.take(2)
+        fa[0] += (pr - vby / d + p.flow_noise_rad_s * n0) * h
+        fa[1] += (qr + vbx / d + p.flow_noise_rad_s * n1) * h
         fa[2] += gyr[0] * h
         fa[3] += gyr[1] * h
         fa[4] += gyr[2] * h
@@ -188,14 +183,15 @@ class SensorSuite:
             qual = int(self.flow_base) if ok else 0
             ix, iy = fa[0], fa[1]
             send = True
-            for f in act:
+            for f in act:   # (none most ticks)
                 if f.kind == "flow_loss":
                     send = False
                 elif f.kind == "flow_garbage":
                     if f.value[0]:
                         ix = iy = NAN
                     else:
-                        ix, iy = f.value[1] * nf.next(), f.value[1] * nf.next()
+                        n0, n1 = nf.take(2)
+                        ix, iy = f.value[1] * n0, f.value[1] * n1
                     qual = 255
             if send:
                 self.counts["flow_msgs"] += 1
@@ -206,16 +202,15 @@ class SensorSuite:
         # GPS and the truth, in the vehicle's geodetic frame (origin = the start point)
         hn, he = self.home
         if self.spec.gps and k % p.gps_every == 0:
-            ng_ = n[6]
-            lat, lon, alt = self.geo.to_int(y[Y_X] - hn + p.gps_noise_m * ng_.next(),
-                                            y[Y_Y] - he + p.gps_noise_m * ng_.next(),
-                                            y[Y_Z] + p.gps_noise_m * ng_.next())
-            sv = p.gps_vel_noise_mps
+            g = n[6].take(6)
+            sp, sv = p.gps_noise_m, p.gps_vel_noise_mps
+            lat, lon, alt = self.geo.to_int(y[Y_X] - hn + sp * g[0], y[Y_Y] - he + sp * g[1],
+                                            y[Y_Z] + sp * g[2])
             self.counts["gps_msgs"] += 1
-            parts.append(_gps(mav, lat, lon, alt, int(round(p.gps_noise_m * 100)),
-                              int(round((vx + sv * ng_.next()) * 100)),
-                              int(round((vy + sv * ng_.next()) * 100)),
-                              int(round((vz + sv * ng_.next()) * 100))))
+            parts.append(_gps(mav, lat, lon, alt, int(round(sp * 100)),
+                              int(round((vx + sv * g[3]) * 100)),
+                              int(round((vy + sv * g[4]) * 100)),
+                              int(round((vz + sv * g[5]) * 100))))
         lat, lon, alt = self.geo.to_int(y[Y_X] - hn, y[Y_Y] - he, y[Y_Z])
         parts.append(_truth(mav, (qw, qx, qy, qz), (pr, qr, rr), lat, lon, alt,
                             (_cms(vx), _cms(vy), _cms(vz))))
