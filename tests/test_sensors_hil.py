@@ -70,7 +70,7 @@ def test_truth_feed_is_the_default_and_untouched():
     assert run_scenario(with_set(sc, {"timing.t_final_s": 2.0}), RunOptions()).estimate is None
 
 
-def test_seed_mission_on_the_estimate_passes():
+def test_seed_mission_on_the_estimate_meets_the_landing_and_coverage_targets():
     res = run_scenario(with_set(load_scenario(SEED), {"sensors.feed": "hil"}), RunOptions())
     assert res.exit_reason is ExitReason.MISSION_COMPLETE, res.message
     m = compute_metrics(res, res.scenario.world)

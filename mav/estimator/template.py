@@ -18,7 +18,9 @@ EKF2: sensor messages in, a state estimate out, in plain floats (200 Hz in the v
 - Horizontal position: the velocity integrated (the template has no absolute position without
   its marker); with a GPS, each fix pulls it by EKF2_GPS_W.
 - On the ground (estimated height < 0.15 m, no flow) the velocity decays to zero (zero-velocity
-  update, as PX4 does while landed).
+  update, as PX4 does while landed); the floor the vehicle started on bounds the altitude (not
+  below it, not descending through it: without that the estimate kept "descending" after a
+  touchdown and the land detector, which reads it, waited).
 
 Every reading that is NaN or outside its sensor's range is rejected and counted (`stats`),
 never propagated. The position estimate is `lost` when no flow or GPS was fused for
@@ -125,6 +127,10 @@ class TemplateEstimator:
         elif self.z > -0.15 and abs(self.vz) < 0.3:     # resting on the floor: ZUPT
             self.vx *= ZUPT_DECAY
             self.vy *= ZUPT_DECAY
+        if self.z > 0.0:       # below the floor it started on: it is on it (a flat floor; the
+            self.z = 0.0       # sonar sees nothing this low), and not moving down
+            if self.vz > 0.0:
+                self.vz = 0.0
         if gps is not None:
             self._gps(gps, geo, t_us)
         self.x += self.vx * dt
