@@ -267,7 +267,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             encode_odometry = encode_valid = encode_lost = feed.encode
         tail = make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool,
                          plant_step, gusty, (wind_n, wind_e, wind_d), (home_n, home_e),
-                         monitor) if hooks is None and feed is None else None
+                         monitor, decode_actuators) if hooks is None else None
         tail_run = tail.run if tail is not None else None
         loop0 = time.perf_counter()
         pacer = Pacer(opts.speed, loop0)
@@ -414,7 +414,7 @@ def show_progress(t: float, wall0: float, phase: str) -> None:
 
 
 def make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool, plant_step,
-              gusty, wind, home, monitor):
+              gusty, wind, home, monitor, decode=None):
     """The compiled steps 5-7b of the loop (cosim/plant/csrc/tail.c), or None without the
     library or with COMPILED_TAIL off: the loop then runs them in Python, the reference."""
     if (not COMPILED_TAIL or os.environ.get("COSIM_FMI2STEP", "1") == "0"
@@ -428,9 +428,9 @@ def make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool
 
     consts = (Y_Z, Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_VZ, exits.AIRBORNE_Z_M,
               exits.FLIP_PRECHECK, exits.CEILING_M, FLUSH_MASK)
-    return Tail(encode_odometry, exchange, wire.decode_hil_actuator_controls, gcs_recv, app,
-                phase_idx, phases, spool, plant_step, gusty, wind, home, monitor, consts,
-                ComponentError)
+    return Tail(encode_odometry, exchange, decode or wire.decode_hil_actuator_controls,
+                gcs_recv, app, phase_idx, phases, spool, plant_step, gusty, wind, home, monitor,
+                consts, ComponentError)
 
 
 def _app_metrics(app) -> dict[str, float]:

@@ -6,7 +6,9 @@ sensor-fed HIL datagram, it answers the state estimate.
                                # -> the same 17-tuple wire.decode_odometry gives (quality -1:
                                #    position lost), or None if the datagram had no HIL_SENSOR
     est.update(sensor_msgs, t_us) -> TemplateEstimator (the estimate in its fields)
-    est.odometry_frame(mav, t_us) -> ODOMETRY bytes of the estimate (the HIL answer's tail)
+    est.link(hil, mav)         -> the HIL link with the estimator in front of the vehicle's
+                               tick (link.py: sensor datagrams in, ODOMETRY of the estimate
+                               to the tick, appended to the HIL answer for the logs)
 
 Which estimator: the parameter EKF2_TYPE (0: none, the vehicle flies on ODOMETRY; 1: the
 Minidrone template's filters, `template.py`, for both the Mambo and the Bebop 2: the same
@@ -21,7 +23,6 @@ import math
 from pymavlink.dialects.v20 import common as M
 
 from mav import hil_sensors as hs
-from mav import wire
 from mav.estimator.template import CAL_TICKS, TemplateEstimator
 
 __all__ = ["Estimator", "TemplateEstimator"]
@@ -95,11 +96,10 @@ class Estimator:
         return (t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p, e.q, e.r,
                 FRAME_LOCAL_NED, FRAME_LOCAL_NED, -1 if e.lost else 100)
 
-    def odometry_frame(self, mav, t_us: int) -> bytes:
-        """The estimate as ODOMETRY (estimator_type VIO... here MAV_ESTIMATOR_TYPE_NAIVE, 1),
-        appended to the HIL answer so the simulator logs truth and estimate side by side."""
-        e = self.impl
-        qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)
-        return wire.encode_odometry(mav, t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz,
-                                    e.p, e.q, e.r, estimator_type=1,
-                                    quality=-1 if e.lost else 100)
+    def link(self, hil, mav):
+        """The vehicle's HIL link with this estimator in front of its tick (link.py); a link
+        that already has one (a rebooted vehicle's) gets a fresh one."""
+        from mav.estimator.link import EstimatorLink
+
+        return EstimatorLink(getattr(hil, "inner", hil) if isinstance(hil, EstimatorLink)
+                             else hil, self, mav)

@@ -155,12 +155,15 @@ class Onboard:
         if cfg.param_file:
             prm.load_file(cfg.param_file)
         prm.apply()
-        # the estimator (EKF2_TYPE 1: the vehicle flies on HIL_SENSOR & co., mav/estimator/)
+        # the estimator (EKF2_TYPE 1: the vehicle flies on HIL_SENSOR & co., mav/estimator/):
+        # between the HIL link and the tick, it turns sensor datagrams into ODOMETRY
         self.estimator = tel.estimator = Estimator(vs.own, self.stats, self.geo)
+        if self.estimator.enabled:
+            self._hil = self.estimator.link(self._hil, self._hil_mav)
         # the tick compiled (mav/csrc/tick.c: `poll` below, statement for statement), when the
         # extension is loaded and `compiled_tick` is on (tests turn it off to compare)
         fp = fastpath.lib
-        if fp is not None and self.compiled_tick and not self.estimator.enabled:
+        if fp is not None and self.compiled_tick:
             self.poll = fp.Tick(self).run
 
     # ------------------------------------------------------------------ public helpers
@@ -283,9 +286,6 @@ class Onboard:
             od = wire.decode_odometry(data)
         except Exception:   # defensive: the decoder is total on bytes, but never crash here
             od = None
-        est_fed = od is None and self.estimator.enabled   # a sensor-fed tick: the estimate
-        if est_fed:
-            od = self.estimator.on_hil(data)
         if od is None:
             self._hil_not_odometry(data)
             return False
@@ -362,11 +362,8 @@ class Onboard:
         pl = wire.HIL_CTRL_PACK(t_us, 1, u[0], u[1], u[2], u[3],
                                 HIL_MODE_ARMED if vs.armed else HIL_MODE_DISARMED)
         fo = wire._fp_frame_on
-        ans = ((fo is not None and fo(self._hil_mav, _HIL_ID, _HIL_EXTRA, pl))
-               or wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
-        if est_fed:   # the estimate after it, for the simulator's logs
-            ans += self.estimator.odometry_frame(self._hil_mav, t_us)
-        self._hil.send(ans)
+        self._hil.send((fo is not None and fo(self._hil_mav, _HIL_ID, _HIL_EXTRA, pl))
+                       or wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
         st["ticks"] += 1
         return True
 
