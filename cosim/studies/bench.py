@@ -353,8 +353,8 @@ def format_report(res: dict[str, Any]) -> str:
                  "their few-percent timing error; `cosim bench --instructions` counts it)")
     b = res.get("mil_tick_breakdown_estimate")
     if b is not None:
-        lines.append(f"MIL tick breakdown on the estimate (feed = hil; Python vehicle tick and "
-                     f"master loop), us per tick (untimed {b['loop_us_per_tick']:.1f} us):")
+        lines.append(f"MIL tick breakdown on the estimate (feed = hil), us per tick (untimed "
+                     f"{b['loop_us_per_tick']:.1f} us):")
         for name, us in b["parts_us_per_tick"].items():
             lines.append(f"  {name:<48s}{us:>8.2f}")
     f = res["floor_us_per_tick"]
