@@ -351,11 +351,11 @@ def format_report(res: dict[str, Any]) -> str:
         lines.append(f"  {name:<48s}{us:>8.2f}")
     lines.append("  (the master loop's figure is the untimed tick less the parts, so it carries "
                  "their few-percent timing error; `cosim bench --instructions` counts it)")
-    b = res.get("mil_tick_breakdown_estimate")
-    if b is not None:
+    be = res.get("mil_tick_breakdown_estimate")
+    if be is not None:
         lines.append(f"MIL tick breakdown on the estimate (feed = hil), us per tick (untimed "
-                     f"{b['loop_us_per_tick']:.1f} us):")
-        for name, us in b["parts_us_per_tick"].items():
+                     f"{be['loop_us_per_tick']:.1f} us):")
+        for name, us in be["parts_us_per_tick"].items():
             lines.append(f"  {name:<48s}{us:>8.2f}")
     f = res["floor_us_per_tick"]
     lines.append(f"floor: the essentials of a tick measured alone ({b['setpoints_per_tick']:.2f} "
