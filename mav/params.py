@@ -86,7 +86,8 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
     # the onboard estimator (mav/estimator/; PX4's EKF2_* names where PX4 has one)
     OnboardParam("EKF2_TYPE", 0.0, 0.0, 1.0, "",
                  "estimator: 0 fly on HIL ODOMETRY (truth, like motion capture), 1 the "
-                 "Minidrone template's filters on HIL_SENSOR, flow, range (and GPS)"),
+                 "Minidrone template's filters on HIL_SENSOR, flow, range (and GPS); read at "
+                 "start"),
     OnboardParam("EKF2_ACC_W", 0.001, 0.0, 0.5, "1",
                  "attitude: weight per tick of the accelerometer's roll and pitch"),
     OnboardParam("EKF2_ACC_GATE", 0.5, 0.0, 5.0, "m/s^2",

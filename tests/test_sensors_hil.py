@@ -159,6 +159,12 @@ def test_bad_sensor_fields_are_named(table, value, field):
     assert ei.value.field == field
 
 
+def test_a_sensor_feed_needs_the_estimator():
+    with pytest.raises(ScenarioError) as ei:
+        _square(**{"onboard.params.EKF2_TYPE": 0})
+    assert ei.value.field == "onboard.params.EKF2_TYPE"
+
+
 def test_bad_sensor_fault_is_named():
     with pytest.raises(ScenarioError) as ei:
         _square(**{"faults.sensor": [{"kind": "gyro_saturation", "start_s": 1.0}]})

@@ -147,8 +147,13 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     no_unknown(ob, {"params"}, "onboard")
     onboard_params = _onboard_params(table(ob, "params", "onboard"), preset)
     sensors = parse_sensors(s, preset)
-    if sensors.hil and "EKF2_TYPE" not in dict(onboard_params):   # the vehicle's estimator
-        onboard_params += (("EKF2_TYPE", 1.0),)
+    if sensors.hil:             # the vehicle must run its estimator on the sensor messages
+        ekf = dict(onboard_params).get("EKF2_TYPE")
+        if ekf is None:
+            onboard_params += (("EKF2_TYPE", 1.0),)
+        elif ekf < 1.0:
+            raise ScenarioError("onboard.params.EKF2_TYPE", ekf,
+                                "1 with [sensors] feed = 'hil' (the vehicle gets no ODOMETRY)")
 
     # criteria
     c = table(raw, "criteria", "")

@@ -44,6 +44,8 @@ class Estimator:
     def __init__(self, own: dict[str, float], stats: dict[str, int], geo) -> None:
         self.own, self.stats, self.geo = own, stats, geo
         self.impl = TemplateEstimator(own, stats)
+        # read once, when the vehicle starts (as PX4 picks its estimator at boot)
+        self.enabled = own.get("EKF2_TYPE", 0.0) >= 1.0
         stats.setdefault("est_bad_frames", 0)
         stats.setdefault("est_lost", 0)
 
@@ -71,9 +73,6 @@ class Estimator:
             f |= M.ESTIMATOR_POS_HORIZ_ABS
         return f
 
-    @property
-    def enabled(self) -> bool:
-        return self.own.get("EKF2_TYPE", 0.0) >= 1.0
 
     def update(self, msgs: dict[int, tuple], t_us: int) -> TemplateEstimator:
         e = self.impl
