@@ -10,6 +10,7 @@ import threading
 from pathlib import Path
 
 from cosim.errors import OutputError, ScenarioError
+from mav.compiled import CompiledError
 
 EXAMPLES = {
     "run": """examples:
@@ -195,6 +196,14 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except CompiledError as exc:   # COSIM_COMPILED=1 and a module is not built from its source
+        print(f"cosim: {exc}", file=sys.stderr)
+        return 1
+
+
+def _main(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "onboard":
         from mav.onboard import main as onboard_main

@@ -1,18 +1,24 @@
-"""Build the onboard fast path (`mav/csrc/fastpath.c`, which includes the other `csrc/*.c`,
--> `mav/_fastpath*.so`):
-``python -m mav.build`` (the install step runs it, as it builds the FMU).
+"""Compile the listed modules of a package (the model) into extension modules (the generated
+code) with Cython: ``python -m mav.build`` for the flight software (the install step runs it;
+``make build`` builds every package). See mav/compiled.py for how a run chooses between them.
 
-A CPython extension compiled with gcc against this interpreter's headers, with the flags that
-keep it bit-identical to the Python reference (mav/cascade.py): -O2 without -ffast-math and
-with -ffp-contract=off (no fused multiply-add), so every double operation rounds as Python's
-does. A build is skipped when a hash of the source, the flags, the interpreter's ABI tag and
-gcc's version matches the one recorded beside the library. Without the library (no compiler,
-another platform) the onboard stack runs its Python implementation, with the same results.
+Each module `pkg/mod.py` (with its `pkg/mod.pxd`, if any: types Cython reads beside the
+source, which stays plain Python) is translated by Cython to C in `build/cython/`, the SHA-256
+of its source is embedded in that C, and gcc compiles it against this interpreter's headers
+into `pkg/mod<EXT_SUFFIX>` beside the source. Compiler flags keep every double operation
+rounding as Python's does: -O2 without -ffast-math and with -ffp-contract=off (no fused
+multiply-add), so a compiled run is bit-identical to the interpreted one. gcc's warnings are
+shown; `--werror` (CI) makes them errors for the project's hand-written C only (the FMI
+binding, cosim/build.py), never for Cython's output, whose warnings are Cython's.
+
+A module is rebuilt when its source, the flags, Cython's or gcc's version or the interpreter's
+ABI changed (a hash of all of them is embedded too); several processes may build at once (each
+writes to a temporary file and moves it into place).
 
 Examples::
 
-    python -m mav.build            # build if the source changed, print the path
-    python -m mav.build --force    # always rebuild
+    python -m mav.build            # build what changed, print each module's path
+    python -m mav.build --force    # rebuild everything
 """
 
 from __future__ import annotations
@@ -20,27 +26,29 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
-import pathlib
 import shutil
 import subprocess
 import sys
 import sysconfig
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
-PACKAGE_DIR = pathlib.Path(__file__).resolve().parent
-SOURCE = PACKAGE_DIR / "csrc" / "fastpath.c"
-CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99", "-Wall", "-Wextra", "-Wno-unused-parameter",
-          "-ffp-contract=off", "-fno-fast-math", "-fvisibility=hidden")
+from mav.compiled import MARKER, compiled_modules, embedded_hash, source_hash
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+CFLAGS = ("-O2", "-shared", "-fPIC", "-Wall", "-Wextra", "-Wno-unused-parameter",
+          "-Wno-unused-function", "-Wno-missing-field-initializers",
+          "-ffp-contract=off", "-fno-fast-math")
 LIBS = ("-lm",)
+# Cython's compiler directives for every module: Python semantics everywhere (division and
+# modulo as Python's, ZeroDivisionError, wraparound, bounds checks); signatures kept for
+# help() and inspect
+DIRECTIVES = ("language_level=3", "binding=True", "embedsignature=True")
 
 
 class BuildError(RuntimeError):
-    """The fast path could not be built (no compiler, no Python headers, compile error)."""
-
-
-def library_path() -> pathlib.Path:
-    """Where the extension goes: beside this file, named for this interpreter's ABI."""
-    return PACKAGE_DIR / ("_fastpath" + sysconfig.get_config_var("EXT_SUFFIX"))
+    """A module could not be built (no compiler, no Python headers, no Cython, an error)."""
 
 
 def _gcc() -> str:
@@ -50,60 +58,119 @@ def _gcc() -> str:
     return gcc
 
 
-def source_hash(source: pathlib.Path = SOURCE) -> str:
-    """Of the source and the C files beside it (the ones it includes), flags, ABI and gcc."""
-    h = hashlib.sha256(source.read_bytes())
-    for other in sorted(source.parent.glob("*.c")):
-        if other != source:
-            h.update(other.name.encode() + b"\0" + other.read_bytes())
-    h.update(" ".join(CFLAGS + LIBS).encode())
-    h.update((sysconfig.get_config_var("EXT_SUFFIX") or "").encode())
+def _include() -> str:
+    include = sysconfig.get_paths()["include"]
+    if not (Path(include) / "Python.h").is_file():
+        raise BuildError(f"Python.h not found in {include} (install the Python headers: "
+                         "`apt-get install python3-dev`)")
+    return include
+
+
+def toolchain_hash(extra: tuple[str, ...] = ()) -> str:
+    """Of what, besides the source, shapes the generated code: flags, directives, Cython's and
+    gcc's versions and the interpreter's ABI."""
+    h = hashlib.sha256(" ".join(CFLAGS + LIBS + DIRECTIVES + extra).encode())
+    h.update(SUFFIX_TAG.encode())
+    try:
+        import Cython
+        h.update(Cython.__version__.encode())
+    except ImportError:
+        pass
     out = subprocess.run([_gcc(), "--version"], capture_output=True, text=True, check=False)
     h.update(out.stdout.encode())
-    return h.hexdigest()
+    return h.hexdigest()[:16]
 
 
-def build(force: bool = False) -> pathlib.Path:
-    """Compile the fast path if needed; returns its path."""
-    return build_extension(SOURCE, library_path(), force=force)
+SUFFIX_TAG = sysconfig.get_config_var("EXT_SUFFIX") or ""
 
 
-def build_extension(source: pathlib.Path, lib: pathlib.Path, force: bool = False
-                    ) -> pathlib.Path:
-    """Compile one C source into the CPython extension `lib` if needed (the hash of the source,
-    flags, ABI tag and gcc recorded beside it differs); returns `lib`. Safe from several
-    processes at once (written to a temporary file and moved into place). Also used for the
-    simulator's own extension (cosim/plant/build.py)."""
-    stamp = lib.with_name(lib.name + ".sha256")
-    digest = source_hash(source)
-    if not force and lib.is_file() and stamp.is_file() and stamp.read_text().strip() == digest:
-        return lib
-    include = sysconfig.get_paths()["include"]
-    if not (pathlib.Path(include) / "Python.h").is_file():
-        raise BuildError(f"Python.h not found in {include} (install the Python headers)")
-    with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build-") as tmp:
-        out = pathlib.Path(tmp) / lib.name
-        cmd = [_gcc(), *CFLAGS, f"-I{include}", source.name, "-o", str(out), *LIBS]
-        res = subprocess.run(cmd, capture_output=True, text=True, cwd=source.parent,
-                             check=False)
+def _stamp(py: Path, tool: str) -> bytes:
+    return MARKER + source_hash(py).encode() + b":" + tool.encode()
+
+
+def up_to_date(py: Path, so: Path, tool: str) -> bool:
+    if not so.is_file():
+        return False
+    with open(so, "rb") as f:
+        return _stamp(py, tool) in f.read()
+
+
+def _marker(src: Path, tool: str) -> bytes:
+    """A C line that embeds the source hash the loader checks (mav/compiled.py)."""
+    return (b'\n__attribute__((used)) static const char cosim_source_sha256[] = "'
+            + _stamp(src, tool) + b'";\n')
+
+
+def compile_module(name: str, src: Path, so: Path, build_dir: Path, tool: str,
+                   werror: bool = False) -> tuple[Path, str]:
+    """A `.py` source: Cython -> C (with the source hash embedded) -> gcc -> `so`. A `.c`
+    source (a hand-written binding): gcc on it and the hash (with -Werror if `werror`).
+    Returns the extension's path and what the compilers printed."""
+    build_dir.mkdir(parents=True, exist_ok=True)
+    c = build_dir / f"{name}.c"
+    flags = CFLAGS
+    log = ""
+    if src.suffix == ".py":
+        try:
+            import Cython  # noqa: F401
+        except ImportError:
+            raise BuildError("Cython is not installed (pip install -e .)") from None
+        cmd = [sys.executable, "-m", "cython", "-3", "--module-name", name, "-o", str(c)]
+        for d in DIRECTIVES:
+            cmd += ["-X", d]
+        res = subprocess.run([*cmd, str(src)], capture_output=True, text=True, check=False)
         if res.returncode != 0:
-            raise BuildError(f"gcc failed ({res.returncode}):\n{' '.join(cmd)}\n{res.stderr}")
-        os.replace(out, lib)
-        tmp_stamp = pathlib.Path(tmp) / "stamp"
-        tmp_stamp.write_text(digest + "\n")
-        os.replace(tmp_stamp, stamp)
-    return lib
+            raise BuildError(f"cython failed on {src}:\n{res.stdout}{res.stderr}")
+        log = res.stdout + res.stderr
+        with open(c, "ab") as f:
+            f.write(_marker(src, tool))
+    else:
+        c.write_bytes(b'#include "' + str(src).encode() + b'"\n' + _marker(src, tool))
+        flags = (*CFLAGS, "-std=c99", "-fvisibility=hidden") + (("-Werror",) if werror else ())
+    with tempfile.TemporaryDirectory(dir=build_dir, prefix=".so-") as tmp:
+        out = Path(tmp) / so.name
+        gcc = [_gcc(), *flags, f"-I{_include()}", str(c), "-o", str(out), *LIBS]
+        res = subprocess.run(gcc, capture_output=True, text=True, check=False)
+        if res.returncode != 0:
+            raise BuildError(f"gcc failed on {c}:\n{' '.join(gcc)}\n{res.stderr}")
+        log += res.stderr
+        os.replace(out, so)
+    if embedded_hash(so) != source_hash(src):
+        raise BuildError(f"{so}: the embedded source hash does not match {src}")
+    return so, log
 
 
-def build_main(argv: list[str] | None, prog: str, description: str, source: pathlib.Path,
-               lib: pathlib.Path) -> int:
-    """The command line of a builder (`--force`): prints the library's path; exit 1 with the
-    reason when it cannot be built."""
+def build_modules(modules: dict[str, tuple[Path, Path]], *, force: bool = False,
+                  jobs: int | None = None, build_dir: Path | None = None, echo=print
+                  ) -> list[Path]:
+    """Compile every module of `modules` (name -> (source, extension)) that is not up to
+    date, `jobs` at a time (default: the CPU count); returns the extensions' paths. Compiler
+    output is echoed; COSIM_WERROR=1 (CI) turns warnings in hand-written C into errors."""
+    tool = toolchain_hash()
+    werror = os.environ.get("COSIM_WERROR") == "1"
+    build_dir = build_dir or PACKAGE_DIR.parent / "build" / "cython"
+    todo = {n: v for n, v in modules.items() if force or not up_to_date(v[0], v[1], tool)}
+    with ThreadPoolExecutor(max_workers=jobs or os.cpu_count() or 1) as pool:
+        futures = {n: pool.submit(compile_module, n, src, so, build_dir, tool, werror)
+                   for n, (src, so) in todo.items()}
+        for n, fut in futures.items():
+            _, log = fut.result()
+            if log.strip():
+                echo(f"{n}:\n{log.rstrip()}")
+    return [so for _, so in modules.values()]
+
+
+def build_main(argv: list[str] | None, prog: str, description: str, packages: list[str]) -> int:
+    """The command line of a package's builder: prints each extension's path; exit 1 with
+    the reason when one cannot be built."""
     ap = argparse.ArgumentParser(prog=prog, description=description)
     ap.add_argument("--force", action="store_true", help="rebuild even if up to date")
+    ap.add_argument("-j", "--jobs", type=int, default=None, help="modules compiled at once")
     args = ap.parse_args(argv)
+    mods = {n: p for n, p in compiled_modules().items() if n.split(".")[0] in packages}
     try:
-        print(build_extension(source, lib, force=args.force))
+        for so in build_modules(mods, force=args.force, jobs=args.jobs):
+            print(so)
     except BuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -112,7 +179,7 @@ def build_main(argv: list[str] | None, prog: str, description: str, source: path
 
 def main(argv: list[str] | None = None) -> int:
     return build_main(argv, "python -m mav.build",
-                      "Build the onboard fast path (mav/_fastpath).", SOURCE, library_path())
+                      "Compile the flight software's modules with Cython.", ["mav"])
 
 
 if __name__ == "__main__":

@@ -37,14 +37,21 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
-from mav import fastpath
+import cython
+from cython.cimports.libc.math import asin as _asin
+from cython.cimports.libc.math import atan2 as _atan2
+from cython.cimports.libc.math import cos as _cos
+from cython.cimports.libc.math import sin as _sin
+from cython.cimports.libc.math import sqrt as _sqrt
+
 from mav.airframe import Airframe
 from mav.mixer import inverse4, mixer_matrix
 from mav.types import Setpoint, VehicleState
 
-_sqrt, _atan2, _asin, _cos, _sin = math.sqrt, math.atan2, math.asin, math.cos, math.sin
-_PI = math.pi
-_TWO_PI = 2.0 * math.pi
+# (compiled: C doubles and C's libm, the functions Python's math module calls; the types of
+# the class's fields and of the records it reads are in cascade.pxd and types.pxd)
+_PI = cython.declare(cython.double, math.pi)
+_TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
 
 @dataclass(frozen=True)
 class ParamSpec:
@@ -135,18 +142,9 @@ class QuadCascade:
     # False: yaw-rate setpoints close a pure rate loop (Parrot PCMD style).
     YAW_RATE_INTEGRATES = True
 
-    def __init__(self, vehicle: Airframe, dt: float = 0.005, preset: str = "default",
-                 fast: bool | None = None):
+    def __init__(self, vehicle: Airframe, dt: float = 0.005, preset: str = "default"):
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
-        # the compiled tick (mav/csrc/cascade.c) when built; `fast` False forces the Python
-        # reference below, True requires the compiled one
-        if fast is None:
-            fast = fastpath.lib is not None
-        if fast and fastpath.lib is None:
-            raise RuntimeError("the compiled fast path is not available: "
-                               + fastpath.describe())
-        self._c = fastpath.lib.Cascade() if fast else None
         self.vehicle = vehicle
         self.dt = float(dt)
         self._specs = {p.name: p for p in self.PARAMS}
@@ -171,8 +169,6 @@ class QuadCascade:
         if preset != "default":
             self.apply_preset(preset)
         self._refresh()
-        if self._c is not None:
-            self.update = self._c.update   # the same law, compiled (bit-identical)
 
     # ---------------------------------------------------------------- parameters
     def param_table(self) -> list[ParamSpec]:
@@ -252,8 +248,6 @@ class QuadCascade:
             t_max, 1.0 / (v.k_thrust * v.omega_max * v.omega_max),
             self._A[2][0], self.dt, self.YAW_RATE_INTEGRATES,
         )
-        if self._c is not None:
-            self._c.set_gains(self._g)
 
     # ---------------------------------------------------------------- state
     def reset(self) -> None:
@@ -262,15 +256,40 @@ class QuadCascade:
         self._i_n = self._i_e = 0.0
         self._yaw_ref = 0.0
         self._n = 0
-        if self._c is not None:
-            self._c.reset()
 
     # ---------------------------------------------------------------- hot path
+    @cython.locals(kp_p=cython.double, ki_p=cython.double, kd_p=cython.double, kp_r=cython.double,
+        ki_r=cython.double, kd_r=cython.double, i_lim=cython.double, kb=cython.double,
+        k_psi=cython.double, k_r=cython.double, r_max=cython.double, k_z=cython.double,
+        k_vz=cython.double, ki_zp=cython.double, ki_zvp=cython.double, ki_zv=cython.double,
+        zi_lim=cython.double, vz_max=cython.double, t_tot_max=cython.double, k_xy=cython.double,
+        k_vxy=cython.double, c_drag=cython.double, ki_vxy=cython.double, xy_i_lim=cython.double,
+        e_max=cython.double, v_max=cython.double, tilt_max=cython.double, weight=cython.double,
+        inv_g=cython.double, m0t=cython.double, m0m=cython.double, m0l=cython.double,
+        m1t=cython.double, m1m=cython.double, m1l=cython.double, m2t=cython.double,
+        m2m=cython.double, m2l=cython.double, m3t=cython.double, m3m=cython.double,
+        m3l=cython.double, my=cython.double, t_max=cython.double, c_u=cython.double,
+        arm_a=cython.double, dt=cython.double, qw=cython.double, qx=cython.double,
+        qy=cython.double, qz=cython.double, r33=cython.double, roll=cython.double,
+        sp_=cython.double, pitch=cython.double, yaw=cython.double, cy=cython.double,
+        sy=cython.double, vx=cython.double, vy=cython.double, vxb=cython.double,
+        vyb=cython.double, fx=cython.double, fy=cython.double, fxb=cython.double,
+        fyb=cython.double, v2=cython.double, f=cython.double, px=cython.double, py=cython.double,
+        ex=cython.double, ey=cython.double, exb=cython.double, eyb=cython.double,
+        vcx=cython.double, vcy=cython.double, i_n=cython.double, i_e=cython.double,
+        ixb=cython.double, iyb=cython.double, pitch_ref=cython.double, roll_ref=cython.double,
+        ax=cython.double, ay=cython.double, t2=cython.double, evx=cython.double,
+        evy=cython.double, i2=cython.double, vz=cython.double, fz=cython.double, zr=cython.double,
+        ez=cython.double, vzc=cython.double, i_z=cython.double, thrust=cython.double,
+        e_p=cython.double, e_r=cython.double, i_p=cython.double, i_r=cython.double,
+        tq_m=cython.double, tq_l=cython.double, yr=cython.double, rr=cython.double,
+        yref=cython.double, r_ff=cython.double, e_psi=cython.double, rc=cython.double,
+        tq_n=cython.double, b1=cython.double, b2=cython.double, b3=cython.double,
+        b4=cython.double, d=cython.double, h=cython.double, di=cython.double,
+        tilt_sat=cython.bint, pos_mode=cython.bint, limited=cython.bint, t_sat=cython.int,
+        n=cython.long)
     def update(self, s: VehicleState, sp: Setpoint, out: list[float]) -> None:
         """One control tick: state estimate + setpoint -> motor commands u1..u4 in out[0:4].
-
-        The readable model and the reference: with the fast path built, instances run the
-        compiled copy of this method (mav/csrc/cascade.c), tested bit-identical to it.
 
         The state must be finite (the estimator's job); a NaN still never reaches the motors
         (the commands are clipped NaN-safe into [0, 1])."""

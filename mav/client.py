@@ -28,13 +28,11 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from functools import partial
-from types import MethodType
 from typing import NamedTuple
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mav import fastpath, wire
+from mav import wire
 
 M = mavlink2
 NAN = math.nan
@@ -60,7 +58,7 @@ SIGNING_EPOCH_2024 = 1704067200.0
 
 # telemetry decoded by the fast codec (unsigned MAVLink 2); everything else goes to pymavlink
 _SP = wire.SET_POSITION_TARGET_LOCAL_NED
-_SP_PACK, _SP_ID, _SP_EXTRA = _SP.st.pack, _SP.id, _SP.crc_extra
+_SP_PACK = _SP.st.pack
 _FAST_RX: dict[int, wire.FastMsg] = {
     m.id: m for m in (wire.LOCAL_POSITION_NED, wire.ATTITUDE, wire.HEARTBEAT,
                       wire.EXTENDED_SYS_STATE, wire.GLOBAL_POSITION_INT,
@@ -75,13 +73,6 @@ class CommandAck(NamedTuple):
 
 class OffboardClient:
     """A companion computer on the API link. See the module docstring."""
-
-    # the attributes the compiled poll and setpoint (mav/csrc/client.c) read and write each
-    # tick, as slots (read by offset from C); `__dict__` keeps every other attribute, and a
-    # subclass's, as before
-    __slots__ = ("link", "mav", "target_system", "target_component", "signed", "t", "_next_hb",
-                 "stats", "_fast_one", "_fast_handlers", "position", "velocity", "attitude",
-                 "rates", "__dict__", "__weakref__")
 
     def __init__(self, link, *, sysid: int = 1, compid: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
                  target_system: int = 1, target_component: int = M.MAV_COMP_ID_AUTOPILOT1,
@@ -131,16 +122,6 @@ class OffboardClient:
         # telemetry with a fast decoder (mav/wire.py): handlers take the fields in wire order;
         # not when signed (the fast codec does not check signatures)
         self._fast_rx = None if self.signed else _FAST_RX
-        # a datagram that is one such frame, decoded in one C call (no Python frame) when the
-        # fast path is built; None: the loop in _datagram does it all
-        self._fast_one = (None if self.signed or fastpath.lib is None else
-                          {mid: wire.one_frame_decoder(m, m.st) for mid, m in _FAST_RX.items()})
-        # the position setpoint in one C call (mav/csrc/client.c; the method below is its
-        # reference and fallback), unless a subclass has its own
-        fp = fastpath.lib
-        if fp is not None and type(self).set_position_target is _SET_POSITION_TARGET:
-            self.set_position_target = partial(fp.client_setpoint,
-                                               MethodType(_SET_POSITION_TARGET, self), self)
         self._fast_handlers = {
             M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._on_local_position,
             M.MAVLINK_MSG_ID_ATTITUDE: self._on_attitude,
@@ -150,15 +131,6 @@ class OffboardClient:
             M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: self._on_target,
             M.MAVLINK_MSG_ID_SYS_STATUS: self._on_sys_status,
         }
-        if fp is not None and type(self)._on_attitude is _ON_ATTITUDE and (
-                type(self)._on_local_position is _ON_LOCAL_POSITION):
-            # the two 50 Hz handlers in one C call each (mav/csrc/client.c), same tuples
-            self._fast_handlers[M.MAVLINK_MSG_ID_ATTITUDE] = partial(
-                fp.set_halves, self, "attitude", "rates")
-            self._fast_handlers[M.MAVLINK_MSG_ID_LOCAL_POSITION_NED] = partial(
-                fp.set_halves, self, "position", "velocity")
-        if fp is not None and type(self).poll is _POLL:   # poll in one C call (client.c)
-            self.poll = partial(fp.client_poll, MethodType(_POLL, self), self)
         self._handlers = {
             M.MAVLINK_MSG_ID_COMMAND_ACK: self._on_ack,
             M.MAVLINK_MSG_ID_STATUSTEXT: self._on_statustext,
@@ -177,23 +149,10 @@ class OffboardClient:
                 sg.timestamp = ts
         n = 0
         recv = self.link.recv
-        one = self._fast_one
         while True:
             data = recv()
             if data is None:
                 break
-            # a datagram that is exactly one valid frame of a fast-decoded message, decoded in
-            # one C call (what _datagram's loop would do with it); anything else: _datagram
-            if one is not None and len(data) > 11 and data[0] == wire.MAGIC_V2:
-                msgid = data[7] | data[8] << 8 | data[9] << 16
-                dec = one.get(msgid)
-                f = dec(data) if dec is not None else None
-                if f is not None:
-                    self.stats["rx"] += 1
-                    n += 1
-                    if data[5] == self.target_system:
-                        self._fast_handlers[msgid](f, data[6])
-                    continue
             n += self._datagram(data)
         if t >= self._next_hb:          # heartbeat_due(t), inline on the per-tick path
             self.send_heartbeat(t)
@@ -425,14 +384,11 @@ class OffboardClient:
 
     def _setpoint(self, frame: int, mask: int, x: float, y: float, z: float, vx: float,
                   vy: float, vz: float, yaw: float, yaw_rate: float) -> None:
-        # wire.encode_set_position_target_local_ned, framed in one C call when compiled and
-        # the link does not sign
+        # wire.encode_set_position_target_local_ned
         pl = _SP_PACK(int(self.t * 1000.0) & 0xFFFFFFFF, x, y, z, vx, vy, vz, 0.0, 0.0, 0.0, yaw,
                       yaw_rate, mask, self.target_system, self.target_component, frame)
-        fo = wire._fp_frame_on
         self.stats["tx"] += 1             # _send, inline on the 200 Hz path
-        self.link.send((fo is not None and fo(self.mav, _SP_ID, _SP_EXTRA, pl))
-                       or wire.frame(self.mav, wire.SET_POSITION_TARGET_LOCAL_NED, pl))
+        self.link.send(wire.frame(self.mav, _SP, pl))
 
     def request_message(self, msgid: int) -> None:
         self.command_long(M.MAV_CMD_REQUEST_MESSAGE, float(msgid))
@@ -452,10 +408,3 @@ class OffboardClient:
         """PARAM_REQUEST_LIST: the vehicle streams every PARAM_VALUE into `params`."""
         self._send_msg(M.MAVLink_param_request_list_message(self.target_system,
                                                              self.target_component))
-
-
-# the references of mav/csrc/client.c
-_SET_POSITION_TARGET = OffboardClient.set_position_target
-_POLL = OffboardClient.poll
-_ON_ATTITUDE = OffboardClient._on_attitude
-_ON_LOCAL_POSITION = OffboardClient._on_local_position

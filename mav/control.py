@@ -180,13 +180,11 @@ class Bebop2Controller(QuadCascade):
         }
 
 
-def make_controller(vehicle: Airframe, dt: float = 0.005,
-                    fast: bool | None = None) -> Controller:
+def make_controller(vehicle: Airframe, dt: float = 0.005) -> Controller:
     """The low-level controller for `vehicle` ('mambo' -> MamboController, 'bebop2' ->
-    Bebop2Controller), with default parameters; `fast` as QuadCascade's (None: compiled
-    when built)."""
+    Bebop2Controller), with default parameters."""
     if vehicle.name == "mambo":
-        return MamboController(vehicle, dt, fast=fast)
+        return MamboController(vehicle, dt)
     if vehicle.name == "bebop2":
-        return Bebop2Controller(vehicle, dt, fast=fast)
+        return Bebop2Controller(vehicle, dt)
     raise ValueError(f"no controller for vehicle {vehicle.name!r}; known: mambo, bebop2")

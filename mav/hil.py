@@ -11,19 +11,16 @@ from __future__ import annotations
 
 import math
 import struct
-from functools import partial
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mav import fastpath, wire
+from mav import wire
 
 SIM_SYSID = 250
 SIM_COMPID = mavlink2.MAV_COMP_ID_SYSTEM_CONTROL
 INJECT_COMPID = mavlink2.MAV_COMP_ID_USER1   # the simulator's fault injector (own sequence)
 MAX_R_SCALE = 1000.0       # battery sag: the largest resistance factor the vehicle accepts
 MAX_V_DROP = 100.0         # V, battery sag: the largest fixed drop
-
-_ODO_ID, _ODO_EXTRA = wire.ODOMETRY.id, wire.ODOMETRY.crc_extra
 
 # ODOMETRY payload = time_usec and the 13 measured values, then a tail that is the same every
 # tick (covariances [NaN, 0, ...], frame ids, reset counter, estimator type, quality)
@@ -37,19 +34,12 @@ _ODO_TAIL_LOST = _ODO_TAIL[:-1] + struct.pack("<b", -1)     # quality -1: the es
 class HilSimulatorCodec:
     def __init__(self) -> None:
         self.mav = mavlink2.MAVLink(None, srcSystem=SIM_SYSID, srcComponent=SIM_COMPID)
-        fp = fastpath.lib
-        if fp is not None:   # the same bytes in one C call (mav/csrc/hilsim.c), this as fallback
-            self.encode_odometry = partial(fp.odometry_frame, self.encode_odometry, self.mav,
-                                           _ODO_ID, _ODO_EXTRA, _ODO_TAIL)
 
     def encode_odometry(self, t_us: int, m: tuple[float, ...]) -> bytes:
         """m = (x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r), SI, NED/FRD. The same bytes as
         `wire.encode_odometry(mav, t_us, *m, estimator_type=1, quality=100)`, with the
         constant tail of the payload packed once."""
-        pl = _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL
-        fo = wire._fp_frame_on
-        return (fo is not None and fo(self.mav, _ODO_ID, _ODO_EXTRA, pl)) or wire.frame(
-            self.mav, wire.ODOMETRY, pl)
+        return wire.frame(self.mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL)
 
     def encode_odometry_lost(self, t_us: int, m: tuple[float, ...]) -> bytes:
         """The same with quality -1 (MAVLink: odometry has failed): the position and velocity

@@ -14,8 +14,6 @@ import time
 from collections import deque
 from typing import Protocol
 
-from mav import fastpath
-
 
 class Link(Protocol):
     def send(self, data: bytes) -> None: ...
@@ -26,9 +24,8 @@ class Link(Protocol):
 
 
 class MemoryLink:
-    """One end of an in-memory datagram pipe. Create both ends with `MemoryLink.pair()`, or
-    with `memory_pair()` for the compiled copy when it is built (the same contract:
-    mav/csrc/memlink.c)."""
+    """One end of an in-memory datagram pipe. Create both ends with `MemoryLink.pair()` (or
+    `memory_pair()`)."""
 
     __slots__ = ("_inbox", "_peer", "sent_bytes")
 
@@ -60,16 +57,13 @@ class MemoryLink:
 
 
 def memory_pair() -> tuple:
-    """Two connected in-memory link ends: the compiled MemoryLink when the fast path is built
-    and not disabled (`mav.fastpath`, `mav.reference.python()`), else the Python one."""
-    lib = fastpath.lib
-    return lib.MemoryLink.pair() if lib is not None else MemoryLink.pair()
+    """Two connected in-memory link ends."""
+    return MemoryLink.pair()
 
 
 def memory_link():
-    """One unconnected end (nothing can be sent from it), compiled when built."""
-    lib = fastpath.lib
-    return lib.MemoryLink() if lib is not None else MemoryLink()
+    """One unconnected end (nothing can be sent from it)."""
+    return MemoryLink()
 
 
 class SpinPolicy:
@@ -139,23 +133,11 @@ class UdpLink:
         except (BlockingIOError, ConnectionRefusedError, OSError):
             self.dropped_sends += 1
 
-    _inet = True             # an AF_INET socket: the compiled receive applies (udp.c)
-
     def recv(self) -> bytes | None:
-        lib = fastpath.lib if self._inet else None
-        if lib is not None:   # the same answer without raising when nothing waits (udp.c)
-            try:
-                got = lib.udp_recv(self.sock.fileno())
-            except ConnectionRefusedError:
-                return None
-            if got is None:
-                return None
-            data, addr = got
-        else:
-            try:
-                data, addr = self.sock.recvfrom(65535)
-            except (BlockingIOError, ConnectionRefusedError, InterruptedError):
-                return None
+        try:
+            data, addr = self.sock.recvfrom(65535)
+        except (BlockingIOError, ConnectionRefusedError, InterruptedError):
+            return None
         if not self._fixed_remote and addr:
             self.remote = addr
         return data
@@ -167,22 +149,7 @@ class UdpLink:
         Spinning first saves the sleep and wake-up of a lockstep exchange when the answer
         comes within the spin (two processes on two CPUs); it costs CPU while it waits."""
         recv = self.sock.recvfrom
-        lib = fastpath.lib if self._inet else None
-        if spin_ns > 0 and lib is not None:   # udp.c: no exception per empty poll
-            clock, fd, urecv = time.perf_counter_ns, self.sock.fileno(), lib.udp_recv
-            deadline = clock() + spin_ns
-            try:
-                got = urecv(fd)
-                while got is None and clock() <= deadline:
-                    got = urecv(fd)
-            except ConnectionRefusedError:
-                return None
-            if got is not None:
-                data, addr = got
-                if not self._fixed_remote and addr:
-                    self.remote = addr
-                return data
-        elif spin_ns > 0:
+        if spin_ns > 0:
             clock = time.perf_counter_ns
             deadline = clock() + spin_ns
             while True:
@@ -251,8 +218,6 @@ class UnixLink(UdpLink):
     kernel; in the seed mission it measured no faster than loopback UDP: README, Performance).
     The file is removed on `close`. Linux and macOS; `path` must be short (108 bytes on
     Linux)."""
-
-    _inet = False            # socket.recvfrom's own path (udp.c handles AF_INET only)
 
     def __init__(self, path: str, remote: str | None = None) -> None:
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)

@@ -313,7 +313,7 @@ def check_values(vehicle: str, values: Iterable[tuple[str, float]]) -> list[tupl
     from mav.control import make_controller
 
     t = ParamTable()
-    for spec in make_controller(get_airframe(vehicle), fast=False).param_table():
+    for spec in make_controller(get_airframe(vehicle)).param_table():
         t.add(spec, lambda: 0.0, lambda v: None)
     t.add_store(ONBOARD_PARAMS, {})
     out = []

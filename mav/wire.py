@@ -20,14 +20,11 @@ Wire units live here and in `mav/` only: geodetic positions (degE7, mm), cm/s, c
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import math
 import struct
 
 from pymavlink.dialects.v20 import common as mavlink2
-
-from mav import fastpath
 
 try:  # pymavlink itself uses fastcrc when it is installed; so do we
     from fastcrc.crc16 import mcrf4xx as _mcrf4xx
@@ -52,14 +49,6 @@ def _crc16_py(data: bytes, crc: int = 0xFFFF) -> int:
 
 
 crc16 = _mcrf4xx if _mcrf4xx is not None else _crc16_py
-
-# the compiled framing and frame checks (mav/csrc/framing.c), same bytes and verdicts as the
-# Python below (tests/test_fastpath.py); None: the Python path
-_fp_frame = fastpath.lib.frame if fastpath.lib is not None else None
-_fp_check = fastpath.lib.check if fastpath.lib is not None else None
-# frame(mav, m, payload) in one C call, for the per-tick senders: `frame_on(mav, m.id,
-# m.crc_extra, payload)` -> bytes, or None on a signing link (then call `frame`)
-_fp_frame_on = fastpath.lib.frame_on if fastpath.lib is not None else None
 
 
 class FastMsg:
@@ -156,8 +145,6 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     seq = mav.seq
     mav.seq = (seq + 1) & 0xFF
     signing = mav.signing
-    if _fp_frame is not None and not signing.sign_outgoing:
-        return _fp_frame(seq, mav.srcSystem, mav.srcComponent, m.id, m.crc_extra, payload)
     p = payload.rstrip(b"\x00") or payload[:1]
     if signing.sign_outgoing:
         buf = _HDR.pack(MAGIC_V2, len(p), IFLAG_SIGNED, 0, seq, mav.srcSystem, mav.srcComponent)
@@ -271,13 +258,6 @@ def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | N
         end = frame_end(data, i)
         if end < 0:
             return None
-    if _fp_check is not None and type(data) is bytes:
-        plen = _fp_check(data, i, end, m.id, m.crc_extra)
-        if plen < 0:
-            return None
-        if plen >= m.size:
-            return m.st.unpack_from(data, i + HEADER_LEN_V2)
-        return m.st.unpack(data[i + HEADER_LEN_V2:i + HEADER_LEN_V2 + plen] + m.zeros[plen:])
     if data[i] != MAGIC_V2 or data[i + 7:i + 10] != m.id3:
         return None
     flags = data[i + 2]
@@ -301,18 +281,6 @@ def one_frame_decoder(m: FastMsg, used: struct.Struct):
     id3, extra, zeros, used_len = m.id3, m.extra, m.zeros, used.size
     unpack, unpack_from = used.unpack, used.unpack_from
 
-    check, mid, crc_extra = _fp_check, m.id, m.crc_extra
-
-    def decode_compiled(data: bytes) -> tuple | None:
-        if type(data) is not bytes:
-            return decode(data)
-        plen = check(data, 0, -1, mid, crc_extra)
-        if plen < 0:
-            return None
-        if plen >= used_len:
-            return unpack_from(data, HEADER_LEN_V2)
-        return unpack(data[HEADER_LEN_V2:HEADER_LEN_V2 + plen] + zeros[plen:used_len])
-
     def decode(data: bytes) -> tuple | None:
         n = len(data)
         if n < 12 or data[0] != MAGIC_V2 or data[7:10] != id3:
@@ -331,14 +299,7 @@ def one_frame_decoder(m: FastMsg, used: struct.Struct):
             return unpack_from(data, HEADER_LEN_V2)
         return unpack(data[HEADER_LEN_V2:crc_at] + zeros[plen:used_len])
 
-    if check is None:
-        return decode
-    lib = fastpath.lib
-    if lib is not None:
-        # decode_compiled in one C call, no Python frame (mav/csrc/decode.c)
-        return functools.partial(lib.unpack_one, decode, unpack_from, unpack, used_len, mid,
-                                 crc_extra)
-    return decode_compiled
+    return decode
 
 
 # ODOMETRY -> (time_usec, x, y, z, qw, qx, qy, qz, vx, vy, vz, rollspeed, pitchspeed, yawspeed,

@@ -20,7 +20,8 @@ assert args[0] == "--tool=cachegrind" and args[1] == "--cache-sim=no", args
 assert args[2].startswith("--cachegrind-out-file="), args
 assert args[3] == {python!r} and args[4] == "-c", args
 runs = int(args[-1])
-before = os.environ.get("MAV_FASTPATH") == "0" and os.environ.get("COSIM_FMI2STEP") == "0"
+before = os.environ["COSIM_COMPILED"] == "0"
+assert os.environ["COSIM_COMPILED"] in ("0", "1")
 per_tick = 600 if before else 250
 print("ticks 1000")
 print(f"==42== I   refs:      {{1_000_000 + runs * 1000 * per_tick:,}}", file=sys.stderr)
@@ -38,8 +39,6 @@ def test_instructions_per_tick_from_two_processes_per_variant(tmp_path, monkeypa
     fake = tmp_path / "valgrind"
     fake.write_text(FAKE.format(python=sys.executable))
     fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
-    monkeypatch.delenv("MAV_FASTPATH", raising=False)     # "now" runs as installed
-    monkeypatch.delenv("COSIM_FMI2STEP", raising=False)
     res = bench_instr.bench_instructions(valgrind=str(fake), parts=False)
     assert res["now"]["per_tick"] == 250 and res["before"]["per_tick"] == 600
     assert res["before_over_now"] == pytest.approx(2.4)
@@ -79,25 +78,30 @@ Ir
 --------------------------------------------------------------------------------
 3,121,409,499 (100.0%)  PROGRAM TOTALS
 11,495,308,473 (368.2%)  /tmp/Python-3.11.7/Python/ceval.c:_PyEval_EvalFrameDefault'2 [/lib/x]
-   887,225,562 (28.42%)  ???:tail_run [/work/main/cosim/plant/_fmi2step.so]
-   518,703,574 (16.62%)  ???:fp_mil_exchange [/work/main/mav/_fastpath.so]
+ 2,000,000,000 (64.07%)  ???:__pyx_pw_5cosim_3sim_4tick_4Tick_5_run [/w/cosim/sim/tick.so]
+   518,703,574 (16.62%)  ???:__pyx_pw_5cosim_3sim_7onboard_13OnboardHandle_9exchange [/w/x.so]
    214,704,656 ( 6.88%)  ???:Stepper_step [/work/main/cosim/plant/_fmi2step.so]
-    55,000,000 ( 1.76%)  ???:fp_odometry_frame [/work/main/mav/_fastpath.so]
-    84,917,734 ( 2.72%)  ???:fp_client_poll [/work/main/mav/_fastpath.so]
-     1,000,000 ( 0.03%)  ???:fp_mil_exchange'2 [/work/main/mav/_fastpath.so]
+    55,000,000 ( 1.76%)  ???:__pyx_pw_3mav_3hil_17HilSimulatorCodec_3encode_odometry [/w/h.so]
+   900,000,000 (28.83%)  ???:__pyx_pw_5cosim_3sim_4tick_4Tick_7_camera_and_app [/w/t.so]
+    84,917,734 ( 2.72%)  ???:__pyx_pw_3mav_6client_14OffboardClient_5poll.constprop.0 [/w/c.so]
+     1,000,000 ( 0.03%)  ???:__pyx_pw_5cosim_3sim_7onboard_13OnboardHandle_9exchange'2 [/w/x.so]
 """
 
 
 def test_parts_from_callgrind_inclusive_counts():
     incl = bench_instr.parse_inclusive(ANNOTATE)
-    assert incl["tail_run"] == 887_225_562 and incl["fp_mil_exchange"] == 518_703_574
+    tick = "__pyx_pw_5cosim_3sim_4tick_4Tick_5_run"
+    assert incl[tick] == 2_000_000_000
+    assert incl["__pyx_pw_3mav_6client_14OffboardClient_5poll"] == 84_917_734
     assert incl["_PyEval_EvalFrameDefault"] == 11_495_308_473 and "PROGRAM" not in incl
     parts = bench_instr.parts_per_tick(incl, 1000, 3_000_000.0)
     labels = list(parts)
-    assert parts[labels[0]] == 518_703.574 and parts[labels[4]] == 0.0   # no setpoint symbol
-    master = (887_225_562 - 518_703_574 - 214_704_656 - 55_000_000) / 1000
-    assert parts[labels[5]] == pytest.approx(master)
-    assert sum(parts.values()) == pytest.approx(3_000_000.0)              # the rest closes it
+    assert parts[labels[0]] == 518_703.574 and parts[labels[5]] == 0.0   # no setpoint symbol
+    assert parts[labels[4]] == 84_917.734
+    master = (2_000_000_000 - 518_703_574 - 214_704_656 - 55_000_000 - 900_000_000) / 1000
+    assert parts[labels[6]] == pytest.approx(master)
+    top = sum(v for k, v in parts.items() if not k.startswith(" "))
+    assert top == pytest.approx(3_000_000.0)              # the rest closes it
     res = {"now": {"per_tick": 3e6, "ticks": 1000}, "before": {"per_tick": 6e6},
            "before_over_now": 2.0, "parts_per_tick": parts}
     text = "\n".join(bench_instr.format_instructions(res))

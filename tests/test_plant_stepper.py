@@ -15,29 +15,31 @@ from cosim.plant.vehicles import BEBOP2, MAMBO
 
 
 def test_the_stepper_is_built_and_builds_are_checked(tmp_path):
-    """The install step built it (python -m cosim.plant.build); a build is skipped while the
-    source is unchanged, redone when it changes, and a broken source fails with gcc's words."""
-    import cosim.plant._fmi2step  # noqa: F401  (ImportError here: the install step failed)
-    from cosim.plant import build as pb
-    from mav.build import BuildError, build_extension
+    """The install step built it (python -m cosim.build) from its current source; a build
+    embeds the source's hash (what the switch checks), is skipped while the source is
+    unchanged, redone when it changes, and a broken source fails with gcc's words."""
+    from cosim import BINDINGS
+    from mav import compiled
+    from mav.build import BuildError, build_modules
 
-    assert pb.build() == pb.library_path()
-    src = tmp_path / "ext.c"
-    src.write_text(pb.SOURCE.read_text().replace("_fmi2step", "ext"))
-    for part in pb.SOURCE.parent.glob("*.c"):          # the files it includes
-        if part != pb.SOURCE:
-            (tmp_path / part.name).write_text(part.read_text())
-    lib = tmp_path / "ext.so"
-    build_extension(src, lib)
+    src, so = BINDINGS["cosim.plant._fmi2step"]
+    assert compiled.module_status(src, so) == "fresh"
+    copy = tmp_path / "fmi2step.c"
+    copy.write_text(src.read_text().replace("_fmi2step", "ext"))
+    lib = tmp_path / ("ext" + compiled.SUFFIX)
+    mods = {"ext": (copy, lib)}
+    build_modules(mods, build_dir=tmp_path / "b")
     first = lib.stat().st_mtime_ns
-    build_extension(src, lib)
+    assert compiled.module_status(copy, lib) == "fresh"
+    build_modules(mods, build_dir=tmp_path / "b")
     assert lib.stat().st_mtime_ns == first              # up to date: not rebuilt
-    src.write_text(src.read_text() + "\n/* changed */\n")
-    build_extension(src, lib)
-    assert lib.stat().st_mtime_ns != first
-    src.write_text("this is not C;\n")
+    copy.write_text(copy.read_text() + "\n/* changed */\n")
+    assert compiled.module_status(copy, lib) == "stale"
+    build_modules(mods, build_dir=tmp_path / "b")
+    assert lib.stat().st_mtime_ns != first and compiled.module_status(copy, lib) == "fresh"
+    copy.write_text("this is not C;\n")
     with pytest.raises(BuildError, match="gcc failed"):
-        build_extension(src, lib)
+        build_modules(mods, build_dir=tmp_path / "b")
 
 
 def random_inputs(seed: int, n: int) -> list[tuple[float, ...]]:
@@ -114,8 +116,9 @@ def test_seed_mission_identical_with_and_without_the_stepper(monkeypatch):
 
     sc = load_scenario(SEED)
     runs = []
-    for flag in ("1", "0"):
-        monkeypatch.setenv("COSIM_FMI2STEP", flag)
+    use = Plant._use_stepper
+    for want in (True, False):
+        monkeypatch.setattr(Plant, "_use_stepper", lambda self, _w, want=want: use(self, want))
         res = run_scenario(sc, RunOptions(mode="mil"))
         runs.append((res.exit_reason, res.ticks, res.series.tobytes()))
     assert runs[0] == runs[1]

@@ -211,19 +211,6 @@ def test_estimator_status_on_request_on_odometry():
     assert es.flags & M.ESTIMATOR_POS_HORIZ_REL and es.flags & M.ESTIMATOR_ATTITUDE
 
 
-def test_interpreted_equals_compiled_with_sensors_on(monkeypatch):
-    from mav import reference
-
-    sc = _square(**{"timing.t_final_s": 6.0})
-    compiled = run_scenario(sc, RunOptions())
-    monkeypatch.setenv("COSIM_FMI2STEP", "0")          # the plant through ctypes, too
-    with reference.python():
-        interpreted = run_scenario(sc, RunOptions())
-    assert compiled.series.tobytes() == interpreted.series.tobytes()
-    assert compiled.estimate.tobytes() == interpreted.estimate.tobytes()
-    assert compiled.tlog.read() == interpreted.tlog.read()
-
-
 def test_gps_fixes_reach_the_estimate():
     res = run_scenario(_square(**{"sensors.gps.enabled": True, "timing.t_final_s": 8.0}),
                        RunOptions())

@@ -21,6 +21,7 @@ from cosim.outputs.metrics import COL, compute_metrics, evaluate
 from cosim.sim.estimate import ESTIMATE_COLUMNS
 from cosim.sim.master import RunResult
 from cosim.sim.recorder import SERIES_COLUMNS
+from mav import compiled
 
 FAILED_EXITS = {"component_error", "crashed", "left_arena", "collision", "interrupted",
                 "app_aborted"}
@@ -66,6 +67,8 @@ def summarize(res: RunResult) -> dict[str, Any]:
         "faults": [[t, what] for t, what in res.faults],   # [faults]: when each took effect
         "onboard_stats": res.onboard_stats,
         "versions": versions(),
+        # compiled or interpreted, and why (mav/compiled.py; the flight is the same either way)
+        "implementation": compiled.describe(),
         "platform": f"{platform.system()} {platform.machine()}, {sys.implementation.name}",
     }
 

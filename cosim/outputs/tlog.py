@@ -11,8 +11,6 @@ import shutil
 import struct
 from pathlib import Path
 
-from mav import fastpath
-
 _STAMP = struct.Struct(">Q")
 
 
@@ -75,12 +73,9 @@ class TapLink:
         self.inner.close()
 
 
-def tap(inner, log: Tlog):
-    """A TapLink on `inner`: the compiled one when the onboard fast path is built and not
-    disabled (`mav._fastpath.TapLink`, mav/csrc/memlink.c: the same records, one C call per
-    datagram instead of three Python ones; tests/test_links_memory.py), else the class above."""
-    lib = fastpath.lib
-    return lib.TapLink(inner, log) if lib is not None else TapLink(inner, log)
+def tap(inner, log: Tlog) -> TapLink:
+    """A TapLink on `inner`."""
+    return TapLink(inner, log)
 
 
 def read_tlog(path: Path) -> list[tuple[int, bytes]]:

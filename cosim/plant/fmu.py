@@ -29,7 +29,6 @@ from __future__ import annotations
 import collections
 import ctypes
 import math
-import os
 import pathlib
 import shutil
 import statistics
@@ -76,6 +75,9 @@ _SetStateT = ctypes.CFUNCTYPE(c_int, _Component, c_void_p)
 _SerSizeT = ctypes.CFUNCTYPE(c_int, _Component, c_void_p, POINTER(c_size_t))
 _SerializeT = ctypes.CFUNCTYPE(c_int, _Component, c_void_p, POINTER(c_char), c_size_t)
 _DeSerializeT = ctypes.CFUNCTYPE(c_int, _Component, POINTER(c_char), c_size_t, POINTER(c_void_p))
+
+
+STEPPER = "cosim.plant._fmi2step"   # the FMI 2.0 stepper binding (csrc/fmi2step.c)
 
 
 @dataclass(frozen=True)
@@ -140,6 +142,8 @@ class Plant:
         if not (isinstance(step_size, (int, float)) and math.isfinite(step_size)
                 and step_size > 0):
             raise ValueError(f"step_size must be a positive number of seconds, got {step_size!r}")
+        if not getattr(self, "_closed", True):   # __init__ again: free the instance it has
+            self.close()
         self.vehicle = vehicle
         self.step_size = float(step_size)
         self._stepper = None
@@ -271,6 +275,8 @@ class Plant:
         u1..u4 are normalised motor commands (clamped to [0, 1] by the FMU; NaN raises),
         wind_* the wind velocity in m/s, NED. The returned list is :attr:`y`, updated in place.
         """
+        if self._closed:
+            self._used_closed()
         v = self._in_mv
         v[0] = u1
         v[1] = u2
@@ -301,7 +307,13 @@ class Plant:
         self.k += 1
         return self._read_outputs()
 
+    def _used_closed(self) -> None:
+        """A call into an FMU instance that is freed (or was never made) would crash."""
+        raise ComponentError("plant", "the plant is closed (or failed to start)")
+
     def _read_outputs(self) -> list[float]:
+        if self._closed:
+            self._used_closed()
         st = self._raw_get_real(self._comp, self._out_vr_p, self._n_out, self._out_val_p)
         if st:
             self._check(st, "fmi2GetReal")
@@ -314,17 +326,15 @@ class Plant:
         return y
 
     def _use_stepper(self, want: bool | None) -> None:
-        """Bind :meth:`step` to the compiled stepper (see the class docstring)."""
+        """Bind :meth:`step` to the compiled stepper (see the class docstring): when this run
+        is compiled (mav/compiled.py) and `want` is not False; `want` True requires it."""
+        from mav import compiled
+
         if want is None:
-            want = os.environ.get("COSIM_FMI2STEP", "1") != "0"
-            try:
-                from cosim.plant._fmi2step import Stepper
-            except ImportError:
-                return
-        elif want:
-            from cosim.plant._fmi2step import Stepper
+            want = compiled.uses(STEPPER)
         if not want:
             return
+        from cosim.plant._fmi2step import Stepper
 
         def addr(f) -> int:
             return ctypes.cast(f, c_void_p).value or 0
@@ -365,6 +375,8 @@ class Plant:
 
     def get_state(self) -> PlantState:
         """Snapshot of the FMU state and the tick counter (cheap: a few kB memcpy)."""
+        if self._closed:
+            self._used_closed()
         self._check(self._get_state(self._comp, byref(self._scratch_state)), "fmi2GetFMUstate")
         size = c_size_t()
         self._check(self._ser_size(self._comp, self._scratch_state, byref(size)),
@@ -378,6 +390,8 @@ class Plant:
         """Restore a snapshot from :meth:`get_state` (also restores :attr:`k` and :attr:`y`)."""
         if not isinstance(s, PlantState):
             raise TypeError(f"expected a PlantState from Plant.get_state(), got {type(s).__name__}")
+        if self._closed:
+            self._used_closed()
         buf = ctypes.create_string_buffer(s.fmu_state, len(s.fmu_state))
         self._check(self._deserialize(self._comp, buf, len(s.fmu_state),
                                       byref(self._scratch_state)), "fmi2DeSerializeFMUstate")
@@ -416,10 +430,13 @@ class Plant:
             return
         self._closed = True
         st = self._stepper
+        bound = self.__dict__.pop("step", None)
         if st is not None:            # no C calls into a freed instance: back to the ctypes path
             self._stepper = None
             self._k = st.k
-            self.__dict__.pop("step", None)
+            st.close()                # a `step` bound elsewhere now raises instead
+        if bound is not None and hasattr(getattr(bound, "__self__", None), "close"):
+            bound.__self__.close()
         try:
             if self._scratch_state.value:
                 self._free_state(self._comp, byref(self._scratch_state))

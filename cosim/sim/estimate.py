@@ -3,8 +3,11 @@ datagram out, HIL_ACTUATOR_CONTROLS and the vehicle's estimate (ODOMETRY, after 
 datagram) back. The estimate is logged per tick beside the truth: in the series' est_x/y/z
 columns (world NED, as the truth) and in full (`array()`: ESTIMATE_COLUMNS) for the outputs.
 
-It plugs into the loop's three per-tick calls: `measure(y)` (the list the loop records as
-est_x/y/z, filled in by `decode` of the same tick), `encode(t_us, meas)` and `decode(ans)`.
+It is both the sensor and the codec of the master's tick (cosim/sim/tick.py `Tick`):
+`measure(y)` (the list the tick records as est_x/y/z, filled in by `decode_actuators` of the
+same tick), `encode_odometry(t_us, meas)` (the sensor datagram; `encode_odometry_lost` is the
+same: a sensor-fed vehicle loses its position through the sensor faults) and
+`decode_actuators(ans)`.
 """
 
 from __future__ import annotations
@@ -46,16 +49,18 @@ class SensorFeed:
         self._y = y
         return self.est
 
-    def encode(self, t_us: int, meas) -> bytes:
+    def encode_odometry(self, t_us: int, meas) -> bytes:
         return self.suite.encode(t_us, self._y)
 
-    def decode(self, ans: bytes):
-        """(t_us, u1..u4) of the answer's HIL_ACTUATOR_CONTROLS, or None; its estimate
-        (if any) is logged."""
+    encode_odometry_lost = encode_odometry
+
+    def decode_actuators(self, ans: bytes) -> tuple[int, float, float, float, float]:
+        """(t_us, u1..u4) of the answer's HIL_ACTUATOR_CONTROLS (ValueError if it has none,
+        as HilSimulatorCodec's); its estimate (if any) is logged."""
         end = wire.frame_end(ans, 0)
-        if end < 0:
-            return None
-        act = wire.decode_hil_actuator_controls(ans[:end])
+        act = wire.decode_hil_actuator_controls(ans[:end]) if end > 0 else None
+        if act is None:
+            raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(ans)} bytes)")
         od = wire.decode_odometry(ans[end:]) if end < len(ans) else None
         est = self.est
         if od is None:

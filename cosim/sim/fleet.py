@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 import signal
 import sys
 import threading
@@ -40,14 +39,14 @@ from pymavlink.dialects.v20 import common as mavlink2
 from cosim.errors import ComponentError
 from cosim.outputs.folder import clean_run_folder
 from cosim.outputs.tlog import Tlog
-from cosim.plant.fmu import Y_VZ
 from cosim.scenario.records import Scenario
 from cosim.sensors.odometry import OdometrySensor
 from cosim.sim.exits import Exit, ExitMonitor, ExitReason
 from cosim.sim.master import Pacer, RunResult, build_plant
 from cosim.sim.onboard import OnboardHandle
 from cosim.sim.options import RunOptions
-from cosim.sim.recorder import CHUNK, SeriesSpool
+from cosim.sim.recorder import SeriesSpool
+from cosim.sim.tick import Tick
 from mav import wire
 from mav.hil import HilSimulatorCodec
 from mav.onboard import OnboardConfig
@@ -63,7 +62,6 @@ GCS_BIND_PORT = 18570
 MAX_INSTANCE = 254         # sysid = instance + 1 <= 255
 SERIES_EVERY = 20          # ticks between two recorded rows (10 Hz at h = 5 ms)
 SPOOL_NAME = ".series.f64" # the series spool, in the vehicle's folder until written out
-NAN = math.nan
 
 
 def instance_links(instance: int, k: int = 0, *, host: str = "127.0.0.1",
@@ -149,9 +147,12 @@ class SitlVehicle:
         except BaseException:
             self.close()
             raise
-        self.sensor = OdometrySensor(sc.noise, np.random.default_rng([sc.seed, 0, k]))
-        self.codec = HilSimulatorCodec()
         self.monitor = self._monitor()
+        self.tick = Tick(plant=self.plant,
+                         sensor=OdometrySensor(sc.noise, np.random.default_rng([sc.seed, 0, k])),
+                         codec=HilSimulatorCodec(), exchange=self.handle.exchange,
+                         gcs_recv=None, tlog=self.tlog, spool=self.spool, monitor=self.monitor,
+                         h_us=int(round(self.h * 1e6)), record_every=SERIES_EVERY)
 
     @contextlib.contextmanager
     def named(self) -> Iterator[None]:
@@ -175,32 +176,17 @@ class SitlVehicle:
         return (f"vehicle {self.instance} (sysid {self.sysid}) at N {st.n:.2f} E {st.e:.2f} m: "
                 f"API {_hp(b['api'])} -> {_hp(api_r)}, GCS {_hp(b['gcs'])} -> {_hp(gcs_r)}")
 
-    def step(self, t_us: int, t: float, record: bool, wind: tuple[float, float, float],
+    def step(self, k: int, wind: tuple[float, float, float],
              log: Callable[[str], None]) -> None:
-        """Tick t_k of this vehicle: ODOMETRY stamped t_k out, the HIL answer back, record,
-        the plant to t_k+1, then the crash conditions (a crash: respawn)."""
-        self.tlog.t_us = t_us
-        y = self.y
-        meas = self.sensor.measure(y)
-        codec = self.codec
-        t_ans, u1, u2, u3, u4 = codec.decode_actuators(
-            self.handle.exchange(codec.encode_odometry(t_us, meas)))
-        if t_ans != t_us:
-            raise ComponentError("onboard", f"HIL answer stamped {t_ans} us for {t_us} us")
+        """Tick k of this vehicle (cosim/sim/tick.py: ODOMETRY stamped t_k out, the HIL answer
+        back, a row every SERIES_EVERY ticks, the plant to t_k+1, then the crash conditions; a
+        crash: respawn), then the note of a respawn to the clients."""
+        crash = self.tick.run(k, wind)
         if self.note is not None:
             self.handle.onboard.statustext(self.note, mavlink2.MAV_SEVERITY_WARNING)
             self.note = None
-        if record:
-            spool = self.spool
-            spool.append(spool.pack(t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2], NAN, NAN, NAN,
-                                    0))
-            if len(spool.rows) >= CHUNK:
-                spool.flush()
-        vz = y[Y_VZ]
-        y = self.plant.step(u1, u2, u3, u4, *wind)
-        crash = self.monitor.check(t, y, vz, (u1, u2, u3, u4))
         if crash is not None:
-            self.respawn(t + self.h, crash, log)
+            self.respawn(k * self.tick.h_us * 1e-6 + self.h, crash, log)
 
     def respawn(self, t: float, crash: Exit, log: Callable[[str], None]) -> None:
         """Back to the start, on the ground, disarmed: the plant reset, the flight stack
@@ -209,7 +195,8 @@ class SitlVehicle:
         self.respawns.append({"t_s": round(t, 6), "reason": reason.value, "message": message})
         self._keep_clearance()
         self.plant.reset()
-        self.monitor = self._monitor()
+        self.monitor = self.tick.monitor = self._monitor()
+        self.tick.y = self.plant.y
         self.handle.respawn()
         self.note = f"Respawned at start, disarmed ({reason.value})"   # one STATUSTEXT
         log(f"cosim sitl: t = {t:.2f} s: vehicle {self.instance} (sysid {self.sysid}) "
@@ -286,16 +273,13 @@ def run_fleet(sc: Scenario, so: SitlOptions, stop: Callable[[], bool] = lambda: 
         for k in range(n_ticks):
             if stop():
                 break
-            t_us = k * h_us
-            t = t_us * 1e-6
-            record = k % SERIES_EVERY == 0
             if gusty is not None:
                 wind = gusty(k)
             for v in vehicles:
                 with v.named():
-                    v.step(t_us, t, record, wind, log)
+                    v.step(k, wind, log)
             ticks = k + 1
-            pacer.wait(t + h)
+            pacer.wait(k * h_us * 1e-6 + h)
         if stop():
             ended = ExitReason.STOPPED, "stopped by user"
     except ComponentError as exc:

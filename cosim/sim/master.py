@@ -9,18 +9,16 @@ HIL_ACTUATOR_CONTROLS stamped t_k; 6. apply the motor commands, step the plant t
 
 MIL runs the onboard stack in this process over in-memory links carrying the same MAVLink bytes;
 SIL runs it as a separate process over loopback UDP. Both give bit-identical trajectories.
-The parts are built by the small functions below; `run_scenario` is the loop. A part that fails
-is named through one wrapper (`part`), and the run still returns what it recorded. Steps 5-7b
-run as one C call (`cosim/plant/csrc/tail.c`, `make_tail`) when the simulator's extension is
-built and no fault hook is set; the Python code of the loop is their reference
-(tests/test_master_tail.py flies both).
+The parts are built by the small functions below; the tick itself is `cosim/sim/tick.py`
+(the one tick of every loop: this one, with or without fault hooks, and `cosim sitl`'s);
+`run_scenario` is the loop around it. A part that fails is named (`part` while building,
+`Tick.stage` while flying), and the run still returns what it recorded.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
-import os
 import sys
 import tempfile
 import time
@@ -33,7 +31,7 @@ import numpy as np
 from cosim.errors import ComponentError
 from cosim.outputs.folder import clean_run_folder
 from cosim.outputs.tlog import Tlog
-from cosim.plant.fmu import Y_ON_GROUND, Y_QW, Y_QX, Y_QY, Y_QZ, Y_VZ, Y_X, Y_Y, Y_Z, Plant
+from cosim.plant.fmu import Plant
 from cosim.scenario.records import Scenario
 from cosim.sensors.camera import PngSink, VideoSink, make_camera
 from cosim.sensors.odometry import OdometrySensor
@@ -41,15 +39,11 @@ from cosim.sim.exits import ExitMonitor, ExitReason
 from cosim.sim.onboard import OnboardHandle
 from cosim.sim.options import RunOptions
 from cosim.sim.recorder import SERIES_COLUMNS, SeriesFile, SeriesSpool
-from mav import wire
+from cosim.sim.tick import Tick
 from mav.hil import HilSimulatorCodec
 
 __all__ = ["ExitReason", "RunOptions", "RunResult", "SERIES_COLUMNS", "run_scenario"]
 
-FLUSH_MASK = 4095            # the recorder writes a block every 4096 ticks (k & mask == mask)
-COMPILED_TAIL = True         # steps 5-7b in one C call (cosim/plant/csrc/tail.c) when there is
-                             # no fault hook; False (or COSIM_FMI2STEP=0, the simulator's
-                             # compiled side off): the Python loop below (the reference)
 STALL_S = 0.2                # s, real-time mode: further behind the wall clock than this is a
                              # host stall; the pacing skips it instead of running the missed
                              # ticks back to back (a client could not have seen them)
@@ -206,7 +200,6 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     n_ticks = int(round(sc.timing.t_final_s / h))
     cam_every = sc.timing.camera_every
     sensor = OdometrySensor(sc.noise, np.random.default_rng([sc.seed, 0]))
-    wind_n, wind_e, wind_d = sc.wind_ned_mps
     home_n, home_e = sc.start.n, sc.start.e   # the vehicle's local origin, in world NED
     gusty = None                 # gusts or turbulence: the wind changes every tick
     if sc.wind is not None and not sc.wind.steady:
@@ -228,7 +221,6 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         mcap = McapRun(run_dir / "run.mcap")
 
     phases: list[str] = []
-    phase_idx: dict[str, int] = {}
     exit_reason, message = ExitReason.TIME_LIMIT, "time limit reached"
     plant = vehicle = app = monitor = feed = None
     pacer = None                 # real-time mode: the wall-clock pacing and its host stalls
@@ -243,127 +235,43 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             start_app(app, sc, vehicle, camera, run_dir)
         monitor = ExitMonitor(sc.world.arena, h, app, sitl=opts.sitl, scene=sc.world.scene,
                               body_radius=sc.vehicle.body_radius)
+        sinks = []
+        if video is not None:
+            sinks.append(lambda k, t, img: video.add(img))
+        if pngs is not None:
+            png_every = opts.png_every
+            sinks.append(lambda k, t, img: (k // cam_every) % png_every == 0
+                         and pngs.add(t, img))
+        if mcap is not None:
+            sinks.append(lambda k, t, img: mcap.frame(t, img))
         codec = HilSimulatorCodec()
-        nan3 = (math.nan, math.nan, math.nan)
-        y = plant.y
-        # the per-tick calls as locals (one lookup each per run, not per tick)
-        measure, encode_odometry = sensor.measure, codec.encode_odometry
-        encode_valid, encode_lost = codec.encode_odometry, codec.encode_odometry_lost
-        # (HilSimulatorCodec.decode_actuators without its Python frame: None is checked here)
-        exchange, decode_actuators = vehicle.exchange_call(), wire.decode_hil_actuator_controls
-        plant_step, record, row = plant.step, spool.append, spool.pack
-        # OnboardHandle.drain_gcs inline (the GCS tap stays the same object; a fault hook
-        # replaces what it wraps)
-        gcs_recv = vehicle.gcs.recv
-        check_exit = monitor.check
-        on_tick = app.on_tick if app is not None else None
-        realtime, progress, png_every = opts.realtime, opts.progress, opts.png_every
-        feed = None
         if sc.sensors is not None and sc.sensors.hil:   # sensor messages, the vehicle estimates
             from cosim.sim.estimate import SensorFeed
 
-            feed = SensorFeed(sc, h)
-            measure, decode_actuators = feed.measure, feed.decode
-            encode_odometry = encode_valid = encode_lost = feed.encode
-        tail = make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool,
-                         plant_step, gusty, (wind_n, wind_e, wind_d), (home_n, home_e),
-                         monitor, decode_actuators) if hooks is None else None
-        tail_run = tail.run if tail is not None else None
+            sensor = codec = feed = SensorFeed(sc, h)
+        tick = Tick(plant=plant, sensor=sensor, codec=codec,
+                    exchange=vehicle.exchange, gcs_recv=vehicle.gcs.recv, tlog=tlog,
+                    spool=spool, monitor=monitor, h_us=h_us, app=app, camera=camera,
+                    cam_every=cam_every, sinks=sinks, hooks=hooks, home=(home_n, home_e))
+        phases = tick.phases
+        run_tick = tick.run
+        wind = sc.wind_ned_mps
+        realtime, progress = opts.realtime, opts.progress
         loop0 = time.perf_counter()
         pacer = Pacer(opts.speed, loop0)
-        pace = pacer.wait
-        stage = "sensor"   # the part running now: a failure is reported as this part's
-        try:
-            for k in range(n_ticks):
-                # 1-2. plant outputs at t_k -> ODOMETRY stamped t_k
-                t_us = k * h_us
-                t = t_us * 1e-6
-                tlog.t_us = t_us
-                stage = "sensor"
-                meas = measure(y)
-                if hooks is not None:
-                    meas = hooks.on_odometry(t_us, meas)
-                    encode_odometry = encode_lost if hooks.odometry_lost else encode_valid
-                # 3-4. the camera on its ticks, then the app's tick
-                if app is not None:
-                    if camera is not None and k % cam_every == 0:
-                        stage = "camera"
-                        img = camera.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1]))
-                        if video is not None:
-                            video.add(img)
-                        if pngs is not None and (k // cam_every) % png_every == 0:
-                            pngs.add(t, img)
-                        if mcap is not None:
-                            mcap.frame(t, img)
-                        if hooks is not None:
-                            img = hooks.on_frame(t_us, img)
-                        stage = "app"
-                        if img is not None:
-                            app.on_frame(t, img)
-                    stage = "app"
-                    on_tick(t)
-                if tail_run is not None:   # 5-7b compiled
-                    stage = "tail"
-                    y = tail_run(k, t_us, t, meas, y)
-                    if y is None:
-                        exit_reason, message = tail.ended
-                        break
-                    if realtime:
-                        pace(t + h)
-                    if progress and k % 2000 == 0:
-                        show_progress(t, wall0, phases[tail.phase_index])
-                    continue
-                # 5. HIL exchange: ODOMETRY out, HIL_ACTUATOR_CONTROLS stamped t_k back
-                stage = "onboard"
-                ans = exchange(encode_odometry(t_us, meas))
-                if ans is None:
-                    raise ComponentError("onboard", "no HIL_ACTUATOR_CONTROLS answer")
-                act = decode_actuators(ans)
-                if act is None:
-                    raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(ans)} bytes)")
-                t_ans, u1, u2, u3, u4 = act
-                if t_ans != t_us:
-                    raise ComponentError("onboard",
-                                         f"HIL answer stamped {t_ans} us for {t_us} us")
-                while gcs_recv() is not None:   # the master's GCS end: into the tlog
-                    pass
-                # 7a. record the tick (state at t_k, commands held over [t_k, t_k+1))
-                if app is not None:
-                    sp = app.setpoint
-                    ph = app.phase
-                else:
-                    sp, ph = nan3, "none"
-                pi = phase_idx.get(ph)
-                if pi is None:
-                    pi = phase_idx[ph] = len(phases)
-                    phases.append(ph)
-                record(row(t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2],
-                           sp[0] + home_n, sp[1] + home_e, sp[2], pi))  # setpoints: local -> world
-                if k & FLUSH_MASK == FLUSH_MASK:
-                    spool.flush()
-                # 6. the motor commands -> the plant, stepped to t_k+1
-                if hooks is not None:
-                    u1, u2, u3, u4 = hooks.on_actuators(t_us, (u1, u2, u3, u4))
-                vz = y[Y_VZ]
-                stage = "plant"
-                if gusty is not None:
-                    wind_n, wind_e, wind_d = gusty(k)
-                y = plant_step(u1, u2, u3, u4, wind_n, wind_e, wind_d)
-                # 7b. exit conditions on the state at t_k+1
-                ended = check_exit(t, y, vz, (u1, u2, u3, u4))
-                if ended is not None:
-                    exit_reason, message = ended
-                    break
+        for k in range(n_ticks):
+            if gusty is not None:
+                wind = gusty(k)
+            ended = run_tick(k, wind)
+            if ended is not None:
+                exit_reason, message = ended
+                break
+            if realtime or progress:
+                t = k * h_us * 1e-6
                 if realtime:
-                    pace(t + h)
+                    pacer.wait(t + h)
                 if progress and k % 2000 == 0:
-                    show_progress(t, wall0, phases[pi])
-        except ComponentError:
-            raise
-        except Exception as exc:   # the one place a part's failure is named
-            if stage == "tail":
-                stage = tail.stage
-            raise ComponentError(stage, f"{type(exc).__name__}: {exc}") from exc
+                    show_progress(t, wall0, phases[tick.phase])
     except ComponentError as exc:
         exit_reason, message = ExitReason.COMPONENT_ERROR, str(exc)
     except KeyboardInterrupt:
@@ -411,26 +319,6 @@ def show_progress(t: float, wall0: float, phase: str) -> None:
     el = time.perf_counter() - wall0
     print(f"\r  t = {t:7.1f} s  phase = {phase:<12s} "
           f"{t / el if el > 0 else 0:6.0f}x real time", end="", file=sys.stderr)
-
-
-def make_tail(encode_odometry, exchange, gcs_recv, app, phase_idx, phases, spool, plant_step,
-              gusty, wind, home, monitor, decode=None):
-    """The compiled steps 5-7b of the loop (cosim/plant/csrc/tail.c), or None without the
-    library or with COMPILED_TAIL off: the loop then runs them in Python, the reference."""
-    if (not COMPILED_TAIL or os.environ.get("COSIM_FMI2STEP", "1") == "0"
-            or type(monitor) is not ExitMonitor):   # its exit test is ExitMonitor.check's
-        return None
-    try:
-        from cosim.plant._fmi2step import Tail
-    except ImportError:
-        return None
-    from cosim.sim import exits
-
-    consts = (Y_Z, Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_VZ, exits.AIRBORNE_Z_M,
-              exits.FLIP_PRECHECK, exits.CEILING_M, FLUSH_MASK)
-    return Tail(encode_odometry, exchange, decode or wire.decode_hil_actuator_controls,
-                gcs_recv, app, phase_idx, phases, spool, plant_step, gusty, wind, home, monitor,
-                consts, ComponentError)
 
 
 def _app_metrics(app) -> dict[str, float]:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import os
 import tempfile
 import time
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -172,18 +171,6 @@ class OnboardHandle:
             what = self.proc.failure_text()
             raise ComponentError("onboard", f"stopped answering HIL ({what})")
         return ans
-
-    def exchange_call(self):
-        """The fastest callable doing what `exchange` does, for the master's loop (which never
-        respawns the vehicle): MIL with the compiled fast path, one C call
-        (`mav._fastpath.mil_exchange`) that leaves naming a failure to the caller and returns
-        None when the vehicle did not answer; otherwise `exchange` itself."""
-        from mav import fastpath
-
-        if self.proc is not None or fastpath.lib is None:
-            return self.exchange
-        return partial(fastpath.lib.mil_exchange, self.hil, self.onboard.poll,
-                       self._hil_v.pending)
 
     def respawn(self) -> None:
         """MIL: the flight stack rebooted on the same links and sysid (`Onboard.rebooted`):

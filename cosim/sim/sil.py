@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from cosim.errors import ComponentError
+from mav import compiled
 
 
 class OnboardProcess:
@@ -42,7 +43,8 @@ class OnboardProcess:
             "--hil-timeout", str(hil_timeout_s),
             *extra_args,
         ]
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        # the flight stack runs compiled or interpreted as this process does (mav/compiled.py)
+        env = dict(os.environ, PYTHONUNBUFFERED="1", **compiled.environment())
         self.proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=self._log, stdin=subprocess.DEVNULL, env=env,
         )

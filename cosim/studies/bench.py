@@ -8,20 +8,19 @@ and noisy; the targets are printed beside the figures for the reader.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
 import platform
+import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from cosim.studies.bench_common import ROOT, SEED, _per_call_us, _stat  # noqa: F401
 from cosim.studies.bench_flood import bench_flood, format_flood
 from cosim.studies.bench_tick import bench_tick_breakdown, floor_estimate
-from mav import fastpath, reference
+from mav import compiled
 
 QUICK_FLOOD = {"t_final_s": 5.0, "flood_wall_s": 2.0, "realtime_s": 1.0}   # --quick: short
 
@@ -66,11 +65,21 @@ def bench_controller(n: int, repeats: int) -> dict[str, Any]:
     sp.x, sp.y, sp.z, sp.yaw, sp.armed = 0.1, -0.1, -1.1, 0.0, True
     ctl = make_controller(MAMBO)
     d = _stat(_per_call_us(lambda: ctl.update(s, sp, out), n, repeats), "us/tick")
-    d["implementation"] = fastpath.describe()
-    ref = make_controller(MAMBO, fast=False)
-    d["python_reference"] = _stat(_per_call_us(lambda: ref.update(s, sp, out), n, repeats),
-                                  "us/tick")
+    d["implementation"] = compiled.describe()
     return d
+
+
+def interpreted(figure: str, *args: Any, **kw: Any) -> dict[str, Any]:
+    """A figure of this module measured on the same sources interpreted: in a child process
+    with COSIM_COMPILED=0 (a process runs one or the other, mav/compiled.py)."""
+    code = ("import json, sys\nfrom cosim.studies import bench\n"
+            f"print(json.dumps(bench.{figure}(*{args!r}, **{kw!r})))")
+    env = dict(os.environ, COSIM_COMPILED="0")
+    p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                       check=False)
+    if p.returncode != 0:
+        raise RuntimeError(f"the interpreted {figure} failed: {p.stderr[-2000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
 
 
 def bench_codec(n: int, repeats: int) -> dict[str, Any]:
@@ -233,21 +242,6 @@ def bench_mission(mode: str, repeats: int, sets: dict[str, Any] | None = None,
     return d
 
 
-@contextlib.contextmanager
-def _no_stepper() -> Iterator[None]:
-    """Plants made inside the block step through ctypes (cosim/plant/fmu.py), as before the
-    compiled FMI stepper."""
-    saved = os.environ.get("COSIM_FMI2STEP")
-    os.environ["COSIM_FMI2STEP"] = "0"
-    try:
-        yield
-    finally:
-        if saved is None:
-            os.environ.pop("COSIM_FMI2STEP", None)
-        else:
-            os.environ["COSIM_FMI2STEP"] = saved
-
-
 HIL_FEED = {"sensors.feed": "hil"}     # the seed mission on the vehicle's estimate
 
 
@@ -256,6 +250,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     res: dict[str, Any] = {"machine": machine(), "quick": quick}
     res["plant_step"] = bench_plant(n, r)
     res["controller_update"] = bench_controller(n, r)
+    res["controller_update"]["python_reference"] = interpreted("bench_controller", n, r)
     res["codec"] = bench_codec(n, r)
     res["udp_hil_roundtrip"] = bench_udp_roundtrip(n // 4, r)
     res.update(bench_render_ips(max(200, n // 20), r))
@@ -273,9 +268,9 @@ def run(quick: bool = False) -> dict[str, Any]:
     est = res["mission_mil_estimate"] = bench_mission("mil", mr, HIL_FEED)
     est["target"] = 0.6 * res["mission_mil"]["median"]
     est["meets_target"] = est["median"] >= est["target"]
-    with reference.python(), _no_stepper():   # the same missions as before issue 16
-        res["mission_mil_python"] = bench_mission("mil", mr)
-        res["mission_sil_python"] = bench_mission("sil", mr, hil_spin_us=0.0)
+    # the same sources interpreted (COSIM_COMPILED=0: the plant through ctypes too)
+    res["mission_mil_python"] = interpreted("bench_mission", "mil", mr)
+    res["mission_sil_python"] = interpreted("bench_mission", "sil", mr, hil_spin_us=0.0)
     res["sil_over_mil_time"] = res["mission_mil"]["median"] / res["mission_sil"]["median"]
     res["mil_tick_breakdown"] = bench_tick_breakdown(repeats=mr)
     if not quick:     # one round: ~2 min more on the seed mission's 77 s
@@ -320,14 +315,14 @@ def format_report(res: dict[str, Any]) -> str:
     row("  SIL, HIL over a Unix socket", res["mission_sil_unix"])
     if "mission_mil_estimate" in res:
         row("seed mission MIL on the estimate", res["mission_mil_estimate"])
-    row("  MIL before (Python onboard)", res["mission_mil_python"])
-    row("  SIL before (Python, no spin)", res["mission_sil_python"])
-    row("controller, Python reference", res["controller_update"]["python_reference"])
+    row("  MIL interpreted (same sources)", res["mission_mil_python"])
+    row("  SIL interpreted (no spin)", res["mission_sil_python"])
+    row("controller, interpreted", res["controller_update"]["python_reference"])
     cu = res["controller_update"]
 
     def ratio(a: str, b: str) -> float:
         return res[a]["median"] / res[b]["median"]
-    lines.append(f"onboard fast path: {cu['implementation']}; now / before (same run): MIL "
+    lines.append(f"this run: {cu['implementation']}; compiled / interpreted (same run): MIL "
                  f"{ratio('mission_mil', 'mission_mil_python'):.2f}x, SIL "
                  f"{ratio('mission_sil', 'mission_sil_python'):.2f}x (spinning alone "
                  f"{ratio('mission_sil', 'mission_sil_nospin'):.2f}x; Unix-socket HIL / UDP "

@@ -1,5 +1,5 @@
 """`cosim bench --instructions`: the seed mission's work per MIL tick counted in CPU
-instructions, for the compiled code ("now") and the Python reference ("before") in one run.
+instructions, compiled ("now") and the same code interpreted ("before") in one run.
 
 Wall-clock figures on a shared 2-core host move by 1.5x within an hour; an instruction count
 does not move with the neighbours' load, so it says whether a change made the tick do less
@@ -9,18 +9,18 @@ figure; the rest of `cosim bench` does not need it.
 
 Each variant is one Python process under cachegrind flying the seed mission once, and one
 flying it twice; the difference over the mission's ticks is the work per tick, without the
-imports, the FMU load and the first-run setup. Variants: "now" as installed; "before" with
-`MAV_FASTPATH=0` and `COSIM_FMI2STEP=0` (the Python onboard reference, its links and
-decoders, and the plant through ctypes). Four processes, two at a time: ~5-8 minutes.
+imports, the FMU load and the first-run setup. Variants: "now" with `COSIM_COMPILED=1` (the
+compiled modules, mav/compiled.py); "before" with `COSIM_COMPILED=0` (the same sources
+interpreted, and the plant through ctypes). Four processes, two at a time: ~5-8 minutes.
 
 Where the compiled tick's instructions go (`parts`): one more process, under callgrind, flies
-the mission once; the inclusive count of each compiled part's entry point (its own code and
-everything it calls), per tick, is exact where a wall-clock timer around the part is not:
-the vehicle's tick with MIL's HIL exchange (`mil_exchange`), the plant (`Stepper.step`), the
-simulator's ODOMETRY, the client's poll and setpoint, and the master's compiled tail less the
-parts it calls. The rest of the tick (the app's Python, the camera and image processing, the
-master's Python loop, and the per-run setup the once/twice difference keeps) is the total
-less these. Needs `callgrind_annotate` (shipped with Valgrind); skipped without it.
+the mission once; the inclusive count of each part's entry point (its own code and everything
+it calls; Cython's function for the method), per tick, is exact where a wall-clock timer
+around the part is not: the vehicle's tick with MIL's HIL exchange (`OnboardHandle.exchange`),
+the plant (`Stepper.step`), the simulator's ODOMETRY, the client's poll and setpoint, and the
+master's tick (`Tick._run`) less the parts it calls. The rest (the app's Python, the camera and
+image processing, the master's loop, and the per-run setup the once/twice difference keeps) is
+the total less these. Needs `callgrind_annotate` (shipped with Valgrind); skipped without it.
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ class ToolMissing(RuntimeError):
 
 
 VARIANTS: dict[str, dict[str, str]] = {
-    "now": {},
-    "before": {"MAV_FASTPATH": "0", "COSIM_FMI2STEP": "0"},
+    "now": {"COSIM_COMPILED": "1"},
+    "before": {"COSIM_COMPILED": "0"},
 }
 # the script each process runs: fly the seed mission `n` times (MIL), print the ticks
 _SCRIPT = """
@@ -57,14 +57,19 @@ for _ in range(int(sys.argv[2])):
 print("ticks", ticks)
 """
 _IREFS = re.compile(r"I\s+refs:\s+([\d,]+)")
-# the compiled entry points: (label, symbol); "master" is computed (its tail less the others)
-PART_SYMBOLS = (("onboard (vehicle tick + MIL HIL exchange)", "fp_mil_exchange"),
-                ("plant (FMI stepper + FMU)", "Stepper_step"),
-                ("ODOMETRY encode (simulator)", "fp_odometry_frame"),
-                ("app: client poll (telemetry in)", "fp_client_poll"),
-                ("app: client setpoint out", "fp_client_setpoint"))
-_TAIL = "tail_run"
-_INCL = re.compile(r"^\s*([\d,]+)\s+\([\d. ]+%\)\s+\S*?:(\w+)(?:'\d+)?(?:\s|$)")
+# the entry points: (label, symbol pattern: the C function Cython makes of the method, or the
+# FMI binding's); "master" is computed (its tick less the others)
+PART_SYMBOLS = (
+    ("onboard (vehicle tick + MIL HIL exchange)",
+     r"__pyx_pw_5cosim_3sim_7onboard_\d+OnboardHandle_\d+exchange"),
+    ("plant (FMI stepper + FMU)", r"Stepper_step"),
+    ("ODOMETRY encode (simulator)", r"__pyx_pw_3mav_3hil_\d+HilSimulatorCodec_\d+encode_odometry"),
+    ("camera + app (Python), of which:", r"__pyx_pw_5cosim_3sim_4tick_\d+Tick_\d+_camera_and_app"),
+    ("  app: client poll (telemetry in)", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+poll"),
+    ("  app: client setpoint out", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+_setpoint"),
+)
+_TAIL = r"__pyx_pw_5cosim_3sim_4tick_\d+Tick_\d+_run"
+_INCL = re.compile(r"^\s*([\d,]+)\s+\([\d. ]+%\)\s+\S*?:(\w+)(?:\.\w+)*(?:'\d+)?(?:\s|$)")
 
 
 def parse_inclusive(text: str) -> dict[str, int]:
@@ -78,15 +83,22 @@ def parse_inclusive(text: str) -> dict[str, int]:
     return out
 
 
+def _incl(incl: dict[str, int], pattern: str) -> int:
+    """The inclusive count of the function whose name matches `pattern` whole (0 if none)."""
+    rx = re.compile(pattern)
+    return max((n for name, n in incl.items() if rx.fullmatch(name)), default=0)
+
+
 def parts_per_tick(incl: dict[str, int], ticks: int, total_per_tick: float) -> dict[str, float]:
     """Instructions per tick of each compiled part, the master's compiled tail less the parts
     it calls, and the rest of the tick."""
-    parts = {label: incl.get(sym, 0) / ticks for label, sym in PART_SYMBOLS}
-    called = sum(parts[label] for label, sym in PART_SYMBOLS[:3])  # the tail calls these
-    # the tail less those: the record, the exit test, the HIL answer decode, the GCS tlog tap
-    parts["master: compiled tail less the above"] = incl.get(_TAIL, 0) / ticks - called
-    # the app's Python, camera + image processing, the master's Python loop, per-run setup
-    parts["the rest (app Python, camera+IPS, setup)"] = total_per_tick - sum(parts.values())
+    parts = {label: _incl(incl, sym) / ticks for label, sym in PART_SYMBOLS}
+    top = sum(n for label, n in parts.items() if not label.startswith(" "))
+    # the tick less the parts it calls: the sensor, the HIL answer decode, the GCS tlog tap,
+    # the record and the exit test
+    parts["master: tick less the above"] = _incl(incl, _TAIL) / ticks - top
+    # the master's loop around the tick, and the per-run setup the difference keeps
+    parts["the rest (loop, setup)"] = total_per_tick - top - parts["master: tick less the above"]
     return parts
 
 
@@ -162,7 +174,7 @@ def bench_instructions(scenario: Path = SEED, valgrind: str | None = None,
 def format_instructions(res: dict[str, Any]) -> list[str]:
     now, before = res["now"], res["before"]
     rows = (("now (compiled)", f"{now['per_tick'] / 1e3:.1f}k"),
-            ("before (MAV_FASTPATH=0 COSIM_FMI2STEP=0)", f"{before['per_tick'] / 1e3:.1f}k"),
+            ("before (COSIM_COMPILED=0, interpreted)", f"{before['per_tick'] / 1e3:.1f}k"),
             ("before / now", f"{res['before_over_now']:.2f}x"))
     lines = [f"instructions per MIL tick (cachegrind; seed mission flown twice minus once, "
              f"{now['ticks']} ticks):"] + [f"  {a:<44}{b:>10}" for a, b in rows]

@@ -12,11 +12,8 @@ from cosim.studies.bench_common import SEED
 
 # (module, class, method, label, parent label or None, set-up method or None): the parts of a
 # MIL tick, timed by wrapping them (bench_tick_breakdown). With a set-up method: `method` is an
-# instance attribute that set-up binds (a compiled part: the noise-free sensor's itemgetter,
-# the client's poll and setpoint, the ODOMETRY encoder, the controller, the FMI stepper), timed
-# on each instance as it is set up (a class-level wrapper would make the client pick its
-# Python path); class None: a module attribute looked up at run or call time (the compiled
-# battery step and the HIL answer decoder)
+# instance attribute that set-up binds (the noise-free sensor's itemgetter, the FMI stepper),
+# timed on each instance as it is set up
 _HIL = "HIL exchange (onboard)"
 _TICK_PARTS = (
     ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None, "__init__"),
@@ -27,22 +24,22 @@ _TICK_PARTS = (
     ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None, None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None, None),
     ("mav.client", "OffboardClient", "poll", "  client poll (telemetry in)", "app on_tick",
-     "__init__"),
+     None),
     ("mav.client", "OffboardClient", "set_position_target", "  setpoint encode+send",
-     "app on_tick", "__init__"),
-    ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None, "__init__"),
-    ("cosim.sim.onboard", "OnboardHandle", "exchange_call", _HIL, None, None),
-    ("mav.estimator", "Estimator", "on_hil", "  onboard estimator (decode + filters)", _HIL,
+     "app on_tick", None),
+    ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None, None),
+    ("cosim.sim.onboard", "OnboardHandle", "exchange", _HIL, None, None),
+    ("mav.estimator.core", "Estimator", "on_hil", "  onboard estimator (decode + filters)", _HIL,
      None),
     ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL, None),
     ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", _HIL, None),
-    ("mav.cascade", "QuadCascade", "update", "  onboard controller", _HIL, "__init__"),
+    ("mav.cascade", "QuadCascade", "update", "  onboard controller", _HIL, None),
     ("mav.battery", "Battery", "step", "  onboard battery", _HIL, None),
-    ("mav._fastpath", None, "battery_step", "  onboard battery", _HIL, None),
     ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL, None),
-    ("mav.wire", None, "decode_hil_actuator_controls", "HIL_ACTUATOR_CONTROLS decode", None,
+    ("mav.hil", "HilSimulatorCodec", "decode_actuators", "HIL_ACTUATOR_CONTROLS decode", None,
      None),
-    ("cosim.sim.estimate", "SensorFeed", "decode", "HIL answer + estimate decode", None, None),
+    ("cosim.sim.estimate", "SensorFeed", "decode_actuators", "HIL answer + estimate decode",
+     None, None),
     ("cosim.plant.fmu", "Plant", "step", "plant step", None, "_use_stepper"),
 )
 MASTER = "master loop itself (record, exit test, taps)"
@@ -57,13 +54,6 @@ def _timing_attr(setup: Callable, attr: str, timed: Callable, label: str) -> Cal
     return wrapper
 
 
-def _timed_result(fn: Callable, timed: Callable, label: str) -> Callable:
-    """fn returning a callable -> the same returning that callable timed under `label`."""
-    def wrapper(*a: Any, **kw: Any) -> Any:
-        return timed(fn(*a, **kw), label)
-    return wrapper
-
-
 def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
     """Wrap every implementation of the part `label` in `timed`; the (owner, name, original)
     to put back."""
@@ -73,18 +63,13 @@ def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
     for mod, cls, meth, lb, _, setup in _TICK_PARTS:
         if lb != label:
             continue
-        try:
-            m = importlib.import_module(mod)
-        except ImportError:            # mav._fastpath not built: its parts run in Python
-            continue
+        m = importlib.import_module(mod)
         c = m if cls is None else getattr(m, cls)
         name = setup or meth
         orig = c.__dict__[name]
         saved.append((c, name, orig))
         if setup is not None:
             setattr(c, setup, _timing_attr(orig, meth, timed, label))
-        elif meth == "exchange_call":   # it returns the callable the master's loop calls
-            setattr(c, meth, _timed_result(orig, timed, label))
         else:
             setattr(c, meth, timed(orig, label))
     return saved
@@ -168,9 +153,8 @@ def bench_tick_breakdown(repeats: int = 3, sets: dict[str, Any] | None = None
     # the untimed tick as a least of `repeats` runs too (the least of all of them would be
     # lower than any part's, which has only `repeats` tries): the median over the parts' slots
     loop_us = statistics.median(min(v) for v in before.values())
-    # a part never called on its own is not a row: the compiled tick (mav/csrc/tick.c) runs
-    # the drain of setpoints, the modes and the battery step inside its one call, so they
-    # are in "HIL exchange (onboard): rest" then
+    # a part never called on its own is not a row (truth-fed: the sensor models; sensor-fed:
+    # the ODOMETRY codec)
     labels = [(lb, pa) for lb, pa in labels if calls[lb] > 0]
     parts = {lb: min(got[lb]) for lb, _ in labels}
     for label, parent in labels:

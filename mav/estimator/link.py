@@ -2,7 +2,7 @@
 
 PX4's EKF2 publishes its estimate on uORB (`vehicle_odometry`) for the controllers to read;
 here the estimator hands the vehicle's tick its estimate as the ODOMETRY frame the tick already
-reads, so the tick (its Python reference and its compiled copy alike) is unchanged:
+reads, so the tick (`Onboard.poll`) is unchanged:
 
 - `recv()`: a sensor datagram (HIL_SENSOR first) from the simulator -> the estimator runs ->
   an ODOMETRY of the estimate stamped with the HIL_SENSOR's time_usec (quality -1 when the

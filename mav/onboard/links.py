@@ -13,17 +13,13 @@ import sys
 import traceback
 from collections.abc import Callable
 
-from mav import fastpath, wire
+from mav import wire
 from mav.onboard.defs import (
     DRAIN_MAX,
     FRAMES_MAX,
     REJECT_TEXT_EVERY_US,
     SIGNING_EPOCH_2015,
     SP_ID3,
-    SP_MAX_POS_M,
-    SP_MAX_VEL_MPS,
-    SP_MAX_YAW_RAD,
-    SP_MAX_YAW_RATE,
     M,
 )
 from mav.onboard.status import VehicleStatus
@@ -139,24 +135,17 @@ class LinkInput:
     """
 
     def __init__(self, vs: VehicleStatus, outbox: Outbox, handlers: dict[int, Callable],
-                 on_setpoint: Callable, sysid: int = 1, compid: int = 1) -> None:
+                 on_setpoint: Callable) -> None:
         self.vs = vs
         self.stats = vs.stats
         self.outbox = outbox
         self.handlers = handlers
         self.on_setpoint = on_setpoint
-        # the compiled accept path of on_setpoint (mav/csrc/setpoint.c), or None
-        lib = fastpath.lib
-        self._fast_sp = lib.setpoint_local_ned if lib is not None else None
-        self._sp_args = (vs.of, sysid, compid, SP_MAX_POS_M, SP_MAX_VEL_MPS, SP_MAX_YAW_RAD,
-                         SP_MAX_YAW_RATE)
 
-    def drain(self, ch: Chan, data: bytes | None = None, first: int = 0) -> None:
+    def drain(self, ch: Chan, data: bytes | None = None) -> None:
         """Handle what is queued on ch's link (at most DRAIN_MAX datagrams). `data`: the first
         datagram when the caller has already received it (the vehicle's tick looks first, so
-        an idle link costs no call here). `first`: how many of this drain's datagrams the
-        caller has already handled (the compiled tick applies the accepted setpoints itself
-        and hands the first other datagram here, mav/csrc/tick.c)."""
+        an idle link costs no call here)."""
         recv = ch.link.recv
         if data is None:
             data = recv()
@@ -166,25 +155,13 @@ class LinkInput:
         rx_key = ch.rx_key
         if ch.signed:
             self.outbox.sync_signing(ch)
-            fast = None
-        else:   # the 200 Hz case: one SET_POSITION_TARGET_LOCAL_NED frame the C path accepts
-            fast = self._fast_sp
-        vs = self.vs
-        for n in range(first, DRAIN_MAX):
-            if n > first:
+        for n in range(DRAIN_MAX):
+            if n:
                 data = recv()
                 if data is None:
                     return
             st[rx_key] += 1
             try:
-                # (it accepts only a datagram that is exactly one valid frame, and applies it;
-                # anything else is handle_datagram's)
-                if (fast is not None and data[7:10] == SP_ID3 and data[0] == wire.MAGIC_V2
-                        and fast(data, *self._sp_args)):
-                    ch.peer = (data[5], data[6])
-                    vs.of_last_us = vs.t_us
-                    st["setpoints"] += 1
-                    continue
                 self.handle_datagram(ch, data)
             except Exception:   # a handler bug must not take the vehicle down: count it
                 st[ch.bad_key] += 1
@@ -196,7 +173,7 @@ class LinkInput:
     def handle_datagram(self, ch: Chan, data: bytes) -> None:
         n = len(data)
         # a datagram that is one unsigned-link MAVLink 2 SET_POSITION_TARGET_LOCAL_NED frame
-        # (what the loop below does with it, minus the loop; `drain` tried the C path first)
+        # (what the loop below does with it, minus the loop)
         if not ch.signed and n > 12 and data[0] == wire.MAGIC_V2 and data[7:10] == SP_ID3:
             if wire.frame_end(data, 0) == n:
                 f = wire.decode_fast(wire.SET_POSITION_TARGET_LOCAL_NED, data, 0, n)

@@ -7,12 +7,11 @@ periodic stream) add it to `defs.STREAMS` with default rates in `defs.API_RATES_
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable
 from heapq import heappop, heappush
 
-from mav import fastpath, wire
+from mav import wire
 from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     CAPABILITIES,
@@ -50,12 +49,6 @@ GPS_COG_MIN_MPS = 0.2                # m/s: slower than this the course is unkno
 # PROTOCOL_VERSION: MAVLink 2 spoken, MAVLink 1 understood; no spec/library git hashes known
 PROTO_VERSION, PROTO_MIN, PROTO_MAX = 200, 100, 200
 _NO_HASH = (0,) * 16
-# the compiled encoders' message ids and CRC_EXTRA bytes (fastpath.c, telemetry.c)
-_ATT_ID, _ATT_EXTRA = wire.ATTITUDE.id, wire.ATTITUDE.crc_extra
-_LPOS_ID, _LPOS_EXTRA = wire.LOCAL_POSITION_NED.id, wire.LOCAL_POSITION_NED.crc_extra
-_STATE_KIND = {wire.ATTITUDE.id: (0, wire.ATTITUDE),
-               wire.LOCAL_POSITION_NED.id: (1, wire.LOCAL_POSITION_NED),
-               wire.POSITION_TARGET_LOCAL_NED.id: (2, wire.POSITION_TARGET_LOCAL_NED)}
 # BATTERY_STATUS: cells 2..10 not reported; charge state by the number of warnings given
 _NO_CELLS = (65535,) * 9
 _CHARGE_STATES = (M.MAV_BATTERY_CHARGE_STATE_OK, M.MAV_BATTERY_CHARGE_STATE_LOW,
@@ -107,19 +100,8 @@ class Telemetry:
         return self._emitters.get(msgid)
 
     def stream_emitter(self, msgid: int) -> Callable[[Chan], None] | None:
-        """What a periodic stream calls: the emitter, or for ATTITUDE, LOCAL_POSITION_NED and
-        POSITION_TARGET_LOCAL_NED (most of what is streamed) its compiled copy with the send
-        (telemetry.c `emit_state`: the same bytes and counts, the Python emitter on a signing
-        link) when built."""
-        py = self._emitters.get(msgid)
-        fp = fastpath.lib
-        if fp is not None and msgid == wire.GLOBAL_POSITION_INT.id:   # globalpos.c
-            m = wire.GLOBAL_POSITION_INT
-            return functools.partial(fp.emit_global, py, self.geo, self.vs, m.id, m.crc_extra)
-        if fp is None or msgid not in _STATE_KIND:
-            return py
-        kind, m = _STATE_KIND[msgid]
-        return functools.partial(fp.emit_state, kind, m.id, m.crc_extra, py, self.vs)
+        """What a periodic stream calls: the emitter."""
+        return self._emitters.get(msgid)
 
     def request_message(self, msgid: int) -> tuple[int, int | None]:
         """MAV_CMD_REQUEST_MESSAGE: (result, the message id to send after the ACK or None)."""
@@ -207,24 +189,12 @@ class Telemetry:
 
     def emit_attitude(self, ch: Chan) -> None:
         s = self.vs.state
-        fp = fastpath.lib
-        if fp is not None:   # the compiled encoder (telemetry.c); None on a signing link
-            data = fp.state_msg(0, _ATT_ID, _ATT_EXTRA, ch.mav, s, self.vs.t_us)
-            if data is not None:
-                ch.send(data)
-                return
         roll, pitch, yaw = wire.euler_from_quat(s.qw, s.qx, s.qy, s.qz)
         ch.send(wire.encode_attitude(ch.mav, self._time_boot_ms(), roll, pitch, yaw,
                                      s.p, s.q, s.r))
 
     def emit_local_position(self, ch: Chan) -> None:
         s = self.vs.state
-        fp = fastpath.lib
-        if fp is not None:
-            data = fp.state_msg(1, _LPOS_ID, _LPOS_EXTRA, ch.mav, s, self.vs.t_us)
-            if data is not None:
-                ch.send(data)
-                return
         ch.send(wire.encode_local_position_ned(ch.mav, self._time_boot_ms(), s.x, s.y, s.z,
                                                s.vx, s.vy, s.vz))
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mav import fastpath, wire
+from mav import wire
 from mav.airframe import Airframe, get_airframe
 from mav.battery import BATTERIES, Battery
 from mav.estimator import Estimator
@@ -62,7 +62,6 @@ from mav.onboard.telemetry import Telemetry
 from mav.types import VehicleState
 
 M = mavlink2
-_HIL_ID, _HIL_EXTRA = wire.HIL_ACTUATOR_CONTROLS.id, wire.HIL_ACTUATOR_CONTROLS.crc_extra
 
 STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
          "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "hil_ignored", "hil_bad_values",
@@ -80,10 +79,6 @@ class Onboard:
     (the Setpoint in use), `u` (the last motor commands), `params` (ParamTable),
     `warnings` (parameter-file notes), `status` (the shared VehicleStatus record).
     """
-
-    compiled_tick = True     # use mav/csrc/tick.c for `poll` when the extension is loaded
-    # read by the compiled tick every tick: slots (read by offset); the rest in `__dict__`
-    __slots__ = ("origin", "mission", "__dict__", "__weakref__")
 
     def __init__(self, config: OnboardConfig, hil, api, gcs, *, controller=None) -> None:
         self.cfg = cfg = config
@@ -131,7 +126,7 @@ class Onboard:
         handlers = self.commands.handlers(ofb.on_setpoint_msg, prm, man)
         handlers[M.MAVLINK_MSG_ID_HEARTBEAT] = self.failsafe.on_heartbeat
         handlers.update(ofb.handlers())          # SET_POSITION_TARGET_GLOBAL_INT, attitude
-        self.input = LinkInput(vs, out, handlers, ofb.on_setpoint, cfg.sysid, cfg.compid)
+        self.input = LinkInput(vs, out, handlers, ofb.on_setpoint)
         for ch, rates in zip(chans, (cfg.api_rates_hz, cfg.gcs_rates_hz), strict=True):
             for sname, msgid in STREAMS.items():
                 st = Stream(msgid, hz_to_us(rates.get(sname, 0.0)), tel.stream_emitter(msgid))
@@ -160,11 +155,6 @@ class Onboard:
         self.estimator = tel.estimator = Estimator(vs.own, self.stats, self.geo)
         if self.estimator.enabled:
             self._hil = self.estimator.link(self._hil, self._hil_mav)
-        # the tick compiled (mav/csrc/tick.c: `poll` below, statement for statement), when the
-        # extension is loaded and `compiled_tick` is on (tests turn it off to compare)
-        fp = fastpath.lib
-        if fp is not None and self.compiled_tick:
-            self.poll = fp.Tick(self).run
 
     # ------------------------------------------------------------------ public helpers
     @property
@@ -346,24 +336,17 @@ class Onboard:
                 vs.ctrl.update(self._blind(s, sp) if lost else s, sp, u)
         else:
             u[0] = u[1] = u[2] = u[3] = 0.0
-        if dt_us > 0:   # Battery.step, compiled when built (battery.c)
-            fp = fastpath.lib
-            if fp is not None:
-                fp.battery_step(vs.battery, dt_us * 1e-6, u[0], u[1], u[2], u[3])
-            else:
-                vs.battery.step(dt_us * 1e-6, u[0], u[1], u[2], u[3])
+        if dt_us > 0:
+            vs.battery.step(dt_us * 1e-6, u[0], u[1], u[2], u[3])
         # 4. telemetry when due (Telemetry.publish's own first test, here: most ticks have
         # nothing due), then the HIL answer
         if (t_us >= api.next_due or t_us >= gcs.next_due or api.param_queue or gcs.param_queue
                 or vs.hb_now or vs.ext_now or vs.home_now or vs.mission_now):
             self.telemetry.publish(t_us)
-        # HIL_ACTUATOR_CONTROLS (wire.encode_hil_actuator_controls, framed in one C call when
-        # compiled: the HIL link never signs)
+        # HIL_ACTUATOR_CONTROLS (wire.encode_hil_actuator_controls)
         pl = wire.HIL_CTRL_PACK(t_us, 1, u[0], u[1], u[2], u[3],
                                 HIL_MODE_ARMED if vs.armed else HIL_MODE_DISARMED)
-        fo = wire._fp_frame_on
-        self._hil.send((fo is not None and fo(self._hil_mav, _HIL_ID, _HIL_EXTRA, pl))
-                       or wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
+        self._hil.send(wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
         st["ticks"] += 1
         return True
 

@@ -20,8 +20,10 @@
  * .step(u1, ..., un) with the inputs in in_vr order (missing trailing ones are 0.0):
  *   advance k -> k+1 and return y.  .k: the tick counter (read/write).
  *
- * Tail (tail.c, tail_run.c): the master's tick after the app (HIL exchange, record, plant step,
- * exit test) in one call.
+ * Misuse raises, never crashes: step() on a Stepper whose __init__ has not succeeded raises
+ * RuntimeError; a failed __init__ (again) leaves the Stepper as it was; a y list resized
+ * behind its back raises IndexError (tests/test_compiled_misuse.py). The function and
+ * component addresses are trusted, as ctypes trusts them: cosim/plant/fmu.py passes fmpy's.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -125,59 +127,80 @@ static int Stepper_init(Stepper *self, PyObject *args, PyObject *kw)
         PyErr_SetString(PyExc_ValueError, "fns: set_real, do_step, get_real, get_bool needed");
         return -1;
     }
+    void *c = address(comp);
+    if (PyErr_Occurred())
+        return -1;
+    if (!PyCallable_Check(on_error)) {
+        PyErr_SetString(PyExc_TypeError, "on_error: a callable(status, what)");
+        return -1;
+    }
+    /* everything read into locals first: a failure leaves the Stepper as it was */
+    size_t n_in = 0, n_out = 0, n_bool = 0;
+    unsigned int *vin = NULL, *vout = NULL, *vbool = NULL;
+    double *out_val = NULL;
+    int *bool_val = NULL;
+    vin = read_vrs(in_vr, &n_in, "in_vr: a sequence of ints");
+    if (vin == NULL)
+        goto fail;
+    if (n_in > MAX_IN) {
+        PyErr_Format(PyExc_ValueError, "in_vr: at most %d inputs", MAX_IN);
+        goto fail;
+    }
+    vout = read_vrs(out_vr, &n_out, "out_vr: a sequence of ints");
+    if (vout == NULL)
+        goto fail;
+    vbool = read_vrs(bool_vr, &n_bool, "bool_vr: a sequence of ints");
+    if (vbool == NULL)
+        goto fail;
+    if ((size_t)PyList_GET_SIZE(y) != n_out + n_bool) {
+        PyErr_SetString(PyExc_ValueError, "y: a list of len(out_vr) + len(bool_vr) floats");
+        goto fail;
+    }
+    if (names != NULL && (size_t)PyTuple_GET_SIZE(names) != n_in) {
+        PyErr_SetString(PyExc_ValueError, "names: one per input");
+        goto fail;
+    }
+    out_val = calloc(n_out + 1, sizeof(double));
+    bool_val = calloc(n_bool + 1, sizeof(int));
+    if (out_val == NULL || bool_val == NULL) {
+        PyErr_NoMemory();
+        goto fail;
+    }
     self->set_real = (set_real_f)p[0];
     self->do_step = (do_step_f)p[1];
     self->get_real = (get_real_f)p[2];
     self->get_bool = (get_bool_f)p[3];
     self->fused = (fused_f)p[4];
-    self->comp = address(comp);
-    if (PyErr_Occurred())
-        return -1;
-    size_t n_in = 0;
-    unsigned int *vin = read_vrs(in_vr, &n_in, "in_vr: a sequence of ints");
-    if (vin == NULL)
-        return -1;
-    if (n_in > MAX_IN) {
-        free(vin);
-        PyErr_Format(PyExc_ValueError, "in_vr: at most %d inputs", MAX_IN);
-        return -1;
-    }
+    self->comp = c;
     memcpy(self->in_vr, vin, n_in * sizeof(unsigned int));
     free(vin);
     self->n_in = n_in;
     free(self->out_vr);
     free(self->bool_vr);
-    self->out_vr = read_vrs(out_vr, &self->n_out, "out_vr: a sequence of ints");
-    if (self->out_vr == NULL)
-        return -1;
-    self->bool_vr = read_vrs(bool_vr, &self->n_bool, "bool_vr: a sequence of ints");
-    if (self->bool_vr == NULL)
-        return -1;
-    if ((size_t)PyList_GET_SIZE(y) != self->n_out + self->n_bool) {
-        PyErr_SetString(PyExc_ValueError, "y: a list of len(out_vr) + len(bool_vr) floats");
-        return -1;
-    }
     free(self->out_val);
     free(self->bool_val);
-    self->out_val = calloc(self->n_out + 1, sizeof(double));
-    self->bool_val = calloc(self->n_bool + 1, sizeof(int));
-    if (self->out_val == NULL || self->bool_val == NULL) {
-        PyErr_NoMemory();
-        return -1;
-    }
+    self->out_vr = vout;
+    self->bool_vr = vbool;
+    self->out_val = out_val;
+    self->bool_val = bool_val;
+    self->n_out = n_out;
+    self->n_bool = n_bool;
     self->h = h;
     self->k = 0;
     Py_INCREF(y);
     Py_XSETREF(self->y, y);
     Py_INCREF(on_error);
     Py_XSETREF(self->on_error, on_error);
-    if (names != NULL && (size_t)PyTuple_GET_SIZE(names) != n_in) {
-        PyErr_SetString(PyExc_ValueError, "names: one per input");
-        return -1;
-    }
     Py_XINCREF(names);
     Py_XSETREF(self->names, names);
     return 0;
+fail:
+    free(vin);
+    free(vout);
+    free(vbool);
+    free(out_val);
+    free(bool_val);
+    return -1;
 }
 
 /* a status other than fmi2OK: on_error(status, what) decides (it raises to stop the tick,
@@ -203,6 +226,11 @@ static int as_double(PyObject *a, double *out)
 static PyObject *Stepper_step(Stepper *self, PyObject *const *args, Py_ssize_t nargs,
                               PyObject *kwnames)
 {
+    if (self->y == NULL) {
+        PyErr_SetString(PyExc_RuntimeError,
+                        "Stepper used before a successful __init__ or after close()");
+        return NULL;
+    }
     if ((size_t)nargs > self->n_in) {
         PyErr_Format(PyExc_TypeError, "step() takes at most %zd inputs", (Py_ssize_t)self->n_in);
         return NULL;
@@ -261,20 +289,24 @@ static PyObject *Stepper_step(Stepper *self, PyObject *const *args, Py_ssize_t n
             return NULL;
     }
     PyObject *y = self->y;
-    for (size_t i = 0; i < self->n_out; i++) {
-        PyObject *f = PyFloat_FromDouble(self->out_val[i]);
-        if (f == NULL)
+    for (size_t i = 0; i < self->n_out + self->n_bool; i++) {
+        double v = i < self->n_out ? self->out_val[i] : (self->bool_val[i - self->n_out] ? 1.0
+                                                                                  : 0.0);
+        PyObject *f = PyFloat_FromDouble(v);
+        /* steals f (also on failure), drops the old item; IndexError if y was shrunk */
+        if (f == NULL || PyList_SetItem(y, (Py_ssize_t)i, f) < 0)
             return NULL;
-        PyList_SetItem(y, (Py_ssize_t)i, f);   /* steals f, drops the old item */
-    }
-    for (size_t i = 0; i < self->n_bool; i++) {
-        PyObject *f = PyFloat_FromDouble(self->bool_val[i] ? 1.0 : 0.0);
-        if (f == NULL)
-            return NULL;
-        PyList_SetItem(y, (Py_ssize_t)(self->n_out + i), f);
     }
     Py_INCREF(y);
     return y;
+}
+
+/* close(): the FMU instance is about to be freed; step() raises from now on (a bound
+ * `step` kept elsewhere must not call into freed memory) */
+static PyObject *Stepper_close(Stepper *self, PyObject *unused)
+{
+    Py_CLEAR(self->y);
+    return Py_NewRef(Py_None);
 }
 
 static PyObject *Stepper_get_k(Stepper *self, void *closure)
@@ -298,6 +330,8 @@ static int Stepper_set_k(Stepper *self, PyObject *v, void *closure)
 static PyMethodDef Stepper_methods[] = {
     {"step", (PyCFunction)(void (*)(void))Stepper_step, METH_FASTCALL | METH_KEYWORDS,
      "step(u1, ..., un) -> y: one co-simulation tick with the inputs in in_vr order."},
+    {"close", (PyCFunction)Stepper_close, METH_NOARGS,
+     "close(): no more steps (the FMU instance is being freed)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -319,8 +353,6 @@ static PyTypeObject StepperType = {
     .tp_getset = Stepper_getset,
 };
 
-#include "tail.c"
-
 static struct PyModuleDef fmi2step_module = {
     PyModuleDef_HEAD_INIT, "_fmi2step",
     "One FMI 2.0 co-simulation tick per call, without ctypes marshalling.", -1, NULL,
@@ -329,13 +361,12 @@ static struct PyModuleDef fmi2step_module = {
 
 PyMODINIT_FUNC PyInit__fmi2step(void)
 {
-    if (PyType_Ready(&StepperType) < 0 || PyType_Ready(&TailType) < 0 || tail_names() < 0)
+    if (PyType_Ready(&StepperType) < 0)
         return NULL;
     PyObject *m = PyModule_Create(&fmi2step_module);
     if (m == NULL)
         return NULL;
-    if (PyModule_AddObjectRef(m, "Stepper", (PyObject *)&StepperType) < 0 ||
-        PyModule_AddObjectRef(m, "Tail", (PyObject *)&TailType) < 0) {
+    if (PyModule_AddObjectRef(m, "Stepper", (PyObject *)&StepperType) < 0) {
         Py_DECREF(m);
         return NULL;
     }
