@@ -51,8 +51,13 @@ def test_bench_quick_reports_every_figure(tmp_path):
     b = res["mil_tick_breakdown"]
     assert b["ticks"] > 0 and b["loop_us_per_tick"] > 0
     parts = b["parts_us_per_tick"]
+    from mav import compiled
+
+    # compiled, the cascade is an extension type (mav/cascade.pxd): its method cannot be
+    # wrapped in a timer, so it has no row and its time is in the onboard exchange's rest
+    ctrl = () if compiled.uses("mav.cascade") else ("  onboard controller",)
     for name in ("plant step", "ODOMETRY encode", "HIL exchange (onboard)", "app on_tick",
-                 "camera render (per tick)", "  onboard controller"):
+                 "camera render (per tick)", *ctrl):
         assert parts[name] > 0, name
     assert all(math.isfinite(v) for v in parts.values())
     floor = res["floor_us_per_tick"]
