@@ -48,4 +48,6 @@ class EstimatorLink:
         self.inner.send(data)
 
     def __getattr__(self, name: str) -> Any:     # pending, close, local_address, ...
+        if name in EstimatorLink.__slots__:       # not set (before __init__): no recursion,
+            raise AttributeError(name)            # which compiled would overflow the C stack
         return getattr(self.inner, name)
