@@ -2,7 +2,7 @@
 # fields, their per-datagram calls direct from the compiled tick.
 
 cdef class Tlog:
-    cdef public object path, _f, _write
+    cdef public object path, _f, _write, error
     cdef public long long t_us, count
     cpdef add(self, data)
 
