@@ -29,6 +29,7 @@ import importlib.machinery
 import importlib.util
 import mmap
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -43,12 +44,33 @@ class CompiledError(ImportError):
 
 
 def source_hash(py: Path) -> str:
-    """SHA-256 of a module's source: the `.py` and, when there is one, its `.pxd`."""
+    """SHA-256 of a module's source: the `.py` and, when there is one, its `.pxd` and the
+    `.pxd` files it cimports (their layouts are compiled in: a changed field there must
+    rebuild this module too, or it reads the other type's fields at the old offsets)."""
     h = hashlib.sha256(py.read_bytes())
-    pxd = py.with_suffix(".pxd")
-    if pxd.is_file():
+    for pxd in _pxds(py.with_suffix(".pxd")):
         h.update(b"\0pxd\0" + pxd.read_bytes())
     return h.hexdigest()
+
+
+_CIMPORT = re.compile(r"^\s*(?:from\s+([\w.]+)\s+cimport|cimport\s+([\w.]+))", re.M)
+
+
+def _pxds(pxd: Path) -> list[Path]:
+    """`pxd` (if it exists) and the project's .pxd files it cimports, transitively."""
+    root = pxd.parent
+    while (root / "__init__.py").is_file():
+        root = root.parent
+    out: list[Path] = []
+    todo = [pxd]
+    while todo:
+        p = todo.pop(0)
+        if p in out or not p.is_file():
+            continue
+        out.append(p)
+        for m in _CIMPORT.finditer(p.read_text()):
+            todo.append(root / ((m.group(1) or m.group(2)).replace(".", "/") + ".pxd"))
+    return out
 
 
 def extension_path(py: Path) -> Path:
