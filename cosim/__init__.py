@@ -16,6 +16,8 @@ _HERE = _Path(__file__).resolve().parent
 COMPILED = [
     "cosim.sim.tick", "cosim.sim.exits", "cosim.sim.onboard", "cosim.sim.recorder",
     "cosim.outputs.tlog", "cosim.plant.fmu", "cosim.sensors.odometry",
+    # sensor-fed runs: the sensor models and the master's end of their HIL link
+    "cosim.sensors.imu", "cosim.sensors.suite", "cosim.sim.estimate",
 ]
 BINDINGS = {
     "cosim.plant._fmi2step": (_HERE / "plant" / "csrc" / "fmi2step.c",

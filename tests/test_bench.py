@@ -41,6 +41,9 @@ def test_bench_quick_reports_every_figure(tmp_path):
         assert d["min"] <= d["median"] <= d["max"], name
     v = res["vision"]                       # paper 2: a SIFT match costs more than a servo cycle
     assert v["match_sift_856x480"]["median"] > v["servo_cycle_856x480"]["median"] > 0
+    est = res["mission_mil_estimate"]           # issue 27: on the estimate, its target
+    assert est["exit_reason"] == "mission_complete"
+    assert est["target"] == 0.6 * res["mission_mil"]["median"]
     for mode in ("mission_mil", "mission_sil"):
         m = res[mode]
         assert m["exit_reason"] == "mission_complete"
@@ -60,5 +63,5 @@ def test_bench_quick_reports_every_figure(tmp_path):
     # the report names every figure
     for label in ("plant step", "render 160x120 frame", "seed mission MIL (tick loop)",
                   "seed mission SIL (end to end)", "MIL tick breakdown", "floor:",
-                  "flood on the vehicle's gcs port"):
+                  "flood on the vehicle's gcs port", "seed mission MIL on the estimate"):
         assert label in r.stdout, label

@@ -46,7 +46,9 @@ def fly(tmp: Path, scenario: str, compiled: str, *extra: str) -> dict:
     ("bebop2_scripted_square.toml", ()),            # the Bebop 2 square
     ("mambo_seed_dropout.toml", ()),                # a [faults] scenario (the fault hooks)
     ("bebop2_vs_e1.toml", ()),                      # paper 2's E1 (front camera, teach)
-], ids=["seed", "seed-sil", "bebop2-square", "faults", "paper2-e1"])
+    ("mambo_seed_estimate.toml", ()),               # sensor-fed: sensor models, HIL_SENSOR &
+                                                    # co., the onboard estimator (issue 27)
+], ids=["seed", "seed-sil", "bebop2-square", "faults", "paper2-e1", "seed-estimate"])
 def test_interpreted_and_compiled_fly_bit_for_bit(tmp_path, scenario, extra):
     i = fly(tmp_path, scenario, "0", *extra)
     c = fly(tmp_path, scenario, "1", *extra)

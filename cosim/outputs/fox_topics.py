@@ -38,6 +38,7 @@ from foxglove.messages import (
 
 from cosim.frames import R_from_quat, euler_from_quat
 from cosim.outputs import fox_scene as fs
+from cosim.sim.estimate import ESTIMATE_COLUMNS
 from cosim.sim.recorder import COL
 
 NUM, INT, STR = "number", "integer", "string"
@@ -47,7 +48,9 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
         "t": NUM, "x": NUM, "y": NUM, "z": NUM, "vx": NUM, "vy": NUM, "vz": NUM,
         "roll_deg": NUM, "pitch_deg": NUM, "yaw_deg": NUM, "p": NUM, "q": NUM, "r": NUM,
         "alt": NUM}),
-    "/vehicle/estimate": ("cosim.VehicleEstimate", {"x": NUM, "y": NUM, "z": NUM}),
+    # x, y, z from the series; a sensor-fed run's the rest of its estimate (ESTIMATE_COLUMNS)
+    "/vehicle/estimate": ("cosim.VehicleEstimate", dict.fromkeys(
+        (n[4:] for n in ESTIMATE_COLUMNS), NUM)),
     "/app/setpoint": ("cosim.Setpoint", {"x": NUM, "y": NUM, "z": NUM}),
     "/vehicle/motors": ("cosim.Motors", {"u1": NUM, "u2": NUM, "u3": NUM, "u4": NUM}),
     "/app/phase": ("cosim.AppPhase", {"phase": STR, "index": INT}),
@@ -126,10 +129,12 @@ class Topics:
         return any(ch.has_sinks() for ch in (self.tf, self.pose, self.image, self.calibration,
                                              *self.json.values()))
 
-    def row(self, r, phases: list[str], pose: bool = True) -> None:
+    def row(self, r, phases: list[str], pose: bool = True, est=None) -> None:
         """One recorded tick (a row of the series, `recorder.SERIES_COLUMNS`); `pose`: also
-        the body frame and the pose (a fleet's live view sends those more often). A message
-        nobody takes (a live view without a client on its topic) is not even built."""
+        the body frame and the pose (a fleet's live view sends those more often); `est`: a
+        sensor-fed run's estimate of that tick (ESTIMATE_COLUMNS), the rest of
+        `/vehicle/estimate`. A message nobody takes (a live view without a client on its
+        topic) is not even built."""
         c = COL
         t = float(r[c["t"]])
         t_ns = int(round(t * 1e9))
@@ -151,7 +156,11 @@ class Topics:
                                     ("/vehicle/motors", "", ("u1", "u2", "u3", "u4"))):
             ch = j[topic]
             if ch.has_sinks():
-                ch.log(_finite({k: float(r[c[prefix + k]]) for k in keys}), log_time=t_ns)
+                d = {k: float(r[c[prefix + k]]) for k in keys}
+                if est is not None and prefix == "est_":
+                    d.update({n[4:]: float(v) for n, v in zip(
+                        ESTIMATE_COLUMNS[3:], est[3:], strict=True)})
+                ch.log(_finite(d), log_time=t_ns)
         ch = j["/app/phase"]
         if ch.has_sinks():
             pi = int(r[c["phase"]])

@@ -40,11 +40,17 @@ class McapRun:
         self.frames += 1
 
     def finish(self, res) -> Path:
-        """Write the recorded series, the app's outputs and the MAVLink traffic; close."""
+        """Write the recorded series, the app's outputs and the MAVLink traffic; close.
+        A sensor-fed run's `/vehicle/estimate` carries the vehicle's whole estimate
+        (`res.estimate`, one row per tick), not only its position."""
         topics, phases = self.topics, res.phases or ["none"]
+        est = res.estimate
+        n = 0 if est is None else len(est)
+        k = 0
         for block in res.recorded.blocks():
             for row in block:
-                topics.row(row, phases)
+                topics.row(row, phases, est=est[k] if k < n else None)
+                k += 1
         for r in res.frame_log:
             topics.vision(r, res.frame_columns)
         self._mavlink(res.tlog.path)

@@ -90,6 +90,10 @@ def compute_metrics(res: RunResult, world) -> dict[str, Any]:
         from cosim.outputs.taught import taught_metrics
 
         m.update(taught_metrics(res, res.app_metrics))
+    if getattr(res, "estimate", None) is not None:    # sensor-fed: the vehicle's estimate
+        from cosim.outputs.estimation import estimation_metrics
+
+        m.update(estimation_metrics(res))
     for k, v in res.app_metrics.items():
         m.setdefault(k, v)
     return m

@@ -35,6 +35,10 @@ def plot_run(res, world, out: Path) -> list[Path]:
 
         draw_taught(ax, res.reference_poses)
     ax.plot(s[:, COL["y"]], s[:, COL["x"]], "-", color="tab:blue", lw=1.2, label="vehicle")
+    est = res.estimate is not None      # sensor-fed: the vehicle's own estimate beside it
+    if est:
+        ax.plot(s[:, COL["est_y"]], s[:, COL["est_x"]], "--", color="tab:green", lw=1.0,
+                label="vehicle's estimate")
     if res.min_clearance is not None:
         k = int(np.argmin(np.abs(t - res.min_clearance[1])))
         ax.plot(s[k, COL["y"]], s[k, COL["x"]], "o", mfc="none", color="tab:orange", ms=10,
@@ -55,6 +59,8 @@ def plot_run(res, world, out: Path) -> list[Path]:
     fig, axs = plt.subplots(3 if has_track else 2, 1, figsize=(8, 7 if has_track else 5),
                             sharex=True)
     axs[0].plot(t, -s[:, COL["z"]], label="altitude")
+    if est:
+        axs[0].plot(t, -s[:, COL["est_z"]], ":", color="tab:green", label="estimate")
     sp = -s[:, COL["sp_z"]]
     axs[0].plot(t, sp, "--", label="setpoint")
     axs[0].set_ylabel("altitude (m)")

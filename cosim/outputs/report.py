@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import platform
 import shutil
@@ -17,6 +18,7 @@ from cosim.errors import output_error
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.metrics import COL, compute_metrics, evaluate
 from cosim.outputs.strict import dumps as strict_dumps
+from cosim.sim.estimate import ESTIMATE_COLUMNS
 from cosim.sim.master import RunResult
 from cosim.sim.recorder import SERIES_COLUMNS
 from mav import compiled
@@ -43,6 +45,9 @@ def summarize(res: RunResult) -> dict[str, Any]:
         "description": sc.description,
         "vehicle": sc.vehicle.name,
         "app": sc.app.name,
+        "sensors": sc.sensors.describe() if sc.sensors is not None else "truth ODOMETRY",
+        "estimator": ("template (EKF2_TYPE 1)" if sc.sensors is not None and sc.sensors.hil
+                      else "none (truth ODOMETRY)"),
         "seed": sc.seed,
         "mode": res.mode,
         "exit_reason": res.exit_reason.value,
@@ -156,13 +161,22 @@ def _write_frames(res: RunResult, path: Path) -> None:
 
 def write_series(res: RunResult, path: Path) -> None:
     phase_names = np.array(res.phases + ["?"], dtype=object)
+    est = res.estimate                  # sensor-fed: the rest of the estimate (est_x/y/z are
+    extra = () if est is None else ESTIMATE_COLUMNS[3:]   # in the series already)
     with open(path, "w") as f:
-        f.write(",".join(SERIES_COLUMNS) + ",phase_name\n")
+        f.write(",".join(SERIES_COLUMNS) + ",phase_name" + "".join("," + c for c in extra)
+                + "\n")
         pcol = COL["phase"]
+        k = 0
         for block in res.recorded.blocks():
             for row in block:
                 f.write(",".join(repr(float(v)) for v in row))
-                f.write("," + phase_names[int(row[pcol])] + "\n")
+                f.write("," + phase_names[int(row[pcol])])
+                if extra:
+                    e = est[k] if k < len(est) else (math.nan,) * len(ESTIMATE_COLUMNS)
+                    f.write("".join("," + repr(float(v)) for v in e[3:]))
+                k += 1
+                f.write("\n")
 
 
 def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
@@ -171,6 +185,7 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
         f"scenario  {summary['scenario']}  ({summary['vehicle']}, app {summary['app']}, "
         f"{summary['mode'].upper()}, seed {summary['seed']})",
         f"exit      {summary['exit_reason']}: {summary['message']}",
+        f"sensors   {summary['sensors']}; estimator {summary['estimator']}",
         *([f"app       {summary['metrics']['outcome']}"]
           if isinstance(summary["metrics"].get("outcome"), str) else []),
         f"sim time  {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall "
@@ -192,6 +207,10 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
         "final_pose_error_m": ("final pose error", "{:.3f} m"),
         "final_yaw_error_deg": ("final yaw error", "{:.2f} deg"),
         "taught_path_speed_mps": ("taught path speed", "{:.3f} m/s"),
+        "estimation_error_pos_rms_m": ("estimate pos RMS", "{:.3f} m"),
+        "estimation_error_pos_max_m": ("estimate pos max", "{:.3f} m"),
+        "estimation_error_att_rms_deg": ("estimate att RMS", "{:.2f} deg"),
+        "estimation_error_vel_rms_mps": ("estimate vel RMS", "{:.3f} m/s"),
     }
     for key, (label, f) in fmt.items():
         if key in m and m[key] is not None:

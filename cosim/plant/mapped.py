@@ -29,6 +29,7 @@ import shutil
 from cosim.errors import ComponentError
 from cosim.plant.fmu import OUTPUT_NAMES, Y_ON_GROUND, FmuPlant
 from cosim.plant.mapping import RATE, PlantMap, PlantSpec, own_map, read_description
+from mav.estimator.core import quat_from_euler  # body -> world, z-y-x Euler angles (rad)
 
 GROUND_EPS_M = 0.01      # m: without an on_ground output, "on the ground" is z_NED > -this
 _S = math.sqrt(0.5)
@@ -43,15 +44,6 @@ def qmul(a, b) -> tuple[float, float, float, float]:
     bw, bx, by, bz = b
     return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
             aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
-
-
-def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Body -> world quaternion of z-y-x Euler angles (yaw, then pitch, then roll), rad."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
 
 def rotate_inv(q, v) -> tuple[float, float, float]:

@@ -21,6 +21,8 @@ from cosim.plant.vehicles import PHYSICAL_RANGES, PRESETS, get_vehicle
 from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
 from cosim.sensors.camera import parse_camera
+from cosim.sensors.spec import TABLES as SENSOR_TABLES
+from cosim.sensors.spec import parse_sensors
 from cosim.sim.exits import ExitReason
 from cosim.sim.faults import parse_faults
 from cosim.world.floor import World
@@ -141,7 +143,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
 
     # sensors / wind / faults
     s = table(raw, "sensors", "")
-    no_unknown(s, {"odometry_noise"}, "sensors")
+    no_unknown(s, {"odometry_noise", "feed", "flow_floor", *SENSOR_TABLES}, "sensors")
     n = table(s, "odometry_noise", "sensors")
     no_unknown(n, {"pos_std_m", "vel_std_mps", "att_std_rad", "rate_std_radps"},
                 "sensors.odometry_noise")
@@ -162,6 +164,14 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     ob = table(raw, "onboard", "")
     no_unknown(ob, {"params"}, "onboard")
     onboard_params = _onboard_params(table(ob, "params", "onboard"), preset)
+    sensors = parse_sensors(s, preset)
+    if sensors.hil:             # the vehicle must run its estimator on the sensor messages
+        ekf = dict(onboard_params).get("EKF2_TYPE")
+        if ekf is None:
+            onboard_params += (("EKF2_TYPE", 1.0),)
+        elif ekf < 1.0:
+            raise ScenarioError("onboard.params.EKF2_TYPE", ekf,
+                                "1 with [sensors] feed = 'hil' (the vehicle gets no ODOMETRY)")
 
     # criteria
     c = table(raw, "criteria", "")
@@ -207,7 +217,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         timing=timing, world=world, camera=camera, app=app, noise=noise,
         wind_ned_mps=wind, criteria=criteria, source=source, raw=raw, world_table=world_table,
         wind=wind_spec,
-        faults=faults, onboard_params=onboard_params, plant=plant,
+        faults=faults, onboard_params=onboard_params, plant=plant, sensors=sensors,
     )
 
 

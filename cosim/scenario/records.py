@@ -89,3 +89,4 @@ class Scenario:
     onboard_params: tuple[tuple[str, float], ...] = ()   # [onboard.params]: set at start
     plant: Any = None                         # cosim.plant.mapping.PlantSpec ([vehicle] fmu
                                               # or fmi = 3); None: the FMI 2.0 plant
+    sensors: Any = None                       # cosim.sensors.spec.SensorsSpec ([sensors])

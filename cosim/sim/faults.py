@@ -113,6 +113,7 @@ class FaultSpec:
     camera: tuple[CameraFault, ...] = ()
     motors: tuple[MotorFault, ...] = ()
     battery: tuple[BatteryFault, ...] = ()
+    sensors: tuple = ()       # cosim.sensors.faults.SensorFault: played by the sensor models
 
     def __bool__(self) -> bool:
         return bool(self.links or self.odometry or self.camera or self.motors or self.battery)
@@ -140,7 +141,7 @@ def _window(e: dict, w: str, need_end: bool = False) -> tuple[float, float]:
 
 def parse_faults(raw: Mapping) -> FaultSpec:
     """The `[faults]` table -> FaultSpec; a bad field raises ScenarioError naming it."""
-    no_unknown(raw, {"link", "odometry", "camera", "motor", "battery"}, "faults")
+    no_unknown(raw, {"link", "odometry", "camera", "motor", "battery", "sensor"}, "faults")
     links, odo, cam, mot = [], [], [], []
     for w, e in _entries(raw, "link"):
         no_unknown(e, {"link", "direction", "start_s", "end_s", "loss", "burst_enter",
@@ -187,8 +188,11 @@ def parse_faults(raw: Mapping) -> FaultSpec:
         start, end = _window(e, w)
         mot.append(MotorFault(integer(e, "motor", w, lo=1, hi=4),
                               number(e, "thrust", w, lo=0.0, hi=1.0), start, end))
+    from cosim.sensors.faults import parse_sensor_faults
+
     return FaultSpec(tuple(links), tuple(odo), tuple(cam), tuple(mot),
-                     parse_battery(_entries(raw, "battery"), _window))
+                     parse_battery(_entries(raw, "battery"), _window),
+                     parse_sensor_faults(_entries(raw, "sensor"), _window))
 
 
 # ------------------------------------------------------------------ the hooks

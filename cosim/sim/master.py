@@ -77,6 +77,8 @@ class RunResult:
     min_clearance: tuple[float, float, str] | None = None   # 3D worlds: (m, t s, to what)
     frame_columns: tuple[str, ...] | None = None   # the app's names for frame_log fields
     reference_poses: list[tuple[float, ...]] | None = None   # the app's taught path (n,e,d,yaw)
+    estimate: np.ndarray | None = None         # sensor-fed runs: the vehicle's estimate per
+                                               # tick (cosim/sim/estimate.ESTIMATE_COLUMNS)
     _tmp: Any = field(default=None, repr=False)   # owns the temporary spool folder
 
     @property
@@ -230,7 +232,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
 
     phases: list[str] = []
     exit_reason, message = ExitReason.TIME_LIMIT, "time limit reached"
-    plant = vehicle = app = monitor = None
+    plant = vehicle = app = monitor = feed = None
     pacer = None                 # real-time mode: the wall-clock pacing and its host stalls
     wall0 = time.perf_counter()
     loop0 = None
@@ -259,7 +261,12 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                 live = opts.live.vehicle(sc, app=app)
             sinks.append(lambda k, t, img: live.frame(t, img, tick.y[Y_X:Y_Z + 1],
                                                       tick.y[Y_QW:Y_QZ + 1]))
-        tick = Tick(plant=plant, sensor=sensor, codec=HilSimulatorCodec(),
+        codec = HilSimulatorCodec()
+        if sc.sensors is not None and sc.sensors.hil:   # sensor messages, the vehicle estimates
+            from cosim.sim.estimate import SensorFeed
+
+            sensor = codec = feed = SensorFeed(sc, h)
+        tick = Tick(plant=plant, sensor=sensor, codec=codec,
                     exchange=vehicle.exchange, gcs_recv=vehicle.gcs.recv, tlog=tlog,
                     spool=spool, monitor=monitor, h_us=h_us, app=app, camera=camera,
                     cam_every=cam_every, sinks=sinks, hooks=hooks, home=(home_n, home_e))
@@ -321,6 +328,9 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         reference_poses=list(getattr(app, "reference_poses", None) or []) or None,
         _tmp=(tmp, spool_tmp),
     )
+    if feed is not None:
+        res.estimate = feed.array()
+        res.faults = sorted(res.faults + feed.fired())
     if mcap is not None:
         res.mcap = mcap.finish(res)
     return res

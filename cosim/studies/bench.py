@@ -217,11 +217,14 @@ def bench_front(n: int, repeats: int) -> dict[str, Any]:
     return out
 
 
-def bench_mission(mode: str, repeats: int, **opts: Any) -> dict[str, Any]:
-    from cosim.scenario.parse import load_scenario
+def bench_mission(mode: str, repeats: int, sets: dict[str, Any] | None = None,
+                  **opts: Any) -> dict[str, Any]:
+    from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import RunOptions, run_scenario
 
     sc = load_scenario(SEED)
+    if sets:
+        sc = with_set(sc, sets)
     rtf, loop_rtf, sim = [], [], []
     reason = ""
     for _ in range(repeats):
@@ -237,6 +240,9 @@ def bench_mission(mode: str, repeats: int, **opts: Any) -> dict[str, Any]:
     d["us_per_tick"] = 1e6 * sc.timing.tick_s / d["median"]
     d["end_to_end"] = _stat(rtf, "x real time", target, higher_is_better=True)
     return d
+
+
+HIL_FEED = {"sensors.feed": "hil"}     # the seed mission on the vehicle's estimate
 
 
 def run(quick: bool = False) -> dict[str, Any]:
@@ -257,11 +263,18 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["mission_sil"] = bench_mission("sil", mr)
     res["mission_sil_nospin"] = bench_mission("sil", mr, hil_spin_us=0.0)
     res["mission_sil_unix"] = bench_mission("sil", mr, hil_transport="unix")
+    # issue 27: on the estimate (sensor models, HIL_SENSOR & co., the onboard estimator);
+    # target >= 0.6x the truth-fed MIL run of the same build
+    est = res["mission_mil_estimate"] = bench_mission("mil", mr, HIL_FEED)
+    est["target"] = 0.6 * res["mission_mil"]["median"]
+    est["meets_target"] = est["median"] >= est["target"]
     # the same sources interpreted (COSIM_COMPILED=0: the plant through ctypes too)
     res["mission_mil_python"] = interpreted("bench_mission", "mil", mr)
     res["mission_sil_python"] = interpreted("bench_mission", "sil", mr, hil_spin_us=0.0)
     res["sil_over_mil_time"] = res["mission_mil"]["median"] / res["mission_sil"]["median"]
     res["mil_tick_breakdown"] = bench_tick_breakdown(repeats=mr)
+    if not quick:     # one round: ~2 min more on the seed mission's 77 s
+        res["mil_tick_breakdown_estimate"] = bench_tick_breakdown(repeats=1, sets=HIL_FEED)
     res["floor_us_per_tick"] = floor_estimate(res)
     # issue 14 item 9: SIL under a UDP flood, lockstep and real time (cosim/studies/bench_flood)
     res["flood"] = bench_flood(**(QUICK_FLOOD if quick else {}))
@@ -300,6 +313,8 @@ def format_report(res: dict[str, Any]) -> str:
     row("seed mission SIL (end to end)", res["mission_sil"]["end_to_end"])
     row("  SIL, HIL wait without spinning", res["mission_sil_nospin"])
     row("  SIL, HIL over a Unix socket", res["mission_sil_unix"])
+    if "mission_mil_estimate" in res:
+        row("seed mission MIL on the estimate", res["mission_mil_estimate"])
     row("  MIL interpreted (same sources)", res["mission_mil_python"])
     row("  SIL interpreted (no spin)", res["mission_sil_python"])
     row("controller, interpreted", res["controller_update"]["python_reference"])
@@ -331,6 +346,12 @@ def format_report(res: dict[str, Any]) -> str:
         lines.append(f"  {name:<48s}{us:>8.2f}")
     lines.append("  (the master loop's figure is the untimed tick less the parts, so it carries "
                  "their few-percent timing error; `cosim bench --instructions` counts it)")
+    be = res.get("mil_tick_breakdown_estimate")
+    if be is not None:
+        lines.append(f"MIL tick breakdown on the estimate (feed = hil), us per tick (untimed "
+                     f"{be['loop_us_per_tick']:.1f} us):")
+        for name, us in be["parts_us_per_tick"].items():
+            lines.append(f"  {name:<48s}{us:>8.2f}")
     f = res["floor_us_per_tick"]
     lines.append(f"floor: the essentials of a tick measured alone ({b['setpoints_per_tick']:.2f} "
                  f"setpoints, {b['telemetry_per_tick']:.2f} telemetry messages, "

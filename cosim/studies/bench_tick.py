@@ -17,6 +17,9 @@ from cosim.studies.bench_common import SEED
 _HIL = "HIL exchange (onboard)"
 _TICK_PARTS = (
     ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None, "__init__"),
+    # sensor-fed (feed = "hil"): the sensor models, the vehicle's estimator, the answer split
+    ("cosim.sensors.suite", "SensorSuite", "encode", "sensor models + HIL_SENSOR & co.", None,
+     None),
     ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None, None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None, None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None, None),
@@ -26,6 +29,8 @@ _TICK_PARTS = (
      "app on_tick", None),
     ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None, None),
     ("cosim.sim.onboard", "OnboardHandle", "exchange", _HIL, None, None),
+    ("mav.estimator.core", "Estimator", "on_hil", "  onboard estimator (decode + filters)", _HIL,
+     None),
     ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL, None),
     ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", _HIL, None),
     ("mav.cascade", "QuadCascade", "update", "  onboard controller", _HIL, None),
@@ -33,6 +38,8 @@ _TICK_PARTS = (
     ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL, None),
     ("mav.hil", "HilSimulatorCodec", "decode_actuators", "HIL_ACTUATOR_CONTROLS decode", None,
      None),
+    ("cosim.sim.estimate", "SensorFeed", "decode_actuators", "HIL answer + estimate decode",
+     None, None),
     ("cosim.plant.fmu", "Plant", "step", "plant step", None, "_use_stepper"),
 )
 MASTER = "master loop itself (record, exit test, taps)"
@@ -92,7 +99,8 @@ def _timed_instances(make: Callable, attr: str, timed: Callable, label: str) -> 
     return wrapper
 
 
-def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
+def bench_tick_breakdown(repeats: int = 3, sets: dict[str, Any] | None = None
+                         ) -> dict[str, Any]:
     """Where the MIL tick of the seed mission goes, in us per tick (averaged over the run).
 
     One part timed per run: each part of `_TICK_PARTS` is wrapped in a timer alone, in its own
@@ -108,10 +116,12 @@ def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
     timers' Python frames called from the compiled tick cost far more than a timer measured
     alone, and that went into the master loop's and the onboard tick's figures.)
     """
-    from cosim.scenario.parse import load_scenario
+    from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import RunOptions, run_scenario
 
     sc = load_scenario(SEED)
+    if sets:           # e.g. {"sensors.feed": "hil"}: the tick of the sensor-fed mission
+        sc = with_set(sc, sets)
     acc: dict[str, list[int]] = {}
     clock = time.perf_counter_ns
 
@@ -167,8 +177,9 @@ def bench_tick_breakdown(repeats: int = 3) -> dict[str, Any]:
     # the untimed tick as a least of `repeats` runs too (the least of all of them would be
     # lower than any part's, which has only `repeats` tries): the median over the parts' slots
     loop_us = statistics.median(min(v) for v in before.values())
-    # a part never called on its own is not a row
-    labels = [(lb, pa) for lb, pa in labels if calls[lb] > 0 or pa is None]
+    # a part never called on its own is not a row (truth-fed: the sensor models; sensor-fed:
+    # the ODOMETRY codec)
+    labels = [(lb, pa) for lb, pa in labels if calls[lb] > 0]
     parts = {lb: min(got[lb]) for lb, _ in labels}
     for label, parent in labels:
         if parent is not None:

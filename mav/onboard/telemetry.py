@@ -71,6 +71,7 @@ class Telemetry:
         self.mission = mission
         self.g_mps2 = g_mps2           # m/s^2, gravity in HIGHRES_IMU's specific force
         self.chans = outbox.chans
+        self.estimator = None          # the vehicle's estimator (mav/estimator) when it has one
         self._emitters = self.emitters()
 
     def emitters(self) -> dict[int, Callable[[Chan], None]]:
@@ -89,6 +90,7 @@ class Telemetry:
             M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.emit_autopilot_version,
             M.MAVLINK_MSG_ID_MISSION_CURRENT: self.mission.emit_current,
             M.MAVLINK_MSG_ID_GPS_RAW_INT: self.emit_gps_raw_int,
+            M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: self.emit_estimator_status,
             M.MAVLINK_MSG_ID_ODOMETRY: self.emit_odometry,
             M.MAVLINK_MSG_ID_HIGHRES_IMU: self.emit_highres_imu,
             MSG_ID_PROTOCOL_VERSION: self.emit_protocol_version,
@@ -296,6 +298,23 @@ class Telemetry:
             ch.mav, self.vs.t_us, s.x, s.y, s.z, s.qw, s.qx, s.qy, s.qz, s.vx, s.vy, s.vz,
             s.p, s.q, s.r, frame_id=FRAME_LOCAL_NED, child_frame_id=FRAME_LOCAL_NED,
             estimator_type=M.MAV_ESTIMATOR_TYPE_AUTOPILOT, quality=100))
+
+    def emit_estimator_status(self, ch: Chan) -> None:
+        """ESTIMATOR_STATUS: the flags of the estimate in use (on request, like PX4's). On
+        ODOMETRY the estimate is the simulator's: attitude, velocity and position while it is
+        valid; with the onboard estimator its own flags (`Estimator.status_flags`)."""
+        vs = self.vs
+        est = self.estimator
+        if est is not None and est.enabled and est.active:
+            flags = est.status_flags()
+        elif vs.have_state:
+            flags = (M.ESTIMATOR_ATTITUDE | M.ESTIMATOR_VELOCITY_VERT | M.ESTIMATOR_POS_VERT_ABS
+                     | (M.ESTIMATOR_CONST_POS_MODE if vs.pos_lost_us >= 0 else
+                        M.ESTIMATOR_VELOCITY_HORIZ | M.ESTIMATOR_POS_HORIZ_REL))
+        else:
+            flags = 0
+        ch.send(wire.send_msg(ch.mav, M.MAVLink_estimator_status_message(
+            vs.t_us, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)))
 
     def emit_highres_imu(self, ch: Chan) -> None:
         """HIGHRES_IMU DERIVED from the estimate, not a sensor model: accelerometer = specific

@@ -28,6 +28,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from mav import wire
 from mav.airframe import Airframe, get_airframe
 from mav.battery import BATTERIES, Battery
+from mav.estimator import Estimator
 from mav.onboard.commander import Commander
 from mav.onboard.commands import Commands
 from mav.onboard.config import OnboardConfig
@@ -151,6 +152,11 @@ class Onboard:
         if cfg.param_file:
             prm.load_file(cfg.param_file)
         prm.apply()
+        # the estimator (EKF2_TYPE 1: the vehicle flies on HIL_SENSOR & co., mav/estimator/):
+        # between the HIL link and the tick, it turns sensor datagrams into ODOMETRY
+        self.estimator = tel.estimator = Estimator(vs.own, self.stats, self.geo)
+        if self.estimator.enabled:
+            self._hil = self.estimator.link(self._hil, self._hil_mav)
 
     # ------------------------------------------------------------------ public helpers
     @property

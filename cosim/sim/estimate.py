@@ -1,0 +1,83 @@
+"""The master's end of a sensor-fed HIL link (`[sensors] feed = "hil"`): the sensor models'
+datagram out, HIL_ACTUATOR_CONTROLS and the vehicle's estimate (ODOMETRY, after it in the same
+datagram) back. The estimate is logged per tick beside the truth: in the series' est_x/y/z
+columns (world NED, as the truth) and in full (`array()`: ESTIMATE_COLUMNS) for the outputs.
+
+It is both the sensor and the codec of the master's tick (cosim/sim/tick.py `Tick`):
+`measure(y)` (the list the tick records as est_x/y/z, filled in by `decode_actuators` of the
+same tick), `encode_odometry(t_us, meas)` (the sensor datagram; `encode_odometry_lost` is the
+same: a sensor-fed vehicle loses its position through the sensor faults) and
+`decode_actuators(ans)`.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+
+from cosim.sensors.suite import SensorSuite
+from mav import wire
+
+ESTIMATE_COLUMNS = ("est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_roll",
+                    "est_pitch", "est_yaw", "est_lost")
+_ROW = struct.Struct(f"<{len(ESTIMATE_COLUMNS)}d")
+
+
+def floor_textured(world) -> bool:
+    """`flow_floor = "auto"`: competition tiles or a room's textured floor give the flow
+    features; a plain floor (the flat worlds' default grey) does not."""
+    room = world.scene.room
+    return world.floor_texture != "plain" or (room is not None and room.floor.kind != "plain")
+
+
+class SensorFeed:
+    def __init__(self, sc, h: float) -> None:
+        spec = sc.sensors
+        floor = spec.flow_floor
+        textured = floor_textured(sc.world) if floor == "auto" else floor == "textured"
+        faults = getattr(sc.faults, "sensors", ()) or ()
+        self.home = (sc.start.n, sc.start.e)
+        self.suite = SensorSuite(spec, sc.seed, h, self.home, textured, faults)
+        self.est = [math.nan, math.nan, math.nan]
+        self._y = None
+        self.rows: list[bytes] = []
+        self.bad_answers = 0
+
+    def measure(self, y) -> list[float]:
+        self._y = y
+        return self.est
+
+    def encode_odometry(self, t_us: int, meas) -> bytes:
+        return self.suite.encode(t_us, self._y)
+
+    encode_odometry_lost = encode_odometry
+
+    def decode_actuators(self, ans: bytes) -> tuple[int, float, float, float, float]:
+        """(t_us, u1..u4) of the answer's HIL_ACTUATOR_CONTROLS (ValueError if it has none,
+        as HilSimulatorCodec's); its estimate (if any) is logged."""
+        end = wire.frame_end(ans, 0)
+        act = wire.decode_hil_actuator_controls(ans[:end]) if end > 0 else None
+        if act is None:
+            raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(ans)} bytes)")
+        od = wire.decode_odometry(ans[end:]) if end < len(ans) else None
+        est = self.est
+        if od is None:
+            self.bad_answers += 1
+            est[0] = est[1] = est[2] = math.nan
+            self.rows.append(_ROW.pack(*(math.nan,) * len(ESTIMATE_COLUMNS)))
+            return act
+        x, y, z, qw, qx, qy, qz = od[1:8]
+        est[0], est[1], est[2] = x + self.home[0], y + self.home[1], z
+        roll, pitch, yaw = wire.euler_from_quat(qw, qx, qy, qz)
+        self.rows.append(_ROW.pack(est[0], est[1], z, od[8], od[9], od[10], roll, pitch, yaw,
+                                   1.0 if od[16] < 0 else 0.0))
+        return act
+
+    def array(self) -> np.ndarray:
+        a = np.frombuffer(b"".join(self.rows), dtype="<f8")
+        return a.reshape(-1, len(ESTIMATE_COLUMNS))
+
+    def fired(self) -> list[tuple[float, str]]:
+        return list(self.suite.fired)

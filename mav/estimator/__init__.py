@@ -1,0 +1,22 @@
+"""The onboard estimator, a part of its own (like PX4's EKF2): the vehicle hands it each
+sensor-fed HIL datagram, it answers the state estimate.
+
+    est = Estimator(vs.own, vs.stats, geo)
+    od = est.on_hil(data)      # data: HIL_SENSOR + HIL_OPTICAL_FLOW + DISTANCE_SENSOR (+ HIL_GPS)
+                               # -> the same 17-tuple wire.decode_odometry gives (quality -1:
+                               #    position lost), or None if the datagram had no HIL_SENSOR
+    est.update(sensor_msgs, t_us) -> TemplateEstimator (the estimate in its fields)
+    est.link(hil, mav)         -> the HIL link with the estimator in front of the vehicle's
+                               tick (link.py: sensor datagrams in, ODOMETRY of the estimate
+                               to the tick, appended to the HIL answer for the logs)
+
+Which estimator: the parameter EKF2_TYPE (0: none, the vehicle flies on ODOMETRY; 1: the
+Minidrone template's filters, `template.py`, for both the Mambo and the Bebop 2: the same
+sensor set, so the same structure; an EKF is future work). The truth in HIL_STATE_QUATERNION
+is never read here.
+"""
+
+from mav.estimator.core import Estimator
+from mav.estimator.template import TemplateEstimator
+
+__all__ = ["Estimator", "TemplateEstimator"]

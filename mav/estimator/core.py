@@ -1,0 +1,89 @@
+"""The estimator's front (`Estimator`, re-exported by mav/estimator/__init__.py, which says
+what it does): EKF2_TYPE, the sensor bundle decoded, the estimate as ODOMETRY's fields,
+ESTIMATOR_STATUS's flags. Its own module so the per-tick part is compiled (mav/__init__.py).
+"""
+
+from __future__ import annotations
+
+import math
+
+from pymavlink.dialects.v20 import common as M
+
+from mav import hil_sensors as hs
+from mav.estimator.template import CAL_TICKS, TemplateEstimator
+
+FRAME_LOCAL_NED = 1
+_ID_IMU, _ID_FLOW = hs.HIL_SENSOR.id, hs.HIL_OPTICAL_FLOW.id
+_ID_RNG, _ID_GPS = hs.DISTANCE_SENSOR.id, hs.HIL_GPS.id
+
+
+def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
+
+
+class Estimator:
+    def __init__(self, own: dict[str, float], stats: dict[str, int], geo) -> None:
+        self.own, self.stats, self.geo = own, stats, geo
+        self.impl = TemplateEstimator(own, stats)
+        # read once, when the vehicle starts (as PX4 picks its estimator at boot)
+        self.enabled = own.get("EKF2_TYPE", 0.0) >= 1.0
+        stats.setdefault("est_bad_frames", 0)
+        stats.setdefault("est_lost", 0)
+
+    @property
+    def active(self) -> bool:
+        """It has had sensor messages (the vehicle flies on it)."""
+        return self.impl.n > 0
+
+    def status_flags(self) -> int:
+        """ESTIMATOR_STATUS_FLAGS of the estimate: attitude once calibrated, vertical from the
+        barometer, height above ground while the sonar is fused, horizontal velocity and
+        relative position while the flow (or GPS) aids it, else constant-position mode."""
+        e = self.impl
+        t = e.t_us
+        f = M.ESTIMATOR_VELOCITY_VERT | M.ESTIMATOR_POS_VERT_ABS
+        if e.n >= CAL_TICKS:
+            f |= M.ESTIMATOR_ATTITUDE
+        if 0 <= t - e.rng_us < 200_000:
+            f |= M.ESTIMATOR_POS_VERT_AGL
+        if e.aid_us > 0 and not e.lost and t - e.aid_us < e.noaid_us:
+            f |= M.ESTIMATOR_VELOCITY_HORIZ | M.ESTIMATOR_POS_HORIZ_REL
+        else:
+            f |= M.ESTIMATOR_CONST_POS_MODE
+        if 0 < e.gps_us and t - e.gps_us < 1_000_000:
+            f |= M.ESTIMATOR_POS_HORIZ_ABS
+        return f
+
+
+    def update(self, msgs: dict[int, tuple], t_us: int) -> TemplateEstimator:
+        e = self.impl
+        e.update(msgs.get(_ID_IMU), msgs.get(_ID_FLOW), msgs.get(_ID_RNG), msgs.get(_ID_GPS),
+                 self.geo, t_us)
+        return e
+
+    def on_hil(self, data: bytes) -> tuple | None:
+        if not self.enabled or not hs.is_sensor_bundle(data):
+            return None
+        msgs, bad = hs.decode_bundle(data)
+        self.stats["est_bad_frames"] += bad
+        imu = msgs.get(_ID_IMU)
+        if imu is None:
+            return None
+        t_us = imu[0]
+        e = self.update(msgs, t_us)
+        self.stats["est_lost"] += e.lost
+        qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)
+        return (t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p, e.q, e.r,
+                FRAME_LOCAL_NED, FRAME_LOCAL_NED, -1 if e.lost else 100)
+
+    def link(self, hil, mav):
+        """The vehicle's HIL link with this estimator in front of its tick (link.py); a link
+        that already has one (a rebooted vehicle's) gets a fresh one."""
+        from mav.estimator.link import EstimatorLink
+
+        return EstimatorLink(getattr(hil, "inner", hil) if isinstance(hil, EstimatorLink)
+                             else hil, self, mav)

@@ -1,0 +1,53 @@
+"""The estimator between the vehicle's HIL link and its tick (EKF2_TYPE 1).
+
+PX4's EKF2 publishes its estimate on uORB (`vehicle_odometry`) for the controllers to read;
+here the estimator hands the vehicle's tick its estimate as the ODOMETRY frame the tick already
+reads, so the tick (`Onboard.poll`) is unchanged:
+
+- `recv()`: a sensor datagram (HIL_SENSOR first) from the simulator -> the estimator runs ->
+  an ODOMETRY of the estimate stamped with the HIL_SENSOR's time_usec (quality -1 when the
+  position estimate is lost); anything else passes through untouched;
+- `send(data)`: the tick's HIL answer, followed (after a sensor tick) by that ODOMETRY, so the
+  simulator logs the estimate beside the truth.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from mav import wire
+
+
+class EstimatorLink:
+    __slots__ = ("inner", "est", "mav", "_frame")
+
+    def __init__(self, inner, estimator, mav) -> None:
+        self.inner = inner            # the HIL link (count_kernel_drops walks `inner`)
+        self.est = estimator
+        self.mav = mav                # the vehicle's HIL MAVLink instance (its sysid)
+        self._frame = b""             # the estimate of the last sensor tick, for the answer
+
+    def recv(self) -> bytes | None:
+        data = self.inner.recv()
+        if data is None:
+            return None
+        od = self.est.on_hil(data)
+        if od is None:                # ODOMETRY (motion capture), a fault command, garbage
+            self._frame = b""
+            return data
+        self._frame = fr = wire.encode_odometry(self.mav, *od[:14], frame_id=od[14],
+                                                child_frame_id=od[15], estimator_type=1,
+                                                quality=od[16])
+        return fr
+
+    def send(self, data: bytes) -> None:
+        fr = self._frame
+        if fr:
+            self._frame = b""
+            data = data + fr
+        self.inner.send(data)
+
+    def __getattr__(self, name: str) -> Any:     # pending, close, local_address, ...
+        if name in EstimatorLink.__slots__:       # not set (before __init__): no recursion,
+            raise AttributeError(name)            # which compiled would overflow the C stack
+        return getattr(self.inner, name)

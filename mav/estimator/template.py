@@ -1,0 +1,320 @@
+"""The Minidrone template's estimator (reference/minidrone.md §2.2), as its own part like PX4's
+EKF2: sensor messages in, a state estimate out, in plain floats (200 Hz in the vehicle's tick).
+
+- Attitude: complementary filter on Euler angles. The gyro (less the bias measured at rest in
+  the first `CAL_TICKS` ticks) is integrated; the low-passed accelerometer corrects roll and
+  pitch with weight EKF2_ACC_W per tick only while its norm is within EKF2_ACC_GATE of g; the
+  tilt-compensated compass corrects the heading with weight EKF2_MAG_W.
+- Altitude: Kalman filter on (z, vz) driven by the vertical acceleration, corrected by the
+  barometer (altitude from the pressure drop since start) and the sonar (slant range times
+  cos roll cos pitch). Outlier rules of the template: sonar > EKF2_RNG_GATE (0.3 m) from the
+  estimate and pressure > EKF2_BARO_GATE (0.8 m) rejected; a sonar rejected for 0.5 s in a row
+  resets the altitude to it (the estimate, not the sonar, had gone wrong).
+- Horizontal velocity: per axis a Kalman filter (Q = EKF2_OF_Q, R = EKF2_OF_R: the template's
+  0.09 / 5) driven by the horizontal acceleration, corrected by the flow velocity (flow rate
+  less the flow sensor's gyro, times the distance to the floor along the optical axis). The
+  flow is used only with quality >= EKF2_OF_QMIN, above 0.4 m, |roll|, |pitch| < 0.6 rad,
+  |p|, |q| < 7 rad/s, and within EKF2_OF_GATE (5 m/s) of the estimate (template rules).
+- Horizontal position: the velocity integrated (the template has no absolute position without
+  its marker); with a GPS, each fix pulls it by EKF2_GPS_W.
+- On the ground (estimated height < 0.15 m, no flow) the velocity decays to zero (zero-velocity
+  update, as PX4 does while landed); the floor the vehicle started on bounds the altitude (not
+  below it, not descending through it: without that the estimate kept "descending" after a
+  touchdown and the land detector, which reads it, waited).
+
+Every reading that is NaN or outside its sensor's range is rejected and counted (`stats`),
+never propagated. The position estimate is `lost` when no flow or GPS was fused for
+EKF2_NOAID_TOUT while above 0.5 m.
+"""
+
+from __future__ import annotations
+
+import math
+
+G = 9.81
+CAL_TICKS = 10               # gyro bias: the mean of the first 10 readings (50 ms at rest:
+                             # the apps arm at once and the vehicle lifts off within 0.1 s)
+BIAS_KI = 2e-6               # rad/s per rad and tick: the gyro bias follows the accelerometer
+ACC_LP = 0.1                 # accelerometer low-pass weight per tick (~50 ms)
+RNG_RESET_US = 500_000       # us of consecutive sonar rejections that reset the altitude
+ACC_MAX, GYRO_MAX = 160.0, 35.0   # beyond: not a reading (NaN, garbage) -> rejected
+ZUPT_DECAY = 0.9             # per tick, on the ground
+
+STATS = ("est_imu", "est_rej_imu", "est_rej_baro", "est_baro_fused", "est_rej_rng",
+         "est_rng_fused", "est_rng_none", "est_rej_flow", "est_flow_fused", "est_rej_mag",
+         "est_gps_fused", "est_rej_gps", "est_rng_resets")
+
+
+def _finite(*v: float) -> bool:
+    s = 0.0
+    for x in v:
+        s += x
+    return s - s == 0.0
+
+
+def to_world(roll: float, pitch: float, yaw: float, x: float, y: float,
+             z: float) -> tuple[float, float, float]:
+    """Body FRD -> world NED (ZYX Euler angles)."""
+    sph, cph, sth, cth = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+    sps, cps = math.sin(yaw), math.cos(yaw)
+    return (cth * cps * x + (sph * sth * cps - cph * sps) * y + (cph * sth * cps + sph * sps) * z,
+            cth * sps * x + (sph * sth * sps + cph * cps) * y + (cph * sth * sps - sph * cps) * z,
+            -sth * x + sph * cth * y + cph * cth * z)
+
+
+def wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class TemplateEstimator:
+    """`update(hil_sensor, flow, distance, gps, t_us)`: one tick; the estimate in the fields
+    (x, y, z, vx, vy, vz m and m/s world NED relative to the start; roll, pitch, yaw rad;
+    p, q, r rad/s), `lost` when the position is not aided."""
+
+    def __init__(self, own: dict[str, float], stats: dict[str, int]) -> None:
+        self.stats = stats
+        for k in STATS:
+            stats.setdefault(k, 0)
+        self.configure(own)
+        self.n = 0
+        self.t_us = -1
+        self.x = self.y = self.z = 0.0
+        self.vx = self.vy = self.vz = 0.0
+        self.roll = self.pitch = self.yaw = 0.0
+        self.p = self.q = self.r = 0.0
+        self.bg = [0.0, 0.0, 0.0]
+        self.alp = [0.0, 0.0, -G]
+        self.p0_hpa = math.nan
+        self.pzz, self.pzv, self.pvv = 1.0, 0.0, 1.0       # altitude covariance
+        self.pvx = self.pvy = 1.0                          # velocity variances
+        self.aid_us = 0                                    # last flow / GPS fused
+        self.rng_us = -(1 << 62)                           # last sonar fused
+        self.gps_us = 0                                    # last GPS fix fused
+        self.rng_rej_since = -1
+        self.lost = False
+
+    def configure(self, own: dict[str, float]) -> None:
+        self.w_acc = own["EKF2_ACC_W"]
+        self.acc_gate = own["EKF2_ACC_GATE"]
+        self.w_mag = own["EKF2_MAG_W"]
+        self.decl = math.radians(own["EKF2_MAG_DECL"])
+        self.q_acc = own["EKF2_ACC_NOISE"] ** 2
+        self.r_baro = own["EKF2_BARO_NOISE"] ** 2
+        self.baro_gate = own["EKF2_BARO_GATE"]
+        self.r_rng = own["EKF2_RNG_NOISE"] ** 2
+        self.rng_gate = own["EKF2_RNG_GATE"]
+        self.of_q, self.of_r = own["EKF2_OF_Q"], own["EKF2_OF_R"]
+        self.of_qmin, self.of_gate = own["EKF2_OF_QMIN"], own["EKF2_OF_GATE"]
+        self.noaid_us = int(own["EKF2_NOAID_TOUT"] * 1e6)
+        self.w_gps = own["EKF2_GPS_W"]
+
+    # ------------------------------------------------------------------ one tick
+    def update(self, imu: tuple | None, flow: tuple | None, rng: tuple | None,
+               gps: tuple | None, geo, t_us: int) -> None:
+        """imu: HIL_SENSOR's payload (wire order); flow: HIL_OPTICAL_FLOW's; rng:
+        DISTANCE_SENSOR's; gps: HIL_GPS's; None when absent this tick. `geo`: FlatEarth."""
+        st = self.stats
+        dt = (t_us - self.t_us) * 1e-6 if self.t_us >= 0 else 0.005
+        if not 0.0 < dt < 1.0:
+            dt = 0.005
+        self.t_us = t_us
+        if imu is not None:
+            self._imu(imu, dt)
+        if rng is not None:
+            self._range(rng, t_us)
+        if flow is not None:
+            self._flow(flow, t_us)
+        elif self.z > -0.15 and abs(self.vz) < 0.3:     # resting on the floor: ZUPT
+            self.vx *= ZUPT_DECAY
+            self.vy *= ZUPT_DECAY
+        if self.z > 0.0:       # below the floor it started on: it is on it (a flat floor; the
+            self.z = 0.0       # sonar sees nothing this low), and not moving down
+            if self.vz > 0.0:
+                self.vz = 0.0
+        if gps is not None:
+            self._gps(gps, geo, t_us)
+        self.x += self.vx * dt
+        self.y += self.vy * dt
+        lost = self.z < -0.5 and t_us - self.aid_us > self.noaid_us
+        if lost != self.lost:
+            self.lost = lost
+        st["est_imu"] += imu is not None
+
+    def _imu(self, m: tuple, dt: float) -> None:
+        # m: time_usec, xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag, abs_pressure,
+        #    diff_pressure, pressure_alt, temperature, fields_updated, id
+        st = self.stats
+        ax, ay, az, gx, gy, gz = m[1], m[2], m[3], m[4], m[5], m[6]
+        if not (_finite(ax, ay, az, gx, gy, gz) and abs(ax) < ACC_MAX and abs(ay) < ACC_MAX
+                and abs(az) < ACC_MAX and abs(gx) < GYRO_MAX and abs(gy) < GYRO_MAX
+                and abs(gz) < GYRO_MAX):
+            st["est_rej_imu"] += 1
+            return
+        n = self.n
+        self.n = n + 1
+        bg = self.bg
+        if n < CAL_TICKS:                          # at rest: gyro bias and initial attitude
+            bg[0] += (gx - bg[0]) / (n + 1)
+            bg[1] += (gy - bg[1]) / (n + 1)
+            bg[2] += (gz - bg[2]) / (n + 1)
+            am = self.alp                          # the mean specific force at rest
+            am[0] += (ax - am[0]) / (n + 1)
+            am[1] += (ay - am[1]) / (n + 1)
+            am[2] += (az - am[2]) / (n + 1)
+            self.roll = math.atan2(-am[1], -am[2])
+            self.pitch = math.atan2(am[0], math.sqrt(am[1] * am[1] + am[2] * am[2]))
+        p, q, r = gx - bg[0], gy - bg[1], gz - bg[2]
+        self.p, self.q, self.r = p, q, r
+        # attitude: Euler-rate integration of the gyro
+        ph, th = self.roll, self.pitch
+        sph, cph = math.sin(ph), math.cos(ph)
+        cth = math.cos(th)
+        tth = math.tan(th)
+        self.roll = ph + (p + (sph * q + cph * r) * tth) * dt
+        self.pitch = th + (cph * q - sph * r) * dt
+        self.yaw = wrap(self.yaw + (sph * q + cph * r) / cth * dt)
+        alp = self.alp
+        if n < CAL_TICKS:
+            ax, ay, az = alp
+        alp[0] += ACC_LP * (ax - alp[0])
+        alp[1] += ACC_LP * (ay - alp[1])
+        alp[2] += ACC_LP * (az - alp[2])
+        fn = math.sqrt(alp[0] * alp[0] + alp[1] * alp[1] + alp[2] * alp[2])
+        if abs(fn - G) < self.acc_gate:
+            w = self.w_acc
+            er = math.atan2(-alp[1], -alp[2]) - self.roll
+            ep = math.atan2(alp[0], math.sqrt(alp[1] * alp[1] + alp[2] * alp[2])) - self.pitch
+            self.roll += w * er
+            self.pitch += w * ep
+            if n >= CAL_TICKS:                     # near level: body p, q ~ roll, pitch rates
+                bg[0] -= BIAS_KI * er
+                bg[1] -= BIAS_KI * ep
+        # heading from the compass
+        mx, my, mz = m[7], m[8], m[9]
+        if _finite(mx, my, mz) and 0.05 < mx * mx + my * my + mz * mz < 4.0:
+            ph, th = self.roll, self.pitch
+            sph, cph, sth, cth = math.sin(ph), math.cos(ph), math.sin(th), math.cos(th)
+            hx = mx * cth + my * sph * sth + mz * cph * sth
+            hy = my * cph - mz * sph
+            yaw_m = wrap(math.atan2(-hy, hx) + self.decl)
+            w = 1.0 / (n + 1) if n < CAL_TICKS else self.w_mag
+            self.yaw = wrap(self.yaw + w * wrap(yaw_m - self.yaw))
+        else:
+            st["est_rej_mag"] += 1
+        # world acceleration from the specific force
+        fx_w, fy_w, fz_w = to_world(self.roll, self.pitch, self.yaw, ax, ay, az)
+        az_w = fz_w + G if n >= CAL_TICKS else 0.0
+        # altitude filter: predict
+        self.z += self.vz * dt + 0.5 * az_w * dt * dt
+        self.vz += az_w * dt
+        qa = self.q_acc
+        pzz, pzv, pvv = self.pzz, self.pzv, self.pvv
+        pzz = pzz + 2.0 * dt * pzv + dt * dt * pvv + qa * dt ** 4 / 4.0
+        pzv = pzv + dt * pvv + qa * dt ** 3 / 2.0
+        pvv = pvv + qa * dt * dt
+        self.pzz, self.pzv, self.pvv = pzz, pzv, pvv
+        if n >= CAL_TICKS:
+            self.vx += fx_w * dt
+            self.vy += fy_w * dt
+            self.pvx += self.of_q
+            self.pvy += self.of_q
+        # barometer: altitude from the pressure drop since the start (the floor)
+        hpa = m[10]
+        if not (_finite(hpa) and 300.0 < hpa < 1200.0):
+            st["est_rej_baro"] += 1
+            return
+        if n < CAL_TICKS:
+            self.p0_hpa = hpa if n == 0 else self.p0_hpa + (hpa - self.p0_hpa) / (n + 1)
+            return
+        z_b = (hpa - self.p0_hpa) * 100.0 / (1.225 * G)
+        if abs(z_b - self.z) > self.baro_gate:
+            st["est_rej_baro"] += 1
+            return
+        st["est_baro_fused"] += 1
+        self._z_fuse(z_b, self.r_baro)
+
+    def _z_fuse(self, zm: float, r: float) -> None:
+        pzz, pzv, pvv = self.pzz, self.pzv, self.pvv
+        s = pzz + r
+        kz, kv = pzz / s, pzv / s
+        e = zm - self.z
+        self.z += kz * e
+        self.vz += kv * e
+        self.pzz, self.pzv, self.pvv = (1.0 - kz) * pzz, (1.0 - kz) * pzv, pvv - kv * pzv
+
+    def _range(self, m: tuple, t_us: int) -> None:
+        # m: time_boot_ms, min, max, current (cm), type, id, orientation, covariance, hfov,
+        #    vfov, quaternion[4], signal_quality
+        st = self.stats
+        lo, hi, cur, quality = m[1], m[2], m[3], m[14]
+        if quality == 1 or cur < lo or cur > hi:
+            st["est_rng_none"] += 1
+            self.rng_rej_since = -1
+            return
+        c = math.cos(self.roll) * math.cos(self.pitch)
+        zm = -cur * 0.01 * c
+        if abs(zm - self.z) > self.rng_gate:
+            st["est_rej_rng"] += 1
+            if self.rng_rej_since < 0:
+                self.rng_rej_since = t_us
+            elif t_us - self.rng_rej_since > RNG_RESET_US:
+                st["est_rng_resets"] += 1
+                self.z, self.rng_rej_since = zm, -1
+            return
+        self.rng_rej_since = -1
+        self.rng_us = t_us
+        st["est_rng_fused"] += 1
+        self._z_fuse(zm, self.r_rng)
+
+    def _flow(self, m: tuple, t_us: int) -> None:
+        # m: time_usec, integration_time_us, integrated_x, integrated_y, integrated_xgyro,
+        #    integrated_ygyro, integrated_zgyro, time_delta_distance_us, distance,
+        #    temperature, sensor_id, quality
+        st = self.stats
+        dt_us, ix, iy, gx, gy, quality = m[1], m[2], m[3], m[4], m[5], m[11]
+        ok = (_finite(ix, iy, gx, gy) and 0 < dt_us < 1_000_000 and quality >= self.of_qmin
+              and self.z < -0.4 and abs(self.roll) < 0.6 and abs(self.pitch) < 0.6
+              and abs(self.p) < 7.0 and abs(self.q) < 7.0)
+        if not ok:
+            st["est_rej_flow"] += 1
+            return
+        dt = dt_us * 1e-6
+        gx -= self.bg[0] * dt          # the flow sensor's gyro integral is the IMU's: less its
+        gy -= self.bg[1] * dt          # bias (uncorrected, 3 mrad/s x 1.1 m = 3 mm/s of drift)
+        ph, th, ps = self.roll, self.pitch, self.yaw
+        sph, cph, sth, cth = math.sin(ph), math.cos(ph), math.sin(th), math.cos(th)
+        d = -self.z / (cph * cth)
+        vbx = (iy - gy) / dt * d
+        vby = -(ix - gx) / dt * d
+        # body z velocity from the estimate, then the body velocity to world N, E
+        sps, cps = math.sin(ps), math.cos(ps)
+        vbz = (cph * sth * cps + sph * sps) * self.vx + (cph * sth * sps - sph * cps) * self.vy \
+            + cph * cth * self.vz
+        vn, ve, _ = to_world(ph, th, ps, vbx, vby, vbz)
+        if abs(vn - self.vx) > self.of_gate or abs(ve - self.vy) > self.of_gate:
+            st["est_rej_flow"] += 1
+            return
+        st["est_flow_fused"] += 1
+        r = self.of_r
+        k = self.pvx / (self.pvx + r)
+        self.vx += k * (vn - self.vx)
+        self.pvx *= 1.0 - k
+        k = self.pvy / (self.pvy + r)
+        self.vy += k * (ve - self.vy)
+        self.pvy *= 1.0 - k
+        self.aid_us = t_us
+
+    def _gps(self, m: tuple, geo, t_us: int) -> None:
+        # m: time_usec, lat, lon, alt, eph, epv, vel, vn, ve, vd, cog, fix_type, ...
+        st = self.stats
+        lat, lon, alt, fix = m[1], m[2], m[3], m[11]
+        if fix < 3 or not (-900_000_000 <= lat <= 900_000_000
+                           and -1_800_000_000 <= lon <= 1_800_000_000):
+            st["est_rej_gps"] += 1
+            return
+        n, e, _ = geo.to_ned(lat * 1e-7, lon * 1e-7, alt * 1e-3)
+        w = self.w_gps
+        self.x += w * (n - self.x)
+        self.y += w * (e - self.y)
+        st["est_gps_fused"] += 1
+        self.aid_us = self.gps_us = t_us

@@ -1,0 +1,102 @@
+"""PX4's simulator interface on the HIL link: the sensor messages, both ends.
+
+The simulator sends, per tick, ONE datagram holding several MAVLink 2 frames (PX4's simulator
+bridge sends the same messages back to back on its stream):
+
+- HIL_SENSOR (#107): accelerometer (m/s^2), gyro (rad/s), magnetometer (gauss), absolute
+  pressure (hPa), pressure altitude (m), temperature; `fields_updated` says which are new
+  (bits 0-2 accel, 3-5 gyro, 6-8 mag, 9 abs pressure, 11 pressure altitude, 12 temperature);
+- HIL_OPTICAL_FLOW (#114) when the flow sensor has a sample: integrated flow (rad) about the
+  sensor's x and y axes over `integration_time_us`, the sensor's own integrated gyro, quality
+  0-255 (PX4's convention: a RH rotation about +x gives positive integrated_x, motion along +y
+  negative; motion along +x gives positive integrated_y);
+- DISTANCE_SENSOR (#132) when the range finder has a sample (cm; signal_quality 1: no echo);
+- HIL_GPS (#113) when a GPS exists and has a fix sample;
+- HIL_STATE_QUATERNION (#115): the ground truth, for logs (the vehicle does not fly on it).
+
+All are stamped with the lockstep time (time_usec; DISTANCE_SENSOR time_boot_ms). The vehicle
+answers one HIL_ACTUATOR_CONTROLS as with ODOMETRY. `decode_bundle` is the vehicle's reader:
+total on bytes, it returns what it could decode and counts the rest.
+"""
+
+from __future__ import annotations
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from mav import wire
+
+HIL_SENSOR = wire.FastMsg(mavlink2.MAVLink_hil_sensor_message)
+HIL_OPTICAL_FLOW = wire.FastMsg(mavlink2.MAVLink_hil_optical_flow_message)
+DISTANCE_SENSOR = wire.FastMsg(mavlink2.MAVLink_distance_sensor_message)
+HIL_GPS = wire.FastMsg(mavlink2.MAVLink_hil_gps_message)
+HIL_STATE_QUATERNION = wire.FastMsg(mavlink2.MAVLink_hil_state_quaternion_message)
+
+SENSOR_MSGS = {m.id: m for m in (HIL_SENSOR, HIL_OPTICAL_FLOW, DISTANCE_SENSOR, HIL_GPS,
+                                 HIL_STATE_QUATERNION)}
+FIELDS_IMU = 0x3F            # accel + gyro
+FIELDS_MAG = 0x1C0
+FIELDS_BARO = 0x200 | 0x800 | 0x1000   # abs pressure, pressure altitude, temperature
+NO_ECHO = 1                  # DISTANCE_SENSOR.signal_quality: invalid signal (MAVLink)
+ORIENT_DOWN = mavlink2.MAV_SENSOR_ROTATION_PITCH_270
+RANGE_ULTRASOUND = mavlink2.MAV_DISTANCE_SENSOR_ULTRASOUND
+
+
+def encode_hil_sensor(mav, t_us: int, acc: tuple, gyro: tuple, mag: tuple, abs_hpa: float,
+                      p_alt: float, temp_c: float, fields: int) -> bytes:
+    return wire.frame(mav, HIL_SENSOR, HIL_SENSOR.st.pack(
+        t_us, acc[0], acc[1], acc[2], gyro[0], gyro[1], gyro[2], mag[0], mag[1], mag[2],
+        abs_hpa, 0.0, p_alt, temp_c, fields, 0))
+
+
+def encode_flow(mav, t_us: int, dt_us: int, ix: float, iy: float, gx: float, gy: float,
+                gz: float, quality: int) -> bytes:
+    """distance -1: the sensor has none of its own (the vehicle uses its altitude)."""
+    return wire.frame(mav, HIL_OPTICAL_FLOW, HIL_OPTICAL_FLOW.st.pack(
+        t_us, dt_us, ix, iy, gx, gy, gz, 0, -1.0, 0, 0, quality))
+
+
+def encode_distance(mav, t_us: int, min_cm: int, max_cm: int, cur_cm: int,
+                    quality: int) -> bytes:
+    return wire.frame(mav, DISTANCE_SENSOR, DISTANCE_SENSOR.st.pack(
+        t_us // 1000, min_cm, max_cm, cur_cm, RANGE_ULTRASOUND, 0, ORIENT_DOWN, 0, 0.0, 0.0,
+        0.0, 0.0, 0.0, 0.0, quality))
+
+
+def encode_gps(mav, t_us: int, lat_e7: int, lon_e7: int, alt_mm: int, eph_cm: int,
+               vn_cms: int, ve_cms: int, vd_cms: int) -> bytes:
+    vel = int(min(65534, (vn_cms * vn_cms + ve_cms * ve_cms) ** 0.5))
+    return wire.frame(mav, HIL_GPS, HIL_GPS.st.pack(
+        t_us, lat_e7, lon_e7, alt_mm, eph_cm, eph_cm * 2, vel, vn_cms, ve_cms, vd_cms,
+        65535, 3, 10, 0, 0))
+
+
+def encode_truth(mav, t_us: int, q: tuple, pqr: tuple, lat_e7: int, lon_e7: int, alt_mm: int,
+                 v_cms: tuple) -> bytes:
+    return wire.frame(mav, HIL_STATE_QUATERNION, HIL_STATE_QUATERNION.st.pack(
+        t_us, q[0], q[1], q[2], q[3], pqr[0], pqr[1], pqr[2], lat_e7, lon_e7, alt_mm,
+        v_cms[0], v_cms[1], v_cms[2], 0, 0, 0, 0, 0))
+
+
+def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
+    """The sensor frames of one HIL datagram: ({msgid: payload tuple in wire order}, number
+    of frames that were not well-formed sensor messages). ({}, n) for anything else."""
+    out: dict[int, tuple] = {}
+    bad = 0
+    i, n = 0, len(data)
+    while i < n:
+        end = wire.frame_end(data, i)
+        if end < 0:
+            return out, bad + 1
+        m = SENSOR_MSGS.get(wire.msgid_of(data, i))
+        f = wire.decode_fast(m, data, i, end) if m is not None else None
+        if f is None:
+            bad += 1
+        else:
+            out[m.id] = f
+        i = end
+    return out, bad
+
+
+def is_sensor_bundle(data: bytes) -> bool:
+    """Whether a HIL datagram starts with a HIL_SENSOR frame (the sensor-fed tick)."""
+    return len(data) > 10 and data[0] == wire.MAGIC_V2 and wire.msgid_of(data) == HIL_SENSOR.id

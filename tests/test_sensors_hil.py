@@ -1,0 +1,231 @@
+"""Sensor-fed HIL link (`[sensors] feed = "hil"`): the sensor models, PX4's simulator messages,
+the onboard estimator (mav/estimator/), its outlier rules and faults, MIL == SIL."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cosim.errors import ScenarioError
+from cosim.outputs.metrics import compute_metrics
+from cosim.scenario.parse import load_scenario, with_set
+from cosim.sensors.spec import SensorsSpec
+from cosim.sensors.suite import SensorSuite
+from cosim.sim.master import ExitReason, RunOptions, run_scenario
+from mav import hil_sensors as hs
+from mav.estimator import Estimator
+from mav.params import ONBOARD_PARAMS
+from mav.wire import FlatEarth
+
+ROOT = Path(__file__).resolve().parent.parent
+SEED = ROOT / "scenarios" / "mambo_seed_track.toml"
+SQUARE = ROOT / "scenarios" / "scripted_square.toml"
+HIL = {"sensors.feed": "hil", "sensors.flow_floor": "textured"}
+
+
+def _square(**sets):
+    return with_set(load_scenario(SQUARE), {**HIL, "timing.t_final_s": 12.0, **sets})
+
+
+def _y(z: float = 0.0) -> list[float]:
+    y = [0.0] * 21
+    y[2], y[6], y[15] = z, 1.0, -9.81      # z, qw, specific force z at rest
+    return y
+
+
+def _estimator() -> tuple[Estimator, dict]:
+    own = {p.name: p.default for p in ONBOARD_PARAMS}
+    own["EKF2_TYPE"] = 1.0
+    stats: dict[str, int] = {}
+    return Estimator(own, stats, FlatEarth(42.3, -71.35, 71.0)), stats
+
+
+def test_mil_and_sil_are_bit_identical_with_sensors_on():
+    sc = _square()
+    mil, sil = (run_scenario(sc, RunOptions(mode=m)) for m in ("mil", "sil"))
+    assert mil.ticks == sil.ticks == 2400, (mil.message, sil.message)
+    assert mil.series.tobytes() == sil.series.tobytes()
+    assert mil.estimate.tobytes() == sil.estimate.tobytes()
+    assert mil.tlog.read() == sil.tlog.read()
+    assert sil.onboard_stats["est_flow_fused"] > 1000      # the SIL vehicle estimated too
+    # it flew on its estimate, which is not the truth
+    e = mil.estimate[-1]
+    assert 0.0 < math.dist(e[:3], mil.series[-1, 1:4]) < 0.5
+
+
+def test_same_seed_same_flight_other_seed_other_noise():
+    a, b = (run_scenario(_square(**{"timing.t_final_s": 4.0}), RunOptions()) for _ in range(2))
+    c = run_scenario(_square(**{"timing.t_final_s": 4.0, "seed": 7}), RunOptions())
+    assert a.series.tobytes() == b.series.tobytes()
+    assert a.estimate.tobytes() == b.estimate.tobytes()
+    assert a.estimate.tobytes() != c.estimate.tobytes()
+
+
+def test_truth_feed_is_the_default_and_untouched():
+    sc = load_scenario(SQUARE)
+    assert not sc.sensors.hil and dict(sc.onboard_params).get("EKF2_TYPE") is None
+    assert run_scenario(with_set(sc, {"timing.t_final_s": 2.0}), RunOptions()).estimate is None
+
+
+def test_seed_mission_on_the_estimate_meets_the_landing_and_coverage_targets():
+    res = run_scenario(with_set(load_scenario(SEED), {"sensors.feed": "hil"}), RunOptions())
+    assert res.exit_reason is ExitReason.MISSION_COMPLETE, res.message
+    m = compute_metrics(res, res.scenario.world)
+    assert m["landing_error_m"] <= 0.10 and m["track_coverage"] >= 0.98
+    assert 0.0 < m["estimation_error_pos_rms_m"] < 0.5
+    assert m["estimation_error_att_rms_deg"] < 3.0
+
+
+def test_sonar_has_no_reading_below_its_minimum():
+    su = SensorSuite(SensorsSpec(feed="hil"), 0, 0.005, (0.0, 0.0), True)
+    for z, echo in ((-0.30, False), (-1.0, True)):
+        for k in range(3):   # past the one-tick delay
+            msgs, bad = hs.decode_bundle(su.encode(k * 5000, _y(z)))
+        d = msgs[hs.DISTANCE_SENSOR.id]
+        assert bad == 0
+        assert (d[14] != hs.NO_ECHO) is echo
+        if echo:
+            assert abs(d[3] - 100) <= 5     # cm
+
+
+def test_imu_at_rest_reads_gravity_with_the_template_noise():
+    su = SensorSuite(SensorsSpec(feed="hil"), 3, 0.005, (0.0, 0.0), True)
+    acc = np.array([hs.decode_bundle(su.encode(k * 5000, _y()))[0][hs.HIL_SENSOR.id][1:4]
+                    for k in range(4000)])
+    p = su.p
+    assert np.allclose(acc.mean(axis=0),
+                       (p.acc_bias[0], p.acc_bias[1], -9.81 * p.acc_scale[2] + p.acc_bias[2]),
+                       atol=0.01)
+    # band-limited noise std = sigma sqrt(weight / 5 ms), seen through the 190 rad/s filter
+    assert 0.1 < acc[:, 0].std() < 0.25
+
+
+def test_outliers_are_rejected_and_counted_never_propagated():
+    est, st = _estimator()
+    su = SensorSuite(SensorsSpec(feed="hil"), 0, 0.005, (0.0, 0.0), True)
+    for k in range(50):
+        est.on_hil(su.encode(k * 5000, _y(-1.0)))
+    nan = float("nan")
+    imu = hs.encode_hil_sensor(su.mav, 300_000, (nan, 0.0, -9.8), (0.0, 0.0, 0.0),
+                               (0.2, 0.0, 0.4), 1012.0, 1.0, 25.0, 0x3FFF)
+    flow = hs.encode_flow(su.mav, 300_000, 5000, nan, 1e9, 0.0, 0.0, 0.0, 255)
+    rng = hs.encode_distance(su.mav, 300_000, 44, 400, 350, 100)   # 3.5 m: a jump
+    before = dict(st)
+    od = est.on_hil(imu + flow + rng + b"\xfd\x01garbage")
+    grew = {k for k in st if st[k] != before[k]}
+    assert {"est_rej_imu", "est_rej_flow", "est_rej_rng", "est_bad_frames"} <= grew
+    assert not grew & {"est_flow_fused", "est_rng_fused", "est_baro_fused"}
+    assert all(math.isfinite(v) for v in od[1:14])
+
+
+def test_sensor_faults_reach_the_estimate_and_are_counted():
+    sc = _square(**{"faults.sensor": [
+        {"kind": "flow_garbage", "start_s": 6.0, "end_s": 7.0, "value": [1, 0, 0]},
+        {"kind": "sonar_dropout", "start_s": 7.0, "end_s": 8.0},
+        {"kind": "mag_interference", "start_s": 8.0, "end_s": 9.0, "value": [0.3, 0, 0]},
+        {"kind": "imu_bias", "start_s": 9.0, "end_s": 10.0, "value": [0.3, 0, 0]},
+        {"kind": "baro_drift", "start_s": 10.0, "end_s": 11.0, "value": [20, 0, 0]},
+        {"kind": "gyro_saturation", "start_s": 11.0, "end_s": 11.5, "value": [0.05, 0, 0]},
+        {"kind": "flow_loss", "start_s": 11.5, "end_s": 12.0}]})
+    res = run_scenario(sc, RunOptions())
+    kinds = [w for _, w in res.faults]
+    assert kinds == ["sensor flow_garbage", "sensor sonar_dropout", "sensor mag_interference",
+                     "sensor imu_bias", "sensor baro_drift", "sensor gyro_saturation",
+                     "sensor flow_loss"]
+    st = res.onboard_stats
+    assert st["est_rej_flow"] >= 200            # 1 s of NaN flow, all rejected
+    assert np.isfinite(res.estimate[:, :9]).all()
+
+
+@pytest.mark.parametrize("table, value, field", [
+    ({"feed": "odometry"}, None, "sensors.feed"),
+    ({"imu": {"acc_noise": [0.1, -1, 0]}}, None, "sensors.imu.acc_noise"),
+    ({"range": {"range_min_m": 5.0}}, None, "sensors.range.range_max_m"),
+    ({"flow": {"flow_every": 0}}, None, "sensors.flow.flow_every"),
+    ({"baro": {"typo": 1}}, None, "sensors.baro.typo"),
+    ({"imu": {"imu_wn": 2000.0}}, None, "sensors.imu.imu_wn"),     # above Nyquist
+    ({"gps": {"enabled": 1}}, None, "sensors.gps.enabled"),
+])
+def test_bad_sensor_fields_are_named(table, value, field):
+    raw = dict(load_scenario(SQUARE).raw)
+    raw["sensors"] = table
+    from cosim.scenario.parse import parse_scenario
+
+    with pytest.raises(ScenarioError) as ei:
+        parse_scenario(raw, source=str(SQUARE), base_dir=SQUARE.parent)
+    assert ei.value.field == field
+
+
+def test_a_sensor_feed_needs_the_estimator():
+    with pytest.raises(ScenarioError) as ei:
+        _square(**{"onboard.params.EKF2_TYPE": 0})
+    assert ei.value.field == "onboard.params.EKF2_TYPE"
+
+
+def test_bad_sensor_fault_is_named():
+    with pytest.raises(ScenarioError) as ei:
+        _square(**{"faults.sensor": [{"kind": "gyro_saturation", "start_s": 1.0}]})
+    assert ei.value.field == "faults.sensor[0].value"
+
+
+def test_estimator_status_flags_follow_the_aiding():
+    from pymavlink.dialects.v20 import common as M
+
+    est, st = _estimator()
+    su = SensorSuite(SensorsSpec(feed="hil"), 0, 0.005, (0.0, 0.0), True)
+    k = 0
+    for z in [0.0] * 20 + [-0.01 * i for i in range(1, 101)] + [-1.0] * 100:   # climb to 1 m
+        est.on_hil(su.encode(k * 5000, _y(z)))
+        k += 1
+    f = est.status_flags()
+    good = (M.ESTIMATOR_ATTITUDE | M.ESTIMATOR_VELOCITY_HORIZ | M.ESTIMATOR_POS_HORIZ_REL
+            | M.ESTIMATOR_POS_VERT_AGL | M.ESTIMATOR_VELOCITY_VERT | M.ESTIMATOR_POS_VERT_ABS)
+    assert f == good, bin(f)
+    su.faults = (SensorFaultFor("flow_loss", k * 0.005),)
+    for _ in range(300):                          # 1.5 s without flow: position lost
+        od = est.on_hil(su.encode(k * 5000, _y(-1.0)))
+        k += 1
+    f = est.status_flags()
+    assert f & M.ESTIMATOR_CONST_POS_MODE and not f & M.ESTIMATOR_POS_HORIZ_REL
+    assert od[16] == -1 and est.impl.lost
+
+
+def SensorFaultFor(kind: str, start_s: float):
+    from cosim.sensors.faults import SensorFault
+
+    return SensorFault(kind, start_s, 1e9, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+
+
+def test_estimator_status_on_request_on_odometry():
+    from pymavlink.dialects.v20 import common as M
+    from test_onboard_rig import Rig
+
+    rig = Rig()
+    rig.tick(3)
+    rig.cmd(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_ESTIMATOR_STATUS)
+    rig.tick()
+    es = rig.last("gcs", "ESTIMATOR_STATUS")
+    assert es.flags & M.ESTIMATOR_POS_HORIZ_REL and es.flags & M.ESTIMATOR_ATTITUDE
+
+
+def test_gps_fixes_reach_the_estimate():
+    res = run_scenario(_square(**{"sensors.gps.enabled": True, "timing.t_final_s": 8.0}),
+                       RunOptions())
+    st = res.onboard_stats
+    # 5 Hz, every fix (the first one twice: the one-tick delay line starts full of it)
+    assert st["est_gps_fused"] == 8.0 / 0.2 + 1 and st["est_rej_gps"] == 0
+
+
+def test_flow_lost_in_flight_is_a_lost_position_and_the_vehicle_lands():
+    sc = _square(**{"timing.t_final_s": 30.0, "faults.sensor": [
+        {"kind": "flow_loss", "start_s": 8.0}]})
+    res = run_scenario(sc, RunOptions())
+    st = res.onboard_stats
+    lost = res.estimate[:, -1]
+    t = res.series[:, 0]
+    assert lost[t < 8.0].sum() == 0 and lost[(t > 9.5) & (t < 10.0)].all()
+    assert st["odometry_lost"] > 0                   # the vehicle's failsafe saw it
+    assert res.series[-1, 3] > -0.05                 # landed (z ~ 0), COM_POS_FS_DELAY later
