@@ -181,10 +181,6 @@ class OnboardHandle:
             self._stats0[k] = self._stats0.get(k, 0) + v
         self.onboard = self.onboard.rebooted()
 
-    def drain_gcs(self) -> None:
-        while self.gcs.recv() is not None:
-            pass
-
     def stats(self) -> dict[str, Any]:
         """The onboard stack's counters (SIL: as the process reported them at exit)."""
         if self.proc is None:
