@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from cosim.apps.vs.geometry import interaction_point
+from cosim.cvthreads import single_thread
 
 
 @dataclass
@@ -42,12 +43,23 @@ def find_obstacle(rgb: np.ndarray, hue_deg: tuple[float, float] = (70.0, 170.0),
                   s_min: int = 90, v_min: int = 40, min_height_frac: float = 0.15
                   ) -> Obstacle | None:
     """The largest blob of obstacle colour that stands at least `min_height_frac` of the
-    image tall (a column), or None (also when the blob touches the left or right border)."""
+    image tall (a column), or None (also when the blob touches the left or right border).
+
+    The blobs are labelled within the bounding box of the obstacle-colour pixels only (the
+    same blobs, in the same raster order, as over the whole image: the rest is empty), on
+    one OpenCV thread (a parallel labelling may number them in another order)."""
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     lo = np.array([hue_deg[0] / 2.0, s_min, v_min], dtype=np.uint8)
     hi = np.array([hue_deg[1] / 2.0, 255, 255], dtype=np.uint8)
     mask = cv2.inRange(hsv, lo, hi)
-    n, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    x0, y0, bw, bh = cv2.boundingRect(mask)
+    if bh < min_height_frac * rgb.shape[0]:
+        return None             # nothing of obstacle colour that tall (or nothing at all)
+    with single_thread():
+        n, _, stats, _ = cv2.connectedComponentsWithStats(mask[y0:y0 + bh, x0:x0 + bw],
+                                                          connectivity=8)
+    stats[:, 0] += x0
+    stats[:, 1] += y0
     best = None
     for i in range(1, n):
         x, y, w, h, area = (int(v) for v in stats[i])
