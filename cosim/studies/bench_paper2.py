@@ -1,0 +1,174 @@
+"""`cosim bench`'s paper-2 figures: the front-camera missions in x real time, and where a
+front-camera tick goes (issue 29).
+
+- "paper 2 E2 mission (x real time)": simulated time over the wall time of `run_scenario`
+  (set-up, teach and flight; not the CSV and plots `cosim run` writes afterwards), MIL, one
+  process. The first run in a process makes the world's textures, tiles and taught keys
+  ("cold", what `cosim run` pays); the repeats find them made ("warm", what every run after the
+  first in a study worker pays). OpenCV on every core (a single run) and on one thread (a
+  study worker) from the same run.
+- E3 and E4 (the 30-key oval) likewise, warm, without --quick.
+- The breakdown of E2's front-camera tick, ms per camera frame: render, column detection,
+  tracking (LK + the epipolar outlier test), matching at a key change (features + match),
+  homography and law (homography, gain and law, hierarchy), the rest of the app's frame,
+  and beside it the other ticks of a camera period (plant, flight stack, app ticks, master).
+
+`python -m cosim.studies.bench_paper2 [--quick]` prints these alone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from cosim.studies.bench_common import ROOT, _stat
+
+MISSIONS = {"E2": ("bebop2_vs_e2.toml", 15.0), "E3": ("bebop2_vs_oval.toml", 12.0),
+            "E4": ("bebop2_vs_oval_ff.toml", 12.0)}       # scenario, target (x real time)
+# (module, attribute owner or None for a module function, attribute, part)
+PARTS = (
+    ("cosim.sensors.front", "FrontCamera", "render", "render"),
+    ("cosim.apps.visual_servo", None, "find_obstacle", "detection (column)"),
+    ("cosim.apps.vs.features", "Tracker", "track", "tracking (LK, outlier test)"),
+    ("cosim.apps.visual_servo", None, "robust_inliers", "tracking (LK, outlier test)"),
+    ("cosim.apps.vs.features", "Detector", "detect", "matching at key changes"),
+    ("cosim.apps.visual_servo", None, "match", "matching at key changes"),
+    ("cosim.apps.visual_servo", None, "homography", "homography / law"),
+    ("cosim.apps.visual_servo", "VisualServoApp", "_law", "homography / law"),
+    ("cosim.apps.vs.geometry", None, "hierarchy", "homography / law"),
+    ("cosim.apps.visual_servo", "VisualServoApp", "on_frame", "_on_frame"),
+)
+
+
+def _fly(path: Path) -> tuple[float, float, str]:
+    """(simulated s, wall s, exit reason) of one MIL run in this process."""
+    from cosim.scenario.parse import load_scenario
+    from cosim.sim.master import RunOptions, run_scenario
+
+    sc = load_scenario(path)
+    with tempfile.TemporaryDirectory(prefix="cosim-bench-") as tmp:
+        t0 = time.perf_counter()
+        res = run_scenario(sc, RunOptions(mode="mil", out_dir=Path(tmp)))
+        wall = time.perf_counter() - t0
+    return res.t_end_s, wall, res.exit_reason.value
+
+
+@contextlib.contextmanager
+def _threads(n: int | None) -> Iterator[None]:
+    from cosim import cvthreads
+
+    saved = cvthreads._run_threads
+    cvthreads.set_run_threads(n)
+    try:
+        yield
+    finally:
+        cvthreads.set_run_threads(saved)
+
+
+def mission(name: str, repeats: int, threads: int | None = None) -> dict[str, Any]:
+    """x real time of `repeats` runs of a paper-2 mission (the first one cold if the world
+    was not flown yet in this process)."""
+    file, target = MISSIONS[name]
+    with _threads(threads):
+        runs = [_fly(ROOT / "scenarios" / file) for _ in range(repeats)]
+    rtf = [s / w for s, w, _ in runs]
+    d = _stat(rtf, "x real time", target, higher_is_better=True)
+    d.update(sim_time_s=runs[0][0], exit_reason=runs[0][2], wall_s=[w for _, w, _ in runs])
+    return d
+
+
+@contextlib.contextmanager
+def _timing(acc: dict[str, float], calls: dict[str, int]) -> Iterator[None]:
+    saved = []
+    for mod_name, owner_name, attr, part in PARTS:
+        mod = importlib.import_module(mod_name)
+        owner = getattr(mod, owner_name) if owner_name else mod
+        fn = owner.__dict__[attr] if owner_name else getattr(mod, attr)
+
+        def timed(*a: Any, _fn: Any = fn, _part: str = part, **kw: Any) -> Any:
+            t0 = time.perf_counter()
+            try:
+                return _fn(*a, **kw)
+            finally:
+                acc[_part] = acc.get(_part, 0.0) + time.perf_counter() - t0
+                calls[_part] = calls.get(_part, 0) + 1
+        saved.append((owner, attr, fn))
+        setattr(owner, attr, timed)
+    try:
+        yield
+    finally:
+        for owner, attr, fn in reversed(saved):
+            setattr(owner, attr, fn)
+
+
+def tick_breakdown(name: str = "E2") -> dict[str, Any]:
+    """ms per camera frame of each part of a (warm) run of the mission."""
+    file = MISSIONS[name][0]
+    _fly(ROOT / "scenarios" / file)          # warm: textures, tiles and keys made
+    acc: dict[str, float] = {}
+    calls: dict[str, int] = {}
+    with _timing(acc, calls):
+        sim, wall, _ = _fly(ROOT / "scenarios" / file)
+    frames = calls["render"]
+    parts = {p: 1e3 * acc.get(p, 0.0) / frames for p in dict.fromkeys(p[3] for p in PARTS)}
+    on_frame = parts.pop("_on_frame")
+    inside = sum(v for k, v in parts.items() if k != "render")
+    parts["rest of the app's frame"] = on_frame - inside
+    camera_tick = parts["render"] + on_frame
+    period = 1e3 * wall / frames
+    return {"mission": name, "frames": frames, "sim_time_s": sim, "wall_s": wall,
+            "ms_per_frame": parts, "camera_tick_ms": camera_tick,
+            "other_ticks_ms": period - camera_tick, "camera_period_ms": period}
+
+
+def bench_paper2(quick: bool = False) -> dict[str, Any]:
+    res: dict[str, Any] = {}
+    res["E2"] = mission("E2", 2 if quick else 4)
+    res["E2_one_thread"] = mission("E2", 1 if quick else 3, threads=1)
+    if not quick:
+        res["E3"] = mission("E3", 2)
+        res["E4"] = mission("E4", 2)
+    res["breakdown"] = tick_breakdown("E2")
+    return res
+
+
+def format_paper2(res: dict[str, Any]) -> list[str]:
+    def row(label: str, d: dict[str, Any]) -> str:
+        ok = "ok" if d["meets_target"] else "MISSED"
+        return (f"{label:<34s}{d['median']:>10.2f}{d['min']:>10.2f}{d['max']:>10.2f}  "
+                f"{d['unit']:<12s} >= {d['target']:g}  {ok}")
+
+    e2 = res["E2"]
+    cold = e2["sim_time_s"] / e2["wall_s"][0]
+    lines = [row("paper 2 E2 mission (x real time)", e2),
+             f"  E2 first run in the process (cold: textures, tiles, keys made): {cold:.2f}x",
+             row("  E2, OpenCV on one thread", res["E2_one_thread"])]
+    for k in ("E3", "E4"):
+        if k in res:
+            lines.append(row(f"paper 2 {k} mission (x real time)", res[k]))
+    b = res["breakdown"]
+    lines.append(f"front-camera tick of {b['mission']} ({b['frames']} frames, "
+                 f"{b['sim_time_s']:.1f} s simulated in {b['wall_s']:.2f} s), ms per frame:")
+    for k, v in b["ms_per_frame"].items():
+        lines.append(f"  {k:<48s}{v:>8.3f}")
+    lines.append(f"  {'= the camera tick (render + app frame)':<48s}{b['camera_tick_ms']:>8.3f}")
+    lines.append(f"  {'the other ticks of a camera period':<48s}{b['other_ticks_ms']:>8.3f}")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    quick = "--quick" in (argv if argv is not None else sys.argv[1:])
+    res = bench_paper2(quick)
+    print("\n".join(format_paper2(res)))
+    print(f"(E2 wall times: {', '.join(f'{w:.2f}' for w in res['E2']['wall_s'])} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
