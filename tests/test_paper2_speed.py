@@ -121,8 +121,12 @@ def test_column_detection_in_the_colour_box_equals_the_full_frame():
             img[max(y, 0):y + h, max(x, 0):x + w] = (0, 170, 0)
         if trial % 10 == 0:                  # equal areas: the first in raster order wins
             img[:] = 0
-            img[10:60, 20:24] = (0, 170, 0)
+            top = 30 if trial % 20 else 10       # the same top row, or a lower one
             img[30:80, 120:124] = (0, 170, 0)
+            img[top:top + 50, 20:24] = (0, 170, 0)
+            if trial % 30 == 0:                  # and one of them 8-connected across a corner
+                img[top + 50, 24] = (0, 170, 0)
+                img[top + 51:top + 60, 25:27] = (0, 170, 0)
         got, ref = find_obstacle(img), _find_obstacle_full_frame(img)
         assert got == ref, trial
         found += ref is not None
