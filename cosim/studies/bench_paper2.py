@@ -13,7 +13,9 @@ front-camera tick goes (issue 29).
   homography and law (homography, gain and law, hierarchy), the rest of the app's frame,
   and beside it the other ticks of a camera period (plant, flight stack, app ticks, master).
 
-`python -m cosim.studies.bench_paper2 [--quick]` prints these alone.
+`python -m cosim.studies.bench_paper2 [--quick]` prints these alone; `--against DIR` flies
+E2 in fresh processes alternately with the code in DIR (e.g. a copy of the tree before a
+change) and with this tree, and prints the ratio from that one sitting.
 """
 
 from __future__ import annotations
@@ -165,8 +167,48 @@ def format_paper2(res: dict[str, Any]) -> list[str]:
     return lines
 
 
+_FLY_ONE = ("import sys, time; from pathlib import Path; import tempfile\n"
+            "from cosim.scenario.parse import load_scenario\n"
+            "from cosim.sim.master import RunOptions, run_scenario\n"
+            "sc = load_scenario(sys.argv[1])\n"
+            "with tempfile.TemporaryDirectory() as d:\n"
+            "    t0 = time.perf_counter()\n"
+            "    r = run_scenario(sc, RunOptions(mode='mil', out_dir=Path(d)))\n"
+            "    print(r.t_end_s, time.perf_counter() - t0, r.exit_reason.value)\n")
+
+
+def against(before: Path, name: str = "E2", rounds: int = 3) -> dict[str, Any]:
+    """The mission flown cold in a fresh process (as `cosim run` does, without its outputs),
+    alternately with the code in `before` (a copy of the tree with its built parts, put first
+    on the path) and with this tree, `rounds` times each: the ratio from one sitting."""
+    import os
+    import subprocess
+
+    path = ROOT / "scenarios" / MISSIONS[name][0]
+    out: dict[str, list[float]] = {"before": [], "now": []}
+    for _ in range(rounds):
+        for label, src in (("before", Path(before).resolve()), ("now", ROOT)):
+            env = {**os.environ, "PYTHONPATH": str(src)}
+            r = subprocess.run([sys.executable, "-c", _FLY_ONE, str(path)], env=env, cwd=src,
+                               capture_output=True, text=True, check=True)
+            sim, wall, _ = r.stdout.split()
+            out[label].append(float(sim) / float(wall))
+    res = {k: _stat(v, "x real time") for k, v in out.items()}
+    res["ratio"] = res["now"]["median"] / res["before"]["median"]
+    return res
+
+
 def main(argv: list[str] | None = None) -> int:
-    quick = "--quick" in (argv if argv is not None else sys.argv[1:])
+    args = argv if argv is not None else sys.argv[1:]
+    if "--against" in args:          # python -m cosim.studies.bench_paper2 --against DIR
+        res = against(Path(args[args.index("--against") + 1]))
+        for k in ("before", "now"):
+            d = res[k]
+            print(f"E2 cold, {k:<7s}{d['median']:>8.2f}x real time (min {d['min']:.2f}, max "
+                  f"{d['max']:.2f}, {d['n']} runs)")
+        print(f"now / before: {res['ratio']:.2f}")
+        return 0
+    quick = "--quick" in args
     res = bench_paper2(quick)
     print("\n".join(format_paper2(res)))
     print(f"(E2 wall times: {', '.join(f'{w:.2f}' for w in res['E2']['wall_s'])} s)")
