@@ -74,7 +74,7 @@ def run_job(job: Job) -> dict[str, Any]:
     cvthreads.set_run_threads(1)
     cache.set_dir(job.cache_dir)
     row: dict[str, Any] = {"run_id": job.run_id, **dict(job.params), "seed": job.seed}
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     tmp = None
     try:
         sc = scenario_of(job)
@@ -100,6 +100,7 @@ def run_job(job: Job) -> dict[str, Any]:
             shutil.rmtree(tmp, ignore_errors=True)
     # '_' keys go to the study's run log, not the table (they differ from one execution to another)
     row["_wall_s"] = time.perf_counter() - t0
+    row["_cpu_s"] = time.process_time() - c0   # busy host: the run's cost, better than wall
     row["_worker"] = f"{socket.gethostname()}:{os.getpid()}"
     row["_rss_mb"] = _rss_mb()
     return row
