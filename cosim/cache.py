@@ -35,11 +35,17 @@ _dir: Path | None = Path(os.environ["COSIM_CACHE_DIR"]) if os.environ.get(
 
 
 def key(*parts: Any) -> str:
-    """A SHA-256 of the parts' reprs (dataclasses, tuples, floats: repr is exact)."""
+    """A SHA-256 of the parts' reprs (dataclasses, tuples, floats: repr is exact). A repr
+    that does not say everything (a numpy array's, cut with '...'; an object's address) is
+    refused: two different inputs could share it."""
     h = hashlib.sha256(VERSION.encode())
     for p in parts:
+        r = repr(p)
+        if "..." in r or " at 0x" in r:
+            raise ValueError(f"cache.key: the repr of a {type(p).__name__} does not say all "
+                             "of it")
         h.update(b"\x1f")
-        h.update(repr(p).encode())
+        h.update(r.encode())
     return h.hexdigest()
 
 

@@ -48,6 +48,8 @@ def test_cache_keeps_arrays_in_memory_and_on_disk_and_remakes_a_bad_file(fresh_c
 
     k = cache.key("x", (1, 2.0))
     assert k == cache.key("x", (1, 2.0)) and k != cache.key("x", (1, 2.000001))
+    with pytest.raises(ValueError, match="does not say"):
+        cache.key(np.zeros(5000))                # its repr is cut: not a key
     first = cache.arrays("kind", k, make)
     again = cache.arrays("kind", k, make)
     assert again is first and len(made) == 1                 # memory
