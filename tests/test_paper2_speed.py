@@ -217,3 +217,12 @@ def test_e1_is_the_same_on_one_and_two_opencv_threads_and_from_the_cache(fresh_c
     assert a.series.shape == b.series.shape
     assert np.asarray(a.series).tobytes() == np.asarray(b.series).tobytes()     # bit for bit
     assert a.frame_log == b.frame_log and len(a.frame_log) > 20
+
+
+def test_a_numpy_float_metric_is_written_as_a_number():
+    """E2's final_yaw_error_deg is a numpy float: the study table wrote 'np.float64(...)',
+    which the report could not read (the metric was missing from it)."""
+    from cosim.studies.table import fmt
+
+    assert fmt(np.float64(0.46793366282014404)) == "0.46793366282014404"
+    assert float(fmt(np.float64(0.1))) == 0.1
