@@ -26,7 +26,7 @@ def _figures(d, path=""):
 def test_bench_quick_reports_every_figure(tmp_path):
     out = tmp_path / "bench.json"
     r = subprocess.run([*COSIM, "bench", "--quick", "--json", str(out)], capture_output=True,
-                       text=True, timeout=300, cwd=ROOT)
+                       text=True, timeout=600, cwd=ROOT)
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
     expected = ["plant_step", "controller_update", "udp_hil_roundtrip", "render", "ips",
