@@ -49,6 +49,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from cosim import cvthreads
 from cosim.sensors.noise import FrameNoise
 from cosim.sensors.pinhole import (
     R_BC_FRONT,
@@ -61,8 +62,7 @@ from cosim.sensors.pinhole import (
     yaw_of,
 )
 from cosim.sensors.raycast import ReferenceRenderer
-from cosim.sensors.tiles import PAD, Planner, Tile, pyramid, tiles_of
-from cosim.world.surfaces import solid_centres
+from cosim.sensors.tiles import PAD, Planner, Tile, tile_set
 
 __all__ = ["R_BC_FRONT", "FrontCamera", "FrontCameraConfig", "ReferenceRenderer", "camera_pose",
            "project", "rpy_matrix", "world_surfaces", "yaw_of"]
@@ -74,12 +74,12 @@ class FrontCamera:
     """Fast renderer (see the module docstring). ``render`` -> H x W x 3 uint8 RGB."""
 
     def __init__(self, world, config: FrontCameraConfig | None = None, seed: int = 0) -> None:
-        cv2.setNumThreads(1)
+        cvthreads.apply()     # every core for a run, one in a study worker
         self.world = world
         self.config = cfg = config or FrontCameraConfig()
         self.rng = np.random.default_rng(seed)
         self._noise = FrameNoise(self.rng, cfg.noise_std, cfg.lighting_noise,
-                                 cfg.width * cfg.height * 3)
+                                 cfg.width * cfg.height * 3, cfg.brightness)
         self.R_BC = rpy_matrix(*np.radians(cfg.mount_rpy_deg)) @ R_BC_FRONT
         self.surfaces = world_surfaces(world)
         self.last_depth: np.ndarray | None = None
@@ -87,33 +87,12 @@ class FrontCamera:
         if cfg.exact:
             self._ref = ReferenceRenderer(world, cfg, surfaces=self.surfaces)
             return
-        # tiles per draw group: 0 room, 1 posters, 2 + i solid i
-        groups: dict[int, list[Tile]] = {}
-        for s in self.surfaces:
-            pyr = pyramid(s.image)
-            for tile in tiles_of(s, pyr, cfg.tile_m):
-                groups.setdefault(s.group, []).append(tile)
-        self._solids = solid_centres(world.scene)
-        # every tile in draw-group order, with corner arrays padded to one shape (repeating
-        # the last corner) so that culling and the clipping, projection and level choice of
-        # the visible tiles are a few numpy passes per frame
-        self._tiles = [t for g in sorted(groups) for t in groups[g]]
-        kmax = max((len(t.corners) for t in self._tiles), default=4)
-        self._corners = np.array([np.vstack([t.corners] + [t.corners[-1:]] *
-                                            (kmax - len(t.corners))) for t in self._tiles]
-                                 ).reshape(-1, kmax, 3)
-        self._count = np.array([len(t.corners) for t in self._tiles], dtype=np.int64)
-        self._normals = np.array([t.normal for t in self._tiles]).reshape(-1, 3)
-        # [U V O] per tile (columns), and each level's slice bounds (c0, c1, r0, r1)
-        self._UVO = np.array([np.stack([t.U, t.V, t.O], axis=1) for t in self._tiles]
-                             ).reshape(-1, 3, 3)
-        nl = max((len(t.pyr) for t in self._tiles), default=1)
-        self._bounds = np.array([t.bounds + t.bounds[-1:] * (nl - len(t.bounds))
-                                 for t in self._tiles], dtype=float).reshape(-1, nl, 4)
-        self._n_dot_O = np.array([t.n_dot_O for t in self._tiles])
-        self._tile_group = np.array([t.surface.group for t in self._tiles], dtype=np.int64)
-        self._ppm = np.array([t.surface.ppm for t in self._tiles])
-        self._n_levels = [len(t.pyr) for t in self._tiles]
+        ts = tile_set(world, self.surfaces, cfg.tile_m)
+        self._solids = ts.solids
+        self._tiles, self._corners, self._count = ts.tiles, ts.corners, ts.count
+        self._normals, self._UVO, self._bounds = ts.normals, ts.UVO, ts.bounds
+        self._n_dot_O, self._tile_group, self._ppm = ts.n_dot_O, ts.group, ts.ppm
+        self._n_levels = ts.n_levels
         W, H = cfg.width, cfg.height
         fx, fy, cx, cy = cfg.fx, cfg.fy, cfg.cx, cfg.cy
         m = 1.0   # px of margin around the image

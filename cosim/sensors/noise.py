@@ -1,8 +1,9 @@
 """Image noise shared by the cameras: a per-frame exposure gain and per-pixel Gaussian noise,
 all from the camera's seeded ``numpy.random.Generator`` (deterministic per seed and frame).
 
-Per frame: gain ``1 + lighting_noise * N(0, 1)`` on all channels, then per-pixel Gaussian
-noise of ``noise_std`` (0-255 units), rounded and clipped to uint8. For speed the pixel noise
+Per frame: gain ``brightness * (1 + lighting_noise * N(0, 1))`` on all channels (``brightness``:
+a constant scene lighting, 1 by default), then per-pixel Gaussian noise of ``noise_std``
+(0-255 units), rounded and clipped to uint8. For speed the pixel noise
 of a frame is a window, at a random offset, of a seeded bank of 2**21 Gaussian samples drawn
 once (drawing 57 600 normals per frame costs ~0.9 ms); windows of two frames may overlap
 (their noise is then the same sequence shifted by a random number of samples).
@@ -20,10 +21,11 @@ class FrameNoise:
     """Adds exposure and pixel noise to H x W x C uint8 frames of one size."""
 
     def __init__(self, rng: np.random.Generator, noise_std: float, lighting_noise: float,
-                 n_values: int) -> None:
+                 n_values: int, brightness: float = 1.0) -> None:
         self.rng = rng
         self.noise_std = float(noise_std)
         self.lighting_noise = float(lighting_noise)
+        self.brightness = float(brightness)
         self.bank: np.ndarray | None = None
         if self.noise_std > 0.0:
             # noise_std * N(0, 1) + 0.5 (the 0.5 makes the uint8 conversion round half up)
@@ -34,13 +36,15 @@ class FrameNoise:
 
     @property
     def active(self) -> bool:
-        return self.noise_std > 0.0 or self.lighting_noise > 0.0
+        return self.noise_std > 0.0 or self.lighting_noise > 0.0 or self.brightness != 1.0
 
     def apply(self, img: np.ndarray) -> np.ndarray:
         if not self.active:
             return img
         ln = self.lighting_noise
         gain = 1.0 + ln * self.rng.standard_normal() if ln else 1.0
+        if self.brightness != 1.0:
+            gain *= self.brightness
         if self.bank is not None:
             k = int(self.rng.integers(0, NOISE_BANK))
             noise = self.bank[k:k + img.size].reshape(img.shape)

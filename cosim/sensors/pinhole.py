@@ -53,6 +53,7 @@ class FrontCameraConfig:
     tile_m: float = 2.0
     noise_std: float = 0.0
     lighting_noise: float = 0.0
+    brightness: float = 1.0       # the scene's lighting at repeat: every frame's values x this
     background_rgb: tuple[int, int, int] = (0, 0, 0)
     exact: bool = False           # render with the reference ray caster (slow)
     supersample: int = 2          # reference renderer: rays per pixel side
@@ -68,7 +69,8 @@ class FrontCameraConfig:
             raise ScenarioError(where, d, "a table")
         no_unknown(d, {"width", "height", "fx", "fy", "cx", "cy", "hfov_deg", "mount_B",
                        "mount_rpy_deg", "stabilized", "near_m", "tile_m", "noise_std",
-                       "lighting_noise", "background_rgb", "exact", "supersample", "depth"},
+                       "lighting_noise", "brightness", "background_rgb", "exact",
+                       "supersample", "depth"},
                    where)
         kw: dict[str, Any] = {}
         w = kw["width"] = integer(d, "width", where, cls.width, lo=16, hi=4096)
@@ -101,6 +103,7 @@ class FrontCameraConfig:
         kw["tile_m"] = number(d, "tile_m", where, 2.0, lo=0.1, hi=100.0)
         kw["noise_std"] = number(d, "noise_std", where, 0.0, lo=0.0, hi=100.0)
         kw["lighting_noise"] = number(d, "lighting_noise", where, 0.0, lo=0.0, hi=0.5)
+        kw["brightness"] = number(d, "brightness", where, 1.0, lo=0.1, hi=4.0)
         kw["supersample"] = integer(d, "supersample", where, 2, lo=1, hi=8)
         kw["background_rgb"] = rgb(d, "background_rgb", where, cls.background_rgb)
         return cls(**kw)
@@ -138,14 +141,31 @@ def project(cfg: FrontCameraConfig, X_W, p_W, q_WB) -> tuple[float, float]:
     return cfg.cx + cfg.fx * x / z, cfg.cy + cfg.fy * y / z
 
 
+def scene_key(world) -> str | None:
+    """A hash of what a room world's surfaces are made of (None for a flat world: its floor
+    is drawn from the track, not the scene)."""
+    if world.scene.room is None:
+        return None
+    mine = world._cache
+    if "scene_key" not in mine:
+        from cosim import cache
+        mine["scene_key"] = cache.key("scene", world.scene)
+    return mine["scene_key"]
+
+
 def world_surfaces(world) -> list[Surface]:
-    """The world's surfaces (cached on the world: built once per world object)."""
-    cache = world._cache
-    if "surfaces" not in cache:
-        floor = None
-        if world.scene.room is None:
-            floor = world.floor_image(200.0)
-        cache["surfaces"] = scene_surfaces(world.scene, floor)
-    return cache["surfaces"]
+    """The world's surfaces: built once per world object and, for a room world, once per
+    scene in this process (``cosim/cache.py``)."""
+    from cosim import cache
+
+    mine = world._cache
+    if "surfaces" not in mine:
+        sk = scene_key(world)
+        if sk is None:
+            mine["surfaces"] = scene_surfaces(world.scene, world.floor_image(200.0))
+        else:
+            mine["surfaces"] = cache.memo("surfaces", sk,
+                                          lambda: scene_surfaces(world.scene, None))
+    return mine["surfaces"]
 
 

@@ -38,7 +38,7 @@ class Tile:
                  "levels", "pyr", "bounds", "plain")
 
     def __init__(self, surface: Surface, pyr: list[np.ndarray], s_range, t_range,
-                 outline: np.ndarray) -> None:
+                 outline: np.ndarray, plain: tuple[int, ...] | None = None) -> None:
         self.surface, self.pyr = surface, pyr
         self.outline = outline                          # (k, 2) (s, t) of the tile's polygon
         self.O, self.U, self.V = surface.O, surface.U, surface.V
@@ -56,9 +56,7 @@ class Tile:
             r0 = max(0, int(math.floor(t_range[0] * ppm)) + PAD - APRON)
             r1 = min(rows, int(math.ceil(t_range[1] * ppm)) + PAD + APRON)
             self.bounds.append((c0, max(c1, c0 + 1), r0, max(r1, r0 + 1)))
-        img = surface.image
-        # one colour: drawn as a filled polygon (bilinear samples of a constant are exact)
-        self.plain = (*(int(x) for x in img[0, 0]), 255) if (img == img[:1, :1]).all() else None
+        self.plain = plain
 
     def level(self, lv: int) -> np.ndarray:
         """RGBA slice of pyramid level lv with the apron (``bounds[lv]``)."""
@@ -82,10 +80,13 @@ def pyramid(img: np.ndarray) -> list[np.ndarray]:
 
 def tiles_of(s: Surface, pyr: list[np.ndarray], tile_m: float) -> list[Tile]:
     """A surface cut into tiles at most tile_m on a side (a polygon outline: one tile)."""
+    img = s.image
+    # one colour: drawn as a filled polygon (bilinear samples of a constant are exact)
+    plain = (*(int(x) for x in img[0, 0]), 255) if (img == img[:1, :1]).all() else None
     if s.poly is not None:
         st = s.poly
         return [Tile(s, pyr, (st[:, 0].min(), st[:, 0].max()), (st[:, 1].min(), st[:, 1].max()),
-                     st)]
+                     st, plain)]
     ns, nt = max(1, math.ceil(s.w / tile_m - 1e-9)), max(1, math.ceil(s.h / tile_m - 1e-9))
     out = []
     for i in range(ns):
@@ -93,8 +94,57 @@ def tiles_of(s: Surface, pyr: list[np.ndarray], tile_m: float) -> list[Tile]:
             sa, sb = s.w * i / ns, s.w * (i + 1) / ns
             ta, tb = s.h * j / nt, s.h * (j + 1) / nt
             out.append(Tile(s, pyr, (sa, sb), (ta, tb),
-                            np.array([[sa, ta], [sb, ta], [sb, tb], [sa, tb]])))
+                            np.array([[sa, ta], [sb, ta], [sb, tb], [sa, tb]]), plain))
     return out
+
+
+class TileSet:
+    """Every tile of a world's surfaces in draw-group order (0 room, 1 posters, 2 + i solid
+    i), with corner arrays padded to one shape (repeating the last corner) so that culling
+    and the clipping, projection and level choice of the visible tiles are a few numpy
+    passes per frame. Read-only once built: shared by the cameras of a world."""
+
+    def __init__(self, surfaces: list[Surface], tile_m: float, solids) -> None:
+        groups: dict[int, list[Tile]] = {}
+        for s in surfaces:
+            pyr = pyramid(s.image)
+            for tile in tiles_of(s, pyr, tile_m):
+                groups.setdefault(s.group, []).append(tile)
+        self.solids = solids
+        self.tiles = tiles = [t for g in sorted(groups) for t in groups[g]]
+        kmax = max((len(t.corners) for t in tiles), default=4)
+        self.corners = np.array([np.vstack([t.corners] + [t.corners[-1:]] *
+                                           (kmax - len(t.corners))) for t in tiles]
+                                ).reshape(-1, kmax, 3)
+        self.count = np.array([len(t.corners) for t in tiles], dtype=np.int64)
+        self.normals = np.array([t.normal for t in tiles]).reshape(-1, 3)
+        # [U V O] per tile (columns), and each level's slice bounds (c0, c1, r0, r1)
+        self.UVO = np.array([np.stack([t.U, t.V, t.O], axis=1) for t in tiles]).reshape(-1, 3, 3)
+        nl = max((len(t.pyr) for t in tiles), default=1)
+        self.bounds = np.array([t.bounds + t.bounds[-1:] * (nl - len(t.bounds))
+                                for t in tiles], dtype=float).reshape(-1, nl, 4)
+        self.n_dot_O = np.array([t.n_dot_O for t in tiles])
+        self.group = np.array([t.surface.group for t in tiles], dtype=np.int64)
+        self.ppm = np.array([t.surface.ppm for t in tiles])
+        self.n_levels = [len(t.pyr) for t in tiles]
+
+
+def tile_set(world, surfaces: list[Surface], tile_m: float) -> TileSet:
+    """The world's tiles, built once per world object and, for a room world, once per scene
+    in this process (``cosim/cache.py``: every run of a study shares them)."""
+    from cosim import cache
+    from cosim.sensors.pinhole import scene_key
+    from cosim.world.surfaces import solid_centres
+
+    def make() -> TileSet:
+        return TileSet(surfaces, tile_m, solid_centres(world.scene))
+
+    mine = world._cache
+    k = ("tiles", float(tile_m))
+    if k not in mine:
+        sk = scene_key(world)
+        mine[k] = make() if sk is None else cache.memo("tiles", cache.key(sk, tile_m), make)
+    return mine[k]
 
 
 def clip(poly: list, planes) -> list:

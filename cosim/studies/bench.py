@@ -19,6 +19,7 @@ from typing import Any
 
 from cosim.studies.bench_common import ROOT, SEED, _per_call_us, _stat  # noqa: F401
 from cosim.studies.bench_flood import bench_flood, format_flood
+from cosim.studies.bench_paper2 import bench_paper2, format_paper2
 from cosim.studies.bench_tick import bench_tick_breakdown, floor_estimate
 from mav import compiled
 
@@ -278,6 +279,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["floor_us_per_tick"] = floor_estimate(res)
     # issue 14 item 9: SIL under a UDP flood, lockstep and real time (cosim/studies/bench_flood)
     res["flood"] = bench_flood(**(QUICK_FLOOD if quick else {}))
+    res["paper2"] = bench_paper2(quick)     # issue 29: E2-E4, the front-camera tick
     return res
 
 
@@ -361,6 +363,7 @@ def format_report(res: dict[str, Any]) -> str:
             lines.append(f"  {name:<48s}{us:>8.2f}")
     lines.append(f"  => at best {f['max real-time factor']:.0f}x real time with no glue at all")
     lines += format_flood(res["flood"])
+    lines += format_paper2(res["paper2"])
     return "\n".join(lines)
 
 

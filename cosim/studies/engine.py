@@ -91,6 +91,7 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
                                     "wall_s": extra.get("_wall_s"),
                                     "worker": extra.get("_worker"),
                                     "rss_mb": extra.get("_rss_mb"),
+                                    "cpu_s": extra.get("_cpu_s"),
                                     "utc": datetime.now(UTC).isoformat(timespec="seconds")})
                         + "\n")
         bar.set_postfix(done=stats.ran - stats.failed, failed=stats.failed, refresh=False)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cosim import cache, cvthreads
 from cosim.studies import deps
 
 # columns every row has, in this order; then the varied parameters, then the metrics
@@ -38,6 +39,7 @@ class Job:
     mode: str = "mil"
     keep_dir: str | None = None                 # keep the run folder here (None: a temp dir)
     mcap: bool = False                          # the kept run folder also gets run.mcap
+    cache_dir: str | None = None                # textures, taught keys (cosim/cache.py)
 
 
 def self_contained(sc) -> dict[str, Any]:
@@ -66,9 +68,13 @@ def scenario_of(job: Job):
 
 
 def run_job(job: Job) -> dict[str, Any]:
-    """Fly one mission; return its row. Never raises for a failed run."""
+    """Fly one mission; return its row. Never raises for a failed run. A worker runs one
+    mission per core: OpenCV on one thread; what is made once per world is kept in the
+    study's cache folder (the same results bit for bit: cosim/cvthreads.py, cosim/cache.py)."""
+    cvthreads.set_run_threads(1)
+    cache.set_dir(job.cache_dir)
     row: dict[str, Any] = {"run_id": job.run_id, **dict(job.params), "seed": job.seed}
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     tmp = None
     try:
         sc = scenario_of(job)
@@ -94,6 +100,7 @@ def run_job(job: Job) -> dict[str, Any]:
             shutil.rmtree(tmp, ignore_errors=True)
     # '_' keys go to the study's run log, not the table (they differ from one execution to another)
     row["_wall_s"] = time.perf_counter() - t0
+    row["_cpu_s"] = time.process_time() - c0   # busy host: the run's cost, better than wall
     row["_worker"] = f"{socket.gethostname()}:{os.getpid()}"
     row["_rss_mb"] = _rss_mb()
     return row

@@ -26,8 +26,9 @@ from cosim.studies.jobs import HEAD, TAIL
 
 Z95 = 1.959963984540054          # standard normal quantile of 0.975
 # the first of these a study has is its main metric (ranks the worst runs)
-MAIN_METRICS = ("path_error_rms_m", "landing_error_m", "position_error_max_m", "mission_time_s",
-                "path_error_max_m", "speed_mean_mps")
+MAIN_METRICS = ("path_error_rms_m", "landing_error_m", "position_error_max_m",
+                "final_pose_error_m", "min_clearance_m", "mission_time_s", "path_error_max_m",
+                "speed_mean_mps")
 WORST_N = 5
 
 

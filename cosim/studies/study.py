@@ -47,6 +47,9 @@ def scenario_hash(raw: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode()).hexdigest()
 
 
+CACHE = "cache"     # what runs share (textures, taught keys: cosim/cache.py), in the study folder
+
+
 def _keep(out: Path, keep: bool, i: int) -> str | None:
     return str(out / "runs" / f"{i:06d}") if keep else None
 
@@ -84,7 +87,8 @@ def montecarlo_jobs(sc, dists: list[Dist], n: int, seed: int, sets: dict[str, An
                                     "bounds") from None
     raw = self_contained(sc)
     jobs = [Job(i, raw, sc.source, tuple(sets.items()), tuple(v.items()), seed=s, mode=mode,
-                keep_dir=_keep(out, keep_runs, i), mcap=mcap) for i, (s, v) in enumerate(draws)]
+                keep_dir=_keep(out, keep_runs, i), mcap=mcap, cache_dir=str(out / CACHE))
+            for i, (s, v) in enumerate(draws)]
     manifest = {"kind": "montecarlo", "scenario": sc.source, "scenario_sha256": scenario_hash(raw),
                 "seed": seed, "n": n, "vary": [d.text for d in dists], "sets": sets,
                 "params": keys, "mode": mode}
@@ -104,7 +108,8 @@ def sweep_jobs(sc, grid: dict[str, list[Any]], out: Path, *, mode: str = "mil",
     raw = self_contained(sc)
     combos = itertools.product(*(grid[k] for k in params))
     jobs = [Job(i, raw, sc.source, tuple(sets.items()), tuple(zip(params, c, strict=True)),
-                mode=mode, keep_dir=_keep(out, keep_runs, i), mcap=mcap)
+                mode=mode, keep_dir=_keep(out, keep_runs, i), mcap=mcap,
+                cache_dir=str(out / CACHE))
             for i, c in enumerate(combos)]
     manifest = {"kind": "sweep", "scenario": sc.source, "scenario_sha256": scenario_hash(raw),
                 "grid": {k: grid[k] for k in params}, "sets": sets, "params": params,

@@ -27,7 +27,7 @@ def fmt(v: Any) -> str:
     if v is None:
         return ""
     if isinstance(v, float):
-        return repr(v)
+        return repr(float(v))        # a numpy float's repr is 'np.float64(...)' (numpy 2)
     return " / ".join(str(v).splitlines())       # one physical line per row
 
 

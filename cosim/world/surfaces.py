@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cosim.world.room import POSTER_OFFSET_M, Box, Column, Poster, Scene
-from cosim.world.textures import TextureSpec, make_texture
+from cosim.world.textures import TextureSpec, cached_texture
 
 DOWN = np.array([0.0, 0.0, 1.0])
 
@@ -104,7 +104,7 @@ def _horizontal(name: str, n_max: float, e_min: float, w_e: float, h_n: float, d
 
 
 def _tex(spec: TextureSpec, ppm: float, salt: int):
-    return lambda w, h: make_texture(spec, w, h, ppm, salt=salt)
+    return lambda w, h: cached_texture(spec, w, h, ppm, salt=salt)
 
 
 def footprint(center, size, heading: float, shape: str, sides: int) -> list[tuple[float, float]]:
@@ -161,7 +161,7 @@ def _poster(p: Poster, arena, ppm: float, salt: int) -> list[Surface]:
         U, nrm = frame.U, frame.normal
         O = frame.O + fm * U + fm * DOWN + 0.001 * nrm
         pw, ph = w - 2 * fm, h - 2 * fm
-        img, pp = make_texture(p.texture, pw, ph, ppm, salt=salt)
+        img, pp = cached_texture(p.texture, pw, ph, ppm, salt=salt)
         out.append(Surface(f"poster '{p.name}'", O, U.copy(), DOWN.copy(), pw, ph, img, pp, 1))
     return out
 

@@ -194,6 +194,22 @@ def make_texture(spec: TextureSpec, width_m: float, height_m: float, px_per_m: f
     return exclude_obstacle_hues(img), s
 
 
+def cached_texture(spec: TextureSpec, width_m: float, height_m: float, px_per_m: float,
+                   salt: int = 0) -> tuple[np.ndarray, float]:
+    """``make_texture``, made once per spec and size in a process (and kept on disk in a
+    study: ``cosim/cache.py``). The image is read-only: it is shared by every run."""
+    from cosim import cache
+
+    def make() -> dict[str, np.ndarray]:
+        img, s = make_texture(spec, width_m, height_m, px_per_m, salt)
+        return {"image": img, "px_per_m": np.array(s)}
+
+    got = cache.arrays("texture", cache.key(spec, width_m, height_m, px_per_m, salt), make)
+    img = got["image"]
+    img.setflags(write=False)
+    return img, float(got["px_per_m"])
+
+
 def exclude_obstacle_hues(img: np.ndarray) -> np.ndarray:
     """The image with every pixel of an obstacle hue turned grey enough to pass ``palette_ok``
     (blends of two allowed colours at anti-aliased edges can land in the excluded band)."""

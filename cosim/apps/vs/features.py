@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from cosim.cvthreads import single_thread
+
 DETECTORS = ("sift", "gftt", "orb")
 HOMOGRAPHIES = ("virtual_plane", "dominant_plane")
 
@@ -43,7 +45,12 @@ class Detector:
             self.norm = cv2.NORM_L2
 
     def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N x 2 float32 pixel positions, N x D descriptors)."""
+        """(N x 2 float32 pixel positions, N x D descriptors). On one OpenCV thread: SIFT
+        gathers its keypoints from its threads in the order they finish."""
+        with single_thread():
+            return self._detect(gray)
+
+    def _detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if self.kind == "gftt":
             c = cv2.goodFeaturesToTrack(gray, self.n_max, 0.01, 7, blockSize=5)
             kps = [] if c is None else [cv2.KeyPoint(float(x), float(y), 16.0)

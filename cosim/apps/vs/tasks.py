@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from cosim.apps.vs.geometry import interaction_point
+from cosim.cvthreads import single_thread
 
 
 @dataclass
@@ -42,22 +43,43 @@ def find_obstacle(rgb: np.ndarray, hue_deg: tuple[float, float] = (70.0, 170.0),
                   s_min: int = 90, v_min: int = 40, min_height_frac: float = 0.15
                   ) -> Obstacle | None:
     """The largest blob of obstacle colour that stands at least `min_height_frac` of the
-    image tall (a column), or None (also when the blob touches the left or right border)."""
+    image tall (a column), or None (also when the blob touches the left or right border).
+    Of blobs of equal area, the first in raster order (its top row, then leftmost).
+
+    Labelled piecewise, with the same result as over the whole frame: an image column
+    without obstacle colour separates blobs (8-connected ones too), so the frame splits into
+    vertical strips between such columns; a strip whose coloured pixels span fewer rows than
+    a column needs holds none, and each other one is labelled within its box. On one OpenCV
+    thread (a parallel labelling may number the blobs in another order)."""
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     lo = np.array([hue_deg[0] / 2.0, s_min, v_min], dtype=np.uint8)
     hi = np.array([hue_deg[1] / 2.0, 255, 255], dtype=np.uint8)
     mask = cv2.inRange(hsv, lo, hi)
-    n, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    best = None
-    for i in range(1, n):
-        x, y, w, h, area = (int(v) for v in stats[i])
-        if h < min_height_frac * rgb.shape[0]:
-            continue
-        if best is None or area > best[4]:
-            best = (x, y, w, h, area)
+    min_h = min_height_frac * rgb.shape[0]
+    if cv2.boundingRect(mask)[3] < min_h:
+        return None             # nothing of obstacle colour that tall (or nothing at all)
+    used = np.flatnonzero(cv2.reduce(mask, 0, cv2.REDUCE_MAX).ravel())
+    breaks = np.flatnonzero(np.diff(used) > 1)
+    starts = [int(used[0]), *(int(used[i + 1]) for i in breaks)]
+    stops = [*(int(used[i]) + 1 for i in breaks), int(used[-1]) + 1]
+    best = None                 # (area, -top, -strip, -label), (x, y, w, h, area)
+    with single_thread():
+        for k, (c0, c1) in enumerate(zip(starts, stops, strict=True)):
+            _, y0, _, bh = cv2.boundingRect(mask[:, c0:c1])
+            if bh < min_h:
+                continue
+            n, _, stats, _ = cv2.connectedComponentsWithStats(mask[y0:y0 + bh, c0:c1],
+                                                              connectivity=8)
+            for i in range(1, n):
+                x, y, w, h, area = (int(v) for v in stats[i])
+                if h < min_h:
+                    continue
+                rank = (area, -(y + y0), -k, -i)
+                if best is None or rank > best[0]:
+                    best = (rank, (x + c0, y + y0, w, h, area))
     if best is None:
         return None
-    x, y, w, h, area = best
+    x, y, w, h, area = best[1]
     if x <= 0 or x + w >= rgb.shape[1]:
         return None          # cut by the image border: its width would be wrong (leaving view)
     return Obstacle(float(x), float(x + w), y + 0.5 * h, area)

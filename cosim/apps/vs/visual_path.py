@@ -15,7 +15,11 @@ A repeat refuses a folder whose camera (size, intrinsics, mount) is not the scen
   descriptors) of the path's detector: precomputed so the repeat does not detect on keys.
 
 Teach by rendering (`teach_by_render`): the scenario's front camera in its world at each
-listed pose, level (as in hover), with the camera's noise from a teach-only seed.
+listed pose, level (as in hover), with the camera's noise from a teach-only seed, at
+brightness 1 (the camera's `brightness` is the repeat's lighting). The key images and their
+features are a function of the world, the camera, the poses, the detector (and the seed when
+the camera has noise): they are made once per process for those, and kept on disk in a
+study (`cosim/cache.py`); each run folder still gets its own copy of the folder.
 """
 
 from __future__ import annotations
@@ -23,12 +27,13 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from cosim import cache
 from cosim.apps.vs.features import DETECTORS, Detector, gray_of
 
 FORMAT = "cosim-visual-path"
@@ -80,14 +85,39 @@ def teach_by_render(scenario, poses, folder: Path, detector: str, n_features: in
     cfg = scenario.camera
     if not isinstance(cfg, FrontCameraConfig):
         raise ValueError("camera: teach-and-repeat needs [camera] kind = 'front'")
-    cam = make_camera(cfg, scenario.world, seed=scenario.seed + 7919)
-    images = []
-    for n, e, d, yaw_deg in poses:
-        half = math.radians(yaw_deg) / 2.0
-        q = (math.cos(half), 0.0, 0.0, math.sin(half))       # level, heading yaw_deg
-        images.append(cam.render(np.array([n, e, d], dtype=float), q))
+    cfg = replace(cfg, brightness=1.0)
+    seed = scenario.seed + 7919
+    poses = [tuple(float(v) for v in p) for p in poses]
+
+    def make() -> dict[str, np.ndarray]:
+        cam = make_camera(cfg, scenario.world, seed=seed)
+        images = []
+        for n, e, d, yaw_deg in poses:
+            half = math.radians(yaw_deg) / 2.0
+            q = (math.cos(half), 0.0, 0.0, math.sin(half))       # level, heading yaw_deg
+            images.append(cam.render(np.array([n, e, d], dtype=float), q))
+        out = features_of(images, detector, n_features)
+        out.update({f"image_{i}": img for i, img in enumerate(images)})
+        return out
+
+    noisy = cfg.noise_std > 0.0 or cfg.lighting_noise > 0.0
+    got = cache.arrays("visual-path", cache.key("taught", scenario.world, cfg, poses,
+                                                seed if noisy else None, detector, n_features),
+                       make)
+    images = [got[f"image_{i}"] for i in range(len(poses))]
+    feats = {k: v for k, v in got.items() if not k.startswith("image_")}
     return write(folder, images, poses, camera_dict(cfg), detector, n_features,
-                 taught_by="render", scenario=scenario.name, world=scenario.world.name)
+                 taught_by="render", scenario=scenario.name, world=scenario.world.name,
+                 features=feats)
+
+
+def features_of(images, detector: str, n_features: int) -> dict[str, np.ndarray]:
+    """`pts_i`, `desc_i` of each key image (the arrays of `features.npz`)."""
+    det = Detector(detector, n_features)
+    arrays = {}
+    for i, img in enumerate(images):
+        arrays[f"pts_{i}"], arrays[f"desc_{i}"] = det.detect(gray_of(img))
+    return arrays
 
 
 def _sha256(data: bytes) -> str:
@@ -105,13 +135,13 @@ def features_hash(pts: np.ndarray, desc: np.ndarray) -> str:
 
 
 def write(folder: Path, images, poses, camera: dict, detector: str, n_features: int, *,
-          taught_by: str, scenario: str, world: str) -> Path:
+          taught_by: str, scenario: str, world: str,
+          features: dict[str, np.ndarray] | None = None) -> Path:
     """Write the folder; path.json holds the sha256 of each key image file and of its
-    features, so a key whose image or features were changed afterwards is refused."""
+    features, so a key whose image or features were changed afterwards is refused.
+    `features`: the key images' `features_of` when already known."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    det = Detector(detector, n_features)
-    arrays = {}
     keys = []
     for i, (img, pose) in enumerate(zip(images, poses, strict=True)):
         name = f"{i:03d}.png"
@@ -119,10 +149,11 @@ def write(folder: Path, images, poses, camera: dict, detector: str, n_features: 
         if not ok:
             raise OSError(f"could not encode {folder / name}")
         (folder / name).write_bytes(png.tobytes())
-        pts, desc = det.detect(gray_of(img))
-        arrays[f"pts_{i}"], arrays[f"desc_{i}"] = pts, desc
         keys.append({"image": name, "pose": [float(v) for v in pose],
-                     "sha256": _sha256(png.tobytes()), "features_sha256": features_hash(pts, desc)})
+                     "sha256": _sha256(png.tobytes())})
+    arrays = features if features is not None else features_of(images, detector, n_features)
+    for i, key in enumerate(keys):
+        key["features_sha256"] = features_hash(arrays[f"pts_{i}"], arrays[f"desc_{i}"])
     np.savez(folder / "features.npz", **arrays)
     meta = {"format": FORMAT, "version": VERSION, "taught_by": taught_by, "scenario": scenario,
             "world": world, "detector": detector, "n_features": int(n_features),

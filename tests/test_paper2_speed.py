@@ -1,0 +1,228 @@
+"""Issue 29: what makes paper 2's missions cheaper must not change them. Caches give back the
+same bytes, the column detector labels within the colour's box exactly as over the frame,
+OpenCV's thread count changes no result, and a study's runs share what one world makes."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cosim import cache, cvthreads
+from cosim.apps.vs import visual_path as VP
+from cosim.apps.vs.tasks import Obstacle, find_obstacle
+from cosim.errors import ScenarioError
+from cosim.scenario.parse import load_scenario, with_set
+from cosim.sensors.camera import make_camera
+from cosim.sensors.noise import FrameNoise
+from cosim.sensors.pinhole import world_surfaces
+from cosim.sensors.tiles import tile_set
+from cosim.world.textures import TextureSpec, cached_texture, make_texture
+
+ROOT = Path(__file__).resolve().parents[1]
+E1 = ROOT / "scenarios" / "bebop2_vs_e1.toml"
+E2 = ROOT / "scenarios" / "bebop2_vs_e2.toml"
+
+
+@pytest.fixture
+def fresh_cache(tmp_path):
+    """An empty memory cache and `tmp_path/cache` on disk; restored afterwards."""
+    saved = cache.get_dir()
+    cache.clear_memory()
+    cache.set_dir(tmp_path / "cache")
+    yield tmp_path / "cache"
+    cache.clear_memory()
+    cache.set_dir(saved)
+
+
+# ------------------------------------------------------------------ the cache
+def test_cache_keeps_arrays_in_memory_and_on_disk_and_remakes_a_bad_file(fresh_cache):
+    made = []
+
+    def make():
+        made.append(1)
+        return {"a": np.arange(5.0), "b": np.array(2.5)}
+
+    k = cache.key("x", (1, 2.0))
+    assert k == cache.key("x", (1, 2.0)) and k != cache.key("x", (1, 2.000001))
+    with pytest.raises(ValueError, match="does not say"):
+        cache.key(np.zeros(5000))                # its repr is cut: not a key
+    first = cache.arrays("kind", k, make)
+    again = cache.arrays("kind", k, make)
+    assert again is first and len(made) == 1                 # memory
+    cache.clear_memory()
+    disk = cache.arrays("kind", k, make)
+    assert len(made) == 1 and np.array_equal(disk["a"], first["a"]) and float(disk["b"]) == 2.5
+    (fresh_cache / "kind" / f"{k}.npz").write_bytes(b"torn")
+    cache.clear_memory()
+    assert np.array_equal(cache.arrays("kind", k, make)["a"], first["a"]) and len(made) == 2
+
+
+def test_memory_cache_is_bounded(fresh_cache):
+    for i in range(cache.MEMO_MAX + 3):
+        cache.memo("bounded", str(i), lambda i=i: i)
+    assert len(cache._memo["bounded"]) == cache.MEMO_MAX
+    assert "0" not in cache._memo["bounded"] and str(cache.MEMO_MAX + 2) in cache._memo["bounded"]
+
+
+def test_cached_textures_are_the_generated_bytes_and_read_only(fresh_cache):
+    spec = TextureSpec("posters", 5)
+    img, s = make_texture(spec, 1.3, 0.7, 120, salt=3)
+    got, s2 = cached_texture(spec, 1.3, 0.7, 120, salt=3)
+    cache.clear_memory()
+    disk, s3 = cached_texture(spec, 1.3, 0.7, 120, salt=3)
+    assert np.array_equal(img, got) and np.array_equal(img, disk) and s == s2 == s3
+    assert not disk.flags.writeable
+    other, _ = cached_texture(spec, 1.3, 0.7, 120, salt=4)
+    assert not np.array_equal(other, img)
+
+
+def test_a_world_is_built_once_per_scene_in_a_process(fresh_cache):
+    a, b = load_scenario(E2), load_scenario(E2)
+    assert a.world is not b.world
+    assert world_surfaces(a.world) is world_surfaces(b.world)
+    assert tile_set(a.world, world_surfaces(a.world), 2.0) is tile_set(
+        b.world, world_surfaces(b.world), 2.0)
+    c = with_set(load_scenario(E2), {"world.room.walls.seed": 99})
+    assert world_surfaces(c.world) is not world_surfaces(a.world)
+
+
+# ------------------------------------------------------------------ column detection
+def _find_obstacle_full_frame(rgb, min_height_frac=0.15):
+    """The detector as it was: labelled over the whole frame."""
+    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
+    mask = cv2.inRange(hsv, np.array([35, 90, 40], np.uint8), np.array([85, 255, 255], np.uint8))
+    n, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    best = None
+    for i in range(1, n):
+        x, y, w, h, area = (int(v) for v in stats[i])
+        if h < min_height_frac * rgb.shape[0]:
+            continue
+        if best is None or area > best[4]:
+            best = (x, y, w, h, area)
+    if best is None:
+        return None
+    x, y, w, h, area = best
+    if x <= 0 or x + w >= rgb.shape[1]:
+        return None
+    return Obstacle(float(x), float(x + w), y + 0.5 * h, area)
+
+
+def test_column_detection_in_the_colour_box_equals_the_full_frame():
+    rng = np.random.default_rng(3)
+    found = 0
+    for trial in range(150):
+        img = rng.integers(0, 256, (120, 200, 3), dtype=np.uint8)
+        img[:, :, 1] //= 2                                   # little green in the noise
+        for _ in range(int(rng.integers(0, 5))):
+            x, y = int(rng.integers(-5, 195)), int(rng.integers(-5, 110))
+            w, h = int(rng.integers(1, 30)), int(rng.integers(1, 90))
+            img[max(y, 0):y + h, max(x, 0):x + w] = (0, 170, 0)
+        if trial % 10 == 0:                  # equal areas: the first in raster order wins
+            img[:] = 0
+            top = 30 if trial % 20 else 10       # the same top row, or a lower one
+            img[30:80, 120:124] = (0, 170, 0)
+            img[top:top + 50, 20:24] = (0, 170, 0)
+            if trial % 30 == 0:                  # and one of them 8-connected across a corner
+                img[top + 50, 24] = (0, 170, 0)
+                img[top + 51:top + 60, 25:27] = (0, 170, 0)
+        got, ref = find_obstacle(img), _find_obstacle_full_frame(img)
+        assert got == ref, trial
+        found += ref is not None
+    assert found > 30
+
+
+def test_column_detection_on_rendered_e2_frames():
+    sc = load_scenario(E2)
+    cam = make_camera(sc.camera, sc.world, seed=0)
+    seen = 0
+    for i in range(12):
+        yaw = 0.05 * (i - 6)
+        img = cam.render(np.array([0.3 * i, 0.1 * math.sin(i), -1.0]),
+                         (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)))
+        got = find_obstacle(img)
+        assert got == _find_obstacle_full_frame(img)
+        seen += got is not None
+    assert seen >= 3
+
+
+# ------------------------------------------------------------------ taught keys
+def test_taught_keys_are_made_once_and_written_the_same(fresh_cache, tmp_path, monkeypatch):
+    sc = with_set(load_scenario(E1), {"camera.width": 428, "camera.height": 240})
+    poses = [(1.5, 0.0, -0.5, 0.0), (1.0, 0.2, -1.0, 10.0)]
+    a = VP.load(VP.teach_by_render(sc, poses, tmp_path / "a", "sift", 300))
+
+    def no_detection(*_a, **_k):
+        raise AssertionError("detected again")
+    monkeypatch.setattr(VP.Detector, "detect", no_detection)
+    cache.clear_memory()                              # from disk this time
+    darker = with_set(sc, {"camera.brightness": 0.5})   # the repeat's lighting, not the keys'
+    b = VP.load(VP.teach_by_render(darker, poses, tmp_path / "b", "sift", 300))
+    for ka, kb in zip(a.keys, b.keys, strict=True):
+        assert np.array_equal(ka.image, kb.image) and np.array_equal(ka.pts, kb.pts)
+        assert np.array_equal(ka.desc, kb.desc)
+    assert (tmp_path / "b" / "000.png").read_bytes() == (tmp_path / "a" / "000.png").read_bytes()
+
+
+# ------------------------------------------------------------------ brightness
+def test_brightness_scales_frames_and_is_checked():
+    img = np.full((4, 4, 3), 200, np.uint8)
+    rng = np.random.default_rng(0)
+    assert FrameNoise(rng, 0.0, 0.0, img.size).apply(img) is img
+    assert (FrameNoise(rng, 0.0, 0.0, img.size, 0.5).apply(img) == 100).all()
+    assert (FrameNoise(rng, 0.0, 0.0, img.size, 1.5).apply(img) == 255).all()
+    with pytest.raises(ScenarioError, match="camera.brightness"):
+        with_set(load_scenario(E2), {"camera.brightness": 0.0})
+
+
+# ------------------------------------------------------------------ OpenCV threads
+def test_thread_count_setting(monkeypatch):
+    saved = cvthreads._run_threads
+    try:
+        cvthreads.set_run_threads(None)
+        monkeypatch.setenv("COSIM_CV_THREADS", "3")
+        assert cvthreads.run_threads() == 3
+        cvthreads.set_run_threads(1)
+        assert cvthreads.run_threads() == 1
+    finally:
+        cvthreads.set_run_threads(saved)
+    cv2.setNumThreads(2)
+    with cvthreads.single_thread():
+        assert cv2.getNumThreads() == 1
+    assert cv2.getNumThreads() == 2
+
+
+def _fly_e1(threads: int, seconds: float):
+    from cosim.sim.master import run_scenario
+    from cosim.sim.options import RunOptions
+
+    sc = with_set(load_scenario(E1), {"timing.t_final_s": seconds})
+    saved = cvthreads._run_threads
+    cvthreads.set_run_threads(threads)
+    try:
+        return run_scenario(sc, RunOptions(mode="mil"))
+    finally:
+        cvthreads.set_run_threads(saved)
+
+
+def test_e1_is_the_same_on_one_and_two_opencv_threads_and_from_the_cache(fresh_cache):
+    """Take-off, matching, tracking and the column in view (the first 7 s of E1): one
+    thread with everything made afresh, then two threads with the world and keys cached."""
+    a = _fly_e1(1, 7.0)
+    b = _fly_e1(2, 7.0)
+    assert any((fresh_cache / k).is_dir() for k in ("texture", "visual-path"))
+    assert a.series.shape == b.series.shape
+    assert np.asarray(a.series).tobytes() == np.asarray(b.series).tobytes()     # bit for bit
+    assert a.frame_log == b.frame_log and len(a.frame_log) > 20
+
+
+def test_a_numpy_float_metric_is_written_as_a_number():
+    """E2's final_yaw_error_deg is a numpy float: the study table wrote 'np.float64(...)',
+    which the report could not read (the metric was missing from it)."""
+    from cosim.studies.table import fmt
+
+    assert fmt(np.float64(0.46793366282014404)) == "0.46793366282014404"
+    assert float(fmt(np.float64(0.1))) == 0.1
