@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+from cosim.studies import jobs as jobs_module
 from cosim.studies.deps import load_scenario
 from cosim.studies.dists import parse_varies
 from cosim.studies.engine import run_study
@@ -111,3 +112,40 @@ def test_worker_memory_levels_off_over_a_1000_run_study(tmp_path):
           f"{rss[-1]}")
     assert max(rss[99:]) - rss[99] < 8.0, rss[99::100]
     assert rss[-1] - rss[499] < 2.5, rss[99::100]
+
+
+_WORKER = """
+import json, sys
+from pathlib import Path
+from cosim.studies import jobs as J
+from cosim.studies.deps import load_scenario
+from cosim.studies.dists import parse_varies
+from cosim.studies.study import montecarlo_jobs
+if sys.argv[1] == "off":
+    J.release_memory = lambda: None
+sc = load_scenario(Path(sys.argv[2]))
+js, _ = montecarlo_jobs(sc, parse_varies(["camera.brightness=uniform(0.8,1.2)"]), 4, 3,
+                        {"timing.t_final_s": 4.0}, Path(sys.argv[3]))
+print(json.dumps([J.run_job(j)["_rss_mb"] for j in js]))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc (Linux)")
+def test_a_front_camera_worker_gives_freed_frames_back(tmp_path):
+    """Four E1 runs cut to 4 s in a worker process, with and without `release_memory` after
+    each run: glibc keeps the freed frames of a front-camera run resident unless trimmed
+    (measured on E2: 265 MB growing ~0.1 MB a run, against 145 MB flat). The released worker
+    must hold clearly less, and not grow from run 2 to run 4."""
+    import subprocess
+    if jobs_module._TRIM is None:
+        pytest.skip("not glibc: no malloc_trim")
+    e1 = SEED_TRACK.parent / "bebop2_vs_e1.toml"
+    got = {}
+    for mode in ("on", "off"):
+        out = subprocess.run([sys.executable, "-c", _WORKER, mode, str(e1), str(tmp_path / mode)],
+                             capture_output=True, text=True, timeout=900)
+        assert out.returncode == 0, out.stderr[-2000:]
+        got[mode] = json.loads(out.stdout.strip().splitlines()[-1])
+    print("worker RSS (MB) after each run, released / not:", got["on"], got["off"])
+    assert got["on"][-1] < got["off"][-1] - 20.0, got
+    assert got["on"][-1] - got["on"][1] < 2.0, got
