@@ -34,6 +34,8 @@ import math
 import cv2
 import numpy as np
 
+from cosim.sensors.raycast import _inside as inside
+
 BLUR_MIN_PX = 0.01        # px, a streak shorter than this is no blur (the frame unchanged)
 
 
@@ -50,20 +52,9 @@ def centre_depth(surfaces, c: np.ndarray, axis: np.ndarray, near: float) -> floa
         if lam < near or lam >= best:
             continue
         X = c + lam * axis - s.O
-        if _inside(float(X @ s.U), float(X @ s.V), s.outline()):
+        if inside(np.array([[X @ s.U, X @ s.V]]), s.outline())[0]:
             best = lam
     return best
-
-
-def _inside(u: float, v: float, poly: np.ndarray) -> bool:
-    pos = neg = True
-    n = len(poly)
-    for i in range(n):
-        a, b = poly[i], poly[(i + 1) % n]
-        cr = (b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])
-        pos = pos and cr >= -1e-12
-        neg = neg and cr <= 1e-12
-    return pos or neg
 
 
 def streak_px(fx: float, fy: float, v_C, w_C, depth: float, exposure_s: float
