@@ -163,7 +163,12 @@ def build_stream(sc: Scenario, camera, h_us: int, opts: RunOptions) -> FrameStre
     """The camera's frames as its stream delivers them (cosim/sensors/stream.py)."""
     if camera is None:
         return None
-    return FrameStream(camera, sc.camera.stream, h_us, sc.seed, pipelined=opts.pipeline)
+    pipelined = opts.pipeline
+    if pipelined is None:
+        from cosim import cvthreads
+
+        pipelined = cvthreads.run_threads() > 1
+    return FrameStream(camera, sc.camera.stream, h_us, sc.seed, pipelined=pipelined)
 
 
 def build_app(sc: Scenario, opts: RunOptions):
