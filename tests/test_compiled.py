@@ -48,7 +48,10 @@ def fly(tmp: Path, scenario: str, compiled: str, *extra: str) -> dict:
     ("bebop2_vs_e1.toml", ()),                      # paper 2's E1 (front camera, teach)
     ("mambo_seed_estimate.toml", ()),               # sensor-fed: sensor models, HIL_SENSOR &
                                                     # co., the onboard estimator (issue 27)
-], ids=["seed", "seed-sil", "bebop2-square", "faults", "paper2-e1", "seed-estimate"])
+    ("bebop2_room_e1.toml", ("--set", "camera.stream=bebop2", "--set",   # delayed, blurred
+                             "timing.t_final_s=6")),                     # frames (issue 28)
+], ids=["seed", "seed-sil", "bebop2-square", "faults", "paper2-e1", "seed-estimate",
+        "camera-stream"])
 def test_interpreted_and_compiled_fly_bit_for_bit(tmp_path, scenario, extra):
     i = fly(tmp_path, scenario, "0", *extra)
     c = fly(tmp_path, scenario, "1", *extra)

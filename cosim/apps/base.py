@@ -4,8 +4,10 @@ An app is the software under test, a companion-computer program. It sees the veh
 through MAVLink (`ctx.client`, an `mav.client.OffboardClient` on the API link; positions in
 the vehicle's local NED frame, origin at its start: a world point w is `ctx.local(*w)`) and,
 if the scenario has a camera, through frames. The master calls it synchronously in the tick order of
-ARCHITECTURE.md: `on_frame` on camera ticks (before `on_tick`), then `on_tick` every tick.
-Neither may block.
+ARCHITECTURE.md: `on_frame` when a frame is delivered (before `on_tick`), then `on_tick` every
+tick. Neither may block. A frame is delivered on the tick it is captured, or later with the
+camera stream's latency (`[camera] latency_s`, `jitter_s`): `on_frame(t, image)` gets the
+delivery time `t`, and `ctx.frame_time` is the frame's capture time.
 
 Write your own as a class with this shape and name it in a scenario as `app.name =
 "package.module:Class"`; it is constructed as `Class(params: dict)` and should reject unknown
@@ -36,6 +38,9 @@ class AppContext:
     frame_period_s: float | None    # s, time between camera frames, None without camera
     rng: np.random.Generator        # seeded from the scenario seed: use it, not global random
     home_ned: tuple[float, float, float]   # m, start position (world NED); apps may know it
+    # s, capture time of the frame being handed to on_frame (its `t` is the delivery time,
+    # later by the camera stream's latency and jitter: docs/cameras.md); NaN before a frame
+    frame_time: float = NAN
 
     def local(self, n: float, e: float, d: float) -> tuple[float, float, float]:
         """A world NED point in the vehicle's local frame (MAVLink LOCAL_NED: origin at the

@@ -12,7 +12,8 @@ from pathlib import Path
 from cosim.errors import ScenarioError, output_error
 
 # files a run folder may hold; removed before a run writes there, so folders never mix runs
-OUTPUT_FILES = ("summary.json", "timeseries.csv", "frames.csv", "flight.tlog", "trajectory.png",
+OUTPUT_FILES = ("summary.json", "timeseries.csv", "frames.csv", "camera_frames.csv",
+                "flight.tlog", "trajectory.png",
                 "timeseries.png", "visual_servo.png", "camera.mp4", "camera.avi", "run.mcap",
                 ".series.f64")   # the last: cosim sitl's series spool, if a run was killed
 

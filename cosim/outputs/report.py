@@ -1,4 +1,5 @@
-"""Writes a run folder: summary.json, timeseries.csv, frames.csv, flight.tlog, plots, video."""
+"""Writes a run folder: summary.json, timeseries.csv, frames.csv, camera_frames.csv,
+flight.tlog, plots, video."""
 
 from __future__ import annotations
 
@@ -65,6 +66,8 @@ def summarize(res: RunResult) -> dict[str, Any]:
         and res.exit_reason.value not in FAILED_EXITS,
         "events": [[t, name] for t, name in res.events],
         "faults": [[t, what] for t, what in res.faults],   # [faults]: when each took effect
+        # the camera's stream: latency, jitter, frames delivered, their delay and blur
+        "camera_stream": res.camera_stream,
         "onboard_stats": res.onboard_stats,
         "versions": versions(),
         # compiled or interpreted, and why (mav/compiled.py; the flight is the same either way)
@@ -114,6 +117,8 @@ def write_run(res: RunResult, out: Path, *, plots: bool = True,
     put("timeseries.csv", lambda p: write_series(res, p))
     if res.frame_log:
         put("frames.csv", lambda p: _write_frames(res, p))
+    if res.frame_times:
+        put("camera_frames.csv", lambda p: _write_camera_frames(res, p))
     if not (same and (out / "flight.tlog").resolve() == res.tlog.path.resolve()):
         put("flight.tlog", res.tlog.write)
     if plots and res.ticks > 1:
@@ -157,6 +162,16 @@ def _write_frames(res: RunResult, path: Path) -> None:
         f.write(",".join(res.frame_columns or LINE_FRAME_COLUMNS) + "\n")
         for r in res.frame_log:
             f.write(",".join(repr(float(v)) for v in r) + "\n")
+
+
+def _write_camera_frames(res: RunResult, path: Path) -> None:
+    """Every frame the app was handed: its capture and delivery times (cosim/sensors/stream.py)."""
+    from cosim.sensors.stream import frame_rows
+
+    with open(path, "w") as f:
+        f.write("frame,t_capture_s,t_delivery_s,delay_s,blur_px\n")
+        for i, tc, td, d, b in frame_rows(res.frame_times, res.scenario.timing.tick_s):
+            f.write(f"{i},{tc!r},{td!r},{d!r},{b!r}\n")
 
 
 def write_series(res: RunResult, path: Path) -> None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Iterable, Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -24,6 +25,7 @@ import numpy as np
 from cosim.errors import ScenarioError
 from cosim.sensors.down import CameraConfig, DownwardCamera, _camera_pose
 from cosim.sensors.front import FrontCamera, FrontCameraConfig, camera_pose
+from cosim.sensors.stream import split_stream
 
 # kind -> (config record, renderer class); the renderer takes (world, config, seed=...)
 KINDS: dict[str, tuple[type, type]] = {
@@ -43,13 +45,16 @@ class Renderer(Protocol):
 
 
 def parse_camera(d: Mapping[str, Any], where: str = "camera") -> CameraConfigAny:
-    """Validate a ``[camera]`` table into the config record of its ``kind``."""
+    """Validate a ``[camera]`` table into the config record of its ``kind`` (its stream keys,
+    any kind: ``cosim/sensors/stream.py``)."""
     if not isinstance(d, Mapping):
         raise ScenarioError(where, d, "a table")
     kind = d.get("kind", "down")
     if not isinstance(kind, str) or kind not in KINDS:
         raise ScenarioError(f"{where}.kind", kind, f"one of {', '.join(sorted(KINDS))}")
-    cfg = KINDS[kind][0].from_dict({k: v for k, v in d.items() if k != "kind"}, where)
+    rest, stream = split_stream(d, where, kind)
+    cfg = KINDS[kind][0].from_dict({k: v for k, v in rest.items() if k != "kind"}, where)
+    cfg = replace(cfg, stream=stream)
     need = frame_bytes(cfg)
     if need > FRAME_BYTES_MAX:
         raise ScenarioError(f"{where}.supersample", cfg.supersample,

@@ -44,6 +44,7 @@ from cosim.errors import ScenarioError
 from cosim.frames import R_from_quat
 from cosim.scenario.validate import integer, no_unknown, number, string
 from cosim.sensors.noise import FrameNoise
+from cosim.sensors.stream import StreamSpec
 from cosim.world.floor import World
 
 # Camera axes in body FRD: columns are x_C (image right), y_C (image down), z_C (optical axis).
@@ -67,6 +68,7 @@ class CameraConfig:
     supersample: int = 1                            # render at k x resolution, box-filter down
     texture_px_per_m: float = 150.0                 # px/m, floor texture resolution
     interpolation: str = "linear"                   # texture sampling: "linear" or "nearest"
+    stream: StreamSpec = StreamSpec()               # latency and jitter of its frames
 
     @property
     def focal_px(self) -> float:

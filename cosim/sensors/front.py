@@ -37,8 +37,9 @@ Renderers (``cosim/world/surfaces.py`` gives the scene as textured convex planar
 
 ``depth = true`` makes the camera keep ``last_depth``: the z (m along the optical axis) of each
 pixel's surface, inf where nothing is hit (the fast renderer writes 1/z, affine on each plane,
-through the same masks). Noise: ``cosim.sensors.noise.FrameNoise`` (seeded). Pixels that see
-nothing (no room, above the horizon) are ``background_rgb``.
+through the same masks). Motion blur (``exposure_s > 0``, when the stream passes the vehicle's
+motion): ``cosim/sensors/blur.py``, before the noise. Noise: ``cosim.sensors.noise.FrameNoise``
+(seeded). Pixels that see nothing (no room, above the horizon) are ``background_rgb``.
 """
 
 from __future__ import annotations
@@ -50,6 +51,8 @@ import cv2
 import numpy as np
 
 from cosim import cvthreads
+from cosim.frames import R_from_quat
+from cosim.sensors import blur
 from cosim.sensors.noise import FrameNoise
 from cosim.sensors.pinhole import (
     R_BC_FRONT,
@@ -79,7 +82,10 @@ class FrontCamera:
         self.config = cfg = config or FrontCameraConfig()
         self.rng = np.random.default_rng(seed)
         self._noise = FrameNoise(self.rng, cfg.noise_std, cfg.lighting_noise,
-                                 cfg.width * cfg.height * 3, cfg.brightness)
+                                 cfg.width * cfg.height * 3, cfg.brightness,
+                                 cfg.offset_noise)
+        self.wants_motion = cfg.exposure_s > 0.0   # render(..., motion=) blurs the frame
+        self.last_blur_px = 0.0                    # px, the streak of the last frame
         self.R_BC = rpy_matrix(*np.radians(cfg.mount_rpy_deg)) @ R_BC_FRONT
         self.surfaces = world_surfaces(world)
         self.last_depth: np.ndarray | None = None
@@ -107,11 +113,15 @@ class FrontCamera:
         self._background[:] = (*cfg.background_rgb, 255)
 
     # ------------------------------------------------------------------ rendering
-    def render(self, p_W: Sequence[float], q_WB: Sequence[float]) -> np.ndarray:
+    def render(self, p_W: Sequence[float], q_WB: Sequence[float], motion=None) -> np.ndarray:
+        """The frame at a body pose; ``motion = (v_W m/s world NED, w_B rad/s body FRD)``
+        blurs it over ``exposure_s`` (the stream passes it when ``wants_motion``)."""
         cfg = self.config
         if self._ref is not None:
             img, depth = self._ref.render_with_depth(p_W, q_WB)
             self.last_depth = depth if cfg.depth else None
+            if motion is not None and cfg.exposure_s > 0.0:
+                img = self._blur(img, _View(cfg, self.R_BC, p_W, q_WB), q_WB, motion)
             return self._noise.apply(img)
         view = _View(cfg, self.R_BC, p_W, q_WB)
         frame = self._background.copy()
@@ -124,7 +134,24 @@ class FrontCamera:
         if inv_z is not None:
             with np.errstate(divide="ignore"):
                 self.last_depth = np.where(inv_z > 0, 1.0 / inv_z, np.inf).astype(np.float32)
-        return self._noise.apply(cv2.cvtColor(frame, cv2.COLOR_RGBA2RGB))
+        img = cv2.cvtColor(frame, cv2.COLOR_RGBA2RGB)
+        if motion is not None and cfg.exposure_s > 0.0:
+            img = self._blur(img, view, q_WB, motion)
+        return self._noise.apply(img)
+
+    def _blur(self, img: np.ndarray, view: _View, q_WB, motion) -> np.ndarray:
+        """The frame blurred along the image centre's motion over the exposure."""
+        cfg = self.config
+        v_W, w_B = (np.asarray(m, dtype=float) for m in motion)
+        R_WB = R_from_quat(q_WB)
+        w_W = R_WB @ w_B
+        v_cam = v_W + np.cross(w_W, R_WB @ np.asarray(cfg.mount_B))   # the camera centre's
+        R = view.R_CW
+        depth = blur.centre_depth(self.surfaces, view.c, R[2], cfg.near_m)
+        du, dv = blur.streak_px(cfg.fx, cfg.fy, R @ v_cam, R @ w_W, depth, cfg.exposure_s)
+        self.last_blur_px = math.hypot(du, dv)
+        k = blur.kernel(du, dv)
+        return img if k is None else blur.apply(img, k)
 
     def _visible(self, view: _View):
         """What to draw, in the painter's order (room, posters, solids far to near): the tiles

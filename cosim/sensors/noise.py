@@ -2,8 +2,11 @@
 all from the camera's seeded ``numpy.random.Generator`` (deterministic per seed and frame).
 
 Per frame: gain ``brightness * (1 + lighting_noise * N(0, 1))`` on all channels (``brightness``:
-a constant scene lighting, 1 by default), then per-pixel Gaussian noise of ``noise_std``
-(0-255 units), rounded and clipped to uint8. For speed the pixel noise
+a constant scene lighting, 1 by default) and an offset ``offset_noise * N(0, 1)`` (0-255 units;
+the front camera's exposure noise is this gain and offset), then per-pixel Gaussian noise of
+``noise_std`` (0-255 units), rounded and clipped to uint8. Draws per frame, in this order: the
+gain (if lighting_noise > 0), the offset (if offset_noise > 0), the noise window (if
+noise_std > 0). For speed the pixel noise
 of a frame is a window, at a random offset, of a seeded bank of 2**21 Gaussian samples drawn
 once (drawing 57 600 normals per frame costs ~0.9 ms); windows of two frames may overlap
 (their noise is then the same sequence shifted by a random number of samples).
@@ -21,11 +24,12 @@ class FrameNoise:
     """Adds exposure and pixel noise to H x W x C uint8 frames of one size."""
 
     def __init__(self, rng: np.random.Generator, noise_std: float, lighting_noise: float,
-                 n_values: int, brightness: float = 1.0) -> None:
+                 n_values: int, brightness: float = 1.0, offset_noise: float = 0.0) -> None:
         self.rng = rng
         self.noise_std = float(noise_std)
         self.lighting_noise = float(lighting_noise)
         self.brightness = float(brightness)
+        self.offset_noise = float(offset_noise)
         self.bank: np.ndarray | None = None
         if self.noise_std > 0.0:
             # noise_std * N(0, 1) + 0.5 (the 0.5 makes the uint8 conversion round half up)
@@ -36,7 +40,8 @@ class FrameNoise:
 
     @property
     def active(self) -> bool:
-        return self.noise_std > 0.0 or self.lighting_noise > 0.0 or self.brightness != 1.0
+        return (self.noise_std > 0.0 or self.lighting_noise > 0.0 or self.brightness != 1.0
+                or self.offset_noise > 0.0)
 
     def apply(self, img: np.ndarray) -> np.ndarray:
         if not self.active:
@@ -45,10 +50,17 @@ class FrameNoise:
         gain = 1.0 + ln * self.rng.standard_normal() if ln else 1.0
         if self.brightness != 1.0:
             gain *= self.brightness
+        offset = self.offset_noise * self.rng.standard_normal() if self.offset_noise else 0.0
         if self.bank is not None:
             k = int(self.rng.integers(0, NOISE_BANK))
             noise = self.bank[k:k + img.size].reshape(img.shape)
+            if offset:
+                noise = noise + np.float32(offset)
             buf = cv2.scaleAdd(img.astype(np.float32), max(gain, 0.0), noise)
+            np.clip(buf, 0.0, 255.0, out=buf)
+            return buf.astype(np.uint8)
+        if offset:      # convertScaleAbs would fold a negative value back up: clip instead
+            buf = img.astype(np.float32) * np.float32(max(gain, 0.0)) + np.float32(offset + 0.5)
             np.clip(buf, 0.0, 255.0, out=buf)
             return buf.astype(np.uint8)
         return cv2.convertScaleAbs(img, alpha=max(gain, 0.0))

@@ -14,6 +14,7 @@ import numpy as np
 from cosim.errors import ScenarioError
 from cosim.frames import R_from_quat
 from cosim.scenario.validate import boolean, integer, no_unknown, number, rgb
+from cosim.sensors.stream import StreamSpec
 from cosim.world.surfaces import Surface, scene_surfaces
 
 # Camera axes in the rig frame (= body FRD for a zero mount rotation): columns are x_C (image
@@ -52,13 +53,21 @@ class FrontCameraConfig:
     near_m: float = 0.05
     tile_m: float = 2.0
     noise_std: float = 0.0
-    lighting_noise: float = 0.0
+    lighting_noise: float = 0.0   # 1, std of the per-frame exposure gain around 1
+    offset_noise: float = 0.0     # 0-255 units, std of the per-frame exposure offset
+    exposure_s: float = 0.0       # s, shutter time of the motion blur (0: no blur)
     brightness: float = 1.0       # the scene's lighting at repeat: every frame's values x this
     background_rgb: tuple[int, int, int] = (0, 0, 0)
     exact: bool = False           # render with the reference ray caster (slow)
     supersample: int = 2          # reference renderer: rays per pixel side
     depth: bool = False           # keep the depth image of each frame (last_depth)
     kind: str = "front"
+    stream: StreamSpec = StreamSpec()   # latency and jitter of its frames (stream.py)
+
+    @property
+    def noisy(self) -> bool:
+        """Frames differ with the camera's seed (pixel or exposure noise)."""
+        return self.noise_std > 0.0 or self.lighting_noise > 0.0 or self.offset_noise > 0.0
 
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
@@ -69,8 +78,8 @@ class FrontCameraConfig:
             raise ScenarioError(where, d, "a table")
         no_unknown(d, {"width", "height", "fx", "fy", "cx", "cy", "hfov_deg", "mount_B",
                        "mount_rpy_deg", "stabilized", "near_m", "tile_m", "noise_std",
-                       "lighting_noise", "brightness", "background_rgb", "exact",
-                       "supersample", "depth"},
+                       "lighting_noise", "offset_noise", "exposure_s", "brightness",
+                       "background_rgb", "exact", "supersample", "depth"},
                    where)
         kw: dict[str, Any] = {}
         w = kw["width"] = integer(d, "width", where, cls.width, lo=16, hi=4096)
@@ -103,6 +112,8 @@ class FrontCameraConfig:
         kw["tile_m"] = number(d, "tile_m", where, 2.0, lo=0.1, hi=100.0)
         kw["noise_std"] = number(d, "noise_std", where, 0.0, lo=0.0, hi=100.0)
         kw["lighting_noise"] = number(d, "lighting_noise", where, 0.0, lo=0.0, hi=0.5)
+        kw["offset_noise"] = number(d, "offset_noise", where, 0.0, lo=0.0, hi=50.0)
+        kw["exposure_s"] = number(d, "exposure_s", where, 0.0, lo=0.0, hi=0.2)
         kw["brightness"] = number(d, "brightness", where, 1.0, lo=0.1, hi=4.0)
         kw["supersample"] = integer(d, "supersample", where, 2, lo=1, hi=8)
         kw["background_rgb"] = rgb(d, "background_rgb", where, cls.background_rgb)

@@ -35,6 +35,7 @@ from cosim.plant.fmu import Y_QW, Y_QZ, Y_X, Y_Z, Plant
 from cosim.scenario.records import Scenario
 from cosim.sensors.camera import PngSink, VideoSink, make_camera
 from cosim.sensors.odometry import OdometrySensor
+from cosim.sensors.stream import FrameStream
 from cosim.sim.exits import ExitMonitor, ExitReason
 from cosim.sim.onboard import OnboardHandle
 from cosim.sim.options import RunOptions
@@ -79,6 +80,9 @@ class RunResult:
     reference_poses: list[tuple[float, ...]] | None = None   # the app's taught path (n,e,d,yaw)
     estimate: np.ndarray | None = None         # sensor-fed runs: the vehicle's estimate per
                                                # tick (cosim/sim/estimate.ESTIMATE_COLUMNS)
+    frame_times: list[tuple[int, int, float]] = field(default_factory=list)  # per delivered
+                                               # frame: capture tick, delivery tick, blur px
+    camera_stream: dict[str, Any] | None = None   # the stream's figures (FrameStream.summary)
     _tmp: Any = field(default=None, repr=False)   # owns the temporary spool folder
 
     @property
@@ -155,6 +159,18 @@ def build_camera(sc: Scenario):
         return make_camera(sc.camera, sc.world, seed=cam_seed)
 
 
+def build_stream(sc: Scenario, camera, h_us: int, opts: RunOptions) -> FrameStream | None:
+    """The camera's frames as its stream delivers them (cosim/sensors/stream.py)."""
+    if camera is None:
+        return None
+    pipelined = opts.pipeline
+    if pipelined is None:
+        from cosim import cvthreads
+
+        pipelined = cvthreads.run_threads() > 1
+    return FrameStream(camera, sc.camera.stream, h_us, sc.seed, pipelined=pipelined)
+
+
 def build_app(sc: Scenario, opts: RunOptions):
     from cosim.apps.registry import make_app
 
@@ -162,7 +178,7 @@ def build_app(sc: Scenario, opts: RunOptions):
         return opts.app_override if opts.app_override is not None else make_app(sc.app)
 
 
-def start_app(app, sc: Scenario, vehicle: OnboardHandle, camera, run_dir: Path) -> None:
+def start_app(app, sc: Scenario, vehicle: OnboardHandle, camera, run_dir: Path):
     from cosim.apps.base import AppContext
     from mav.client import OffboardClient
 
@@ -175,6 +191,7 @@ def start_app(app, sc: Scenario, vehicle: OnboardHandle, camera, run_dir: Path) 
         if hasattr(app, "prepare"):   # an app that needs the scenario before it flies
             app.prepare(sc, run_dir)
         app.on_start(ctx)
+    return ctx
 
 
 def run_dir_for(opts: RunOptions) -> tuple[Path, Any]:
@@ -232,17 +249,18 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
 
     phases: list[str] = []
     exit_reason, message = ExitReason.TIME_LIMIT, "time limit reached"
-    plant = vehicle = app = monitor = feed = None
+    plant = vehicle = app = monitor = feed = stream = ctx = None
     pacer = None                 # real-time mode: the wall-clock pacing and its host stalls
     wall0 = time.perf_counter()
     loop0 = None
     try:
         plant = build_plant(sc)
         camera = build_camera(sc)
+        stream = build_stream(sc, camera, h_us, opts)
         vehicle = OnboardHandle(sc, opts, tlog, run_dir, hooks)
         app = build_app(sc, opts)
         if app is not None:
-            start_app(app, sc, vehicle, camera, run_dir)
+            ctx = start_app(app, sc, vehicle, camera, run_dir)
         monitor = ExitMonitor(sc.world.arena, h, app, sitl=opts.sitl, scene=sc.world.scene,
                               body_radius=sc.vehicle.body_radius)
         sinks = []
@@ -253,14 +271,14 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             sinks.append(lambda k, t, img: (k // cam_every) % png_every == 0
                          and pngs.add(t, img))
         if mcap is not None:
-            sinks.append(lambda k, t, img: mcap.frame(t, img, tick.y[Y_X:Y_Z + 1],
-                                                      tick.y[Y_QW:Y_QZ + 1]))
+            sinks.append(lambda k, t, img: mcap.frame(t, img, tick.frame_y[Y_X:Y_Z + 1],
+                                                      tick.frame_y[Y_QW:Y_QZ + 1]))
         live = None
         if opts.live is not None:   # the live view: its topics, the frames as they come
             with part("live view"):
                 live = opts.live.vehicle(sc, app=app)
-            sinks.append(lambda k, t, img: live.frame(t, img, tick.y[Y_X:Y_Z + 1],
-                                                      tick.y[Y_QW:Y_QZ + 1]))
+            sinks.append(lambda k, t, img: live.frame(t, img, tick.frame_y[Y_X:Y_Z + 1],
+                                                      tick.frame_y[Y_QW:Y_QZ + 1]))
         codec = HilSimulatorCodec()
         if sc.sensors is not None and sc.sensors.hil:   # sensor messages, the vehicle estimates
             from cosim.sim.estimate import SensorFeed
@@ -268,7 +286,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             sensor = codec = feed = SensorFeed(sc, h)
         tick = Tick(plant=plant, sensor=sensor, codec=codec,
                     exchange=vehicle.exchange, gcs_recv=vehicle.gcs.recv, tlog=tlog,
-                    spool=spool, monitor=monitor, h_us=h_us, app=app, camera=camera,
+                    spool=spool, monitor=monitor, h_us=h_us, app=app, stream=stream, ctx=ctx,
                     cam_every=cam_every, sinks=sinks, hooks=hooks, home=(home_n, home_e))
         phases = tick.phases
         run_tick = tick.run
@@ -307,6 +325,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             stats = vehicle.stats()
         if plant is not None:
             plant.close()
+        if stream is not None:
+            stream.close()
         tlog.close()
         recorded = spool.finish()
         video_path = video.close() if video is not None else None
@@ -328,6 +348,9 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         reference_poses=list(getattr(app, "reference_poses", None) or []) or None,
         _tmp=(tmp, spool_tmp),
     )
+    if stream is not None:
+        res.frame_times = stream.times
+        res.camera_stream = stream.summary(h)
     if feed is not None:
         res.estimate = feed.array()
         res.faults = sorted(res.faults + feed.fired())

@@ -39,3 +39,9 @@ class RunOptions:
     mcap: bool = False                # also write the run as run.mcap (Foxglove schemas)
     live: Any = None                  # a cosim.outputs.live.LiveView serving the run live
     signing_key: bytes | None = None  # 32 bytes: the vehicle signs api/gcs, rejects unsigned
+    # a camera whose frames are delayed (`[camera] latency_s`, `jitter_s`): True renders each
+    # frame on a worker thread from its capture to its delivery (cosim/sensors/stream.py),
+    # False at capture, in the loop; None: on the worker when the run may use more than one
+    # core (cosim/cvthreads.py: a single run on a machine with free cores, not a study
+    # worker). Results do not depend on it, only the wall time does.
+    pipeline: bool | None = None

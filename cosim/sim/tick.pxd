@@ -6,10 +6,10 @@ from cosim.sim.exits cimport ExitMonitor
 
 cdef class Tick:
     cdef dict __dict__
-    cdef public list y, phases
+    cdef public list y, phases, frame_y
     cdef public dict phase_idx
     cdef public object plant_step, measure, encode, encode_lost, decode, exchange, gcs_recv
-    cdef public object spool, app, camera, hooks, stage
+    cdef public object spool, app, stream, ctx, hooks, stage
     cdef public tuple sinks
     cdef public Tlog tlog
     cdef public ExitMonitor monitor

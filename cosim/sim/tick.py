@@ -4,8 +4,11 @@ per vehicle). Written once, in Python; compiled by Cython when built (mav/compil
 
 Tick k (t_k = k * h from the integer counter), the order of ARCHITECTURE.md:
 1-2. plant outputs y(t_k) -> the sensor -> ODOMETRY stamped t_k (`hooks.on_odometry`);
-3. on a camera tick: render, hand the frame to the sinks (video, PNG, MCAP), then
-   (`hooks.on_frame`) to the app;
+3. on a camera tick the frame is captured (the pose at t_k; rendered now, or on the stream's
+   worker); every frame due at this tick (cosim/sensors/stream.py: capture + latency +
+   jitter, in capture order; at once without a delay) goes to the sinks (video, PNG, MCAP,
+   with its capture tick and pose), then (`hooks.on_frame`) to the app with its capture
+   time in `ctx.frame_time`;
 4. the app's tick (it reads telemetry, may send setpoints);
 5. HIL: ODOMETRY out, the onboard stack's HIL_ACTUATOR_CONTROLS stamped t_k back; the GCS end
    of the master's links drained (into the tlog);
@@ -24,21 +27,24 @@ import math
 import cython
 
 from cosim.errors import ComponentError
-from cosim.plant.fmu import Y_QW, Y_QZ, Y_VZ, Y_X, Y_Z
+from cosim.plant.fmu import Y_VZ
 from cosim.sim.recorder import CHUNK
 
 NAN3 = (math.nan, math.nan, math.nan)
 
 
 class Tick:
-    """The parts of one vehicle, stepped together. `app`, `camera` and `hooks` may be None;
-    `sinks` are called `(k, t, img)` with each rendered frame before the app sees it;
-    `record_every` ticks make one recorded row; `home` is the vehicle's local origin in world
-    NED (setpoints are recorded in world coordinates)."""
+    """The parts of one vehicle, stepped together. `app`, `stream` (a camera's
+    cosim.sensors.stream.FrameStream), `ctx` (the app's AppContext) and `hooks` may be None;
+    `sinks` are called `(k, t, img)` with each delivered frame, k and t its capture tick and
+    time (`frame_y`: the plant outputs at capture), before the app sees it; `record_every`
+    ticks make one recorded row; `home` is the vehicle's local origin in world NED (setpoints
+    are recorded in world coordinates)."""
 
     def __init__(self, *, plant, sensor, codec, exchange, gcs_recv, tlog, spool, monitor,
-                 h_us: int, app=None, camera=None, cam_every: int = 1, sinks=(), hooks=None,
-                 home: tuple[float, float] = (0.0, 0.0), record_every: int = 1) -> None:
+                 h_us: int, app=None, stream=None, ctx=None, cam_every: int = 1, sinks=(),
+                 hooks=None, home: tuple[float, float] = (0.0, 0.0),
+                 record_every: int = 1) -> None:
         self.y = plant.y
         self.plant_step = plant.step
         self.measure = sensor.measure
@@ -52,7 +58,9 @@ class Tick:
         self.monitor = monitor
         self.h_us = h_us
         self.app = app
-        self.camera = camera
+        self.stream = stream
+        self.ctx = ctx
+        self.frame_y = self.y                # plant outputs at the capture of the last frame
         self.cam_every = cam_every
         self.sinks = tuple(sinks)
         self.hooks = hooks
@@ -131,18 +139,25 @@ class Tick:
         return self.monitor.check(t, y, vz, (u1, u2, u3, u4))
 
     def _camera_and_app(self, k: int, t_us: int, t: float, y) -> None:
-        """Steps 3-4: the camera on its ticks (the sinks, `hooks.on_frame`, the app's
-        `on_frame`), then the app's `on_tick`."""
-        app, camera, hooks = self.app, self.camera, self.hooks
-        if camera is not None and k % self.cam_every == 0:
-            self.stage = "camera"
-            img = camera.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1]))
-            for sink in self.sinks:
-                sink(k, t, img)
-            if hooks is not None:
-                img = hooks.on_frame(t_us, img)
-            self.stage = "app"
-            if img is not None:
-                app.on_frame(t, img)
+        """Steps 3-4: the capture on camera ticks; each frame due now to the sinks,
+        `hooks.on_frame` and the app's `on_frame`; then the app's `on_tick`."""
+        app, stream, hooks = self.app, self.stream, self.hooks
+        if stream is not None:
+            if k % self.cam_every == 0:
+                self.stage = "camera"
+                stream.capture(k, y)
+            while stream.due(k):
+                self.stage = "camera"
+                kc, self.frame_y, img = stream.pop()
+                tc = kc * self.h_us * 1e-6
+                for sink in self.sinks:
+                    sink(kc, tc, img)
+                if hooks is not None:
+                    img = hooks.on_frame(t_us, img)
+                self.stage = "app"
+                if img is not None:
+                    if self.ctx is not None:
+                        self.ctx.frame_time = tc
+                    app.on_frame(t, img)
         self.stage = "app"
         app.on_tick(t)

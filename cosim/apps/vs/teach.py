@@ -35,7 +35,7 @@ class _TeachFlight(ScriptedApp):
         i = self._i
         if (self.phase == "waypoints" and self.is_key[i] and i != self._taken
                 and not math.isnan(self._t_in) and t - self._t_in >= 0.8 * self.hover_s):
-            self.captured.append((t, image.copy()))
+            self.captured.append((self.ctx.frame_time, image.copy()))   # its capture time
             self._taken = i
 
 

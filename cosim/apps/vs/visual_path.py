@@ -81,11 +81,12 @@ def teach_by_render(scenario, poses, folder: Path, detector: str, n_features: in
     """Render the key images at `poses` ([n, e, d, yaw_deg] rows) and write the folder."""
     from cosim.sensors.camera import make_camera
     from cosim.sensors.pinhole import FrontCameraConfig
+    from cosim.sensors.stream import StreamSpec
 
     cfg = scenario.camera
     if not isinstance(cfg, FrontCameraConfig):
         raise ValueError("camera: teach-and-repeat needs [camera] kind = 'front'")
-    cfg = replace(cfg, brightness=1.0)
+    cfg = replace(cfg, brightness=1.0, exposure_s=0.0, stream=StreamSpec())   # keys: still
     seed = scenario.seed + 7919
     poses = [tuple(float(v) for v in p) for p in poses]
 
@@ -100,7 +101,7 @@ def teach_by_render(scenario, poses, folder: Path, detector: str, n_features: in
         out.update({f"image_{i}": img for i, img in enumerate(images)})
         return out
 
-    noisy = cfg.noise_std > 0.0 or cfg.lighting_noise > 0.0
+    noisy = cfg.noisy
     got = cache.arrays("visual-path", cache.key("taught", scenario.world, cfg, poses,
                                                 seed if noisy else None, detector, n_features),
                        make)
