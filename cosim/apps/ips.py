@@ -75,6 +75,7 @@ import numpy as np
 __all__ = ["IPSParams", "IPSResult", "ImageProcessor"]
 
 _SCALE = 64.0   # binarisation slope, see module docstring
+_HEADING_W = 0.3   # weight of a frame's VTP direction in the heading (a look-back of ~3 frames)
 
 
 @dataclass(frozen=True)
@@ -103,6 +104,9 @@ class IPSParams:
     marker_r_px: float = 14.5                # px, the marker disc's radius in the image
     nearest_always: bool = False             # keep only the ring branch nearest the direction
     initial_search: bool = False             # the first frame searches the whole ring
+    along_line: bool = False                 # VTP at the look-ahead measured along the line
+                                             # from the drone (hairpins, crossings)
+    measured_width: bool = False             # track erosion no wider than the line in view
 
     @classmethod
     def released(cls, **overrides: float) -> IPSParams:
@@ -137,7 +141,8 @@ class IPSParams:
                    square_kernel=max(1, int(round(0.5 * line))),
                    disk_radius=max(1, int(round(0.75 * marker))), marker_r_px=marker,
                    width=width, height=height, adaptive_k_t=True, marker_shape=True,
-                   nearest_always=True, initial_search=True)
+                   nearest_always=True, initial_search=True, along_line=True,
+                   measured_width=True)
         return replace(base, **overrides)
 
     def __post_init__(self) -> None:
@@ -227,6 +232,17 @@ class ImageProcessor:
         self._min_vtp_r = 0.5 * p.r_min
         self._ring_row = rows.ravel()[self._ring_idx].astype(float)
         self._ring_col = cols.ravel()[self._ring_idx].astype(float)
+        # along-line look-ahead: crop-relative squared distance to the centre (the seed is the
+        # line pixel nearest it), steps of the geodesic growth (cross, square, cross, cross,
+        # square: ~0.99 px per step on the diagonal as on the axes)
+        self._crop_d2 = ((rows - r0) ** 2 + (cols - c0) ** 2).ravel()
+        self._crop_origin = (cr.start, cc.start)
+        cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+        square = np.ones((3, 3), np.uint8)
+        self._geo_kernels = (cross, square, cross, cross, square)
+        self._geo_steps = max(3, int(round(0.5 * (p.r_min + p.r_max))))
+        self._kernels = {k: self._k_square}
+        self._k_frame, self._shift_frame = self._k_square, self._vtp_shift
         self._cos_half = math.cos(0.5 * p.arc_width)
         self._cos_half_search = math.cos(0.5 * p.search_arc_width)
         self.reset()
@@ -268,6 +284,82 @@ class ImageProcessor:
         """Back to the initial state: previous track "seen" in the initial direction."""
         self.prev_seen = not self.params.initial_search
         self.prev_direction = self.params.initial_direction
+        self.heading = (math.cos(self.prev_direction), math.sin(self.prev_direction))
+
+    def _frame_kernel(self, crop: np.ndarray) -> tuple[np.ndarray, float]:
+        """(square erosion kernel, VTP half-pixel shift) for this frame. ``measured_width``:
+        the kernel is no wider than half the line in view, measured on the ring (twice the
+        median distance of the set ring pixels to the line's edge ~ half its width), and at
+        most the configured one: a line thinner than the configured ``line_width_m``, or seen
+        from higher up, is not eroded away."""
+        k = self.params.square_kernel
+        if self.params.measured_width:
+            on = crop.ravel()[self._ring_idx] > 0
+            if np.count_nonzero(on) >= 3:
+                dt = cv2.distanceTransform((crop > 0).astype(np.uint8), cv2.DIST_L2,
+                                           cv2.DIST_MASK_PRECISE)
+                half = 2.0 * float(np.median(dt.ravel()[self._ring_idx][on]))
+                k = max(1, min(k, int(round(half))))
+        kern = self._kernels.get(k)
+        if kern is None:
+            kern = self._kernels[k] = np.ones((k, k), np.uint8)
+        return kern, 0.5 * (k - 1) - k // 2
+
+    def _along_line(self, eroded: np.ndarray, thr: float, cos_p: float, sin_p: float
+                    ) -> tuple[float, float, int, bool] | None:
+        """The look-ahead point measured along the line (``along_line``): grow from the line
+        pixel nearest the image centre through the eroded line for the ring's radius in steps;
+        the pixels reached in the last two steps form one piece per way on (behind, ahead, the
+        other arms at a crossing, both legs of a hairpin only once its vertex is that close
+        along the line). A leg that merely passes near on the floor (a hairpin's other side, a
+        crossing line further on) is not reached, unlike on the ring. Kept: the piece within
+        the arc nearest the heading (several: a crossing or a hairpin's vertex) or the
+        previous direction. (row, col) crop coordinates of its centroid, its pixel count, and
+        whether any line was reached; None when no line lies under the drone (seed farther
+        than r_min / 2 from the centre: the ring rules apply)."""
+        m = (eroded > 0).view(np.uint8)
+        idx = np.flatnonzero(m)
+        if not idx.size:
+            return None
+        d2 = self._crop_d2[idx]
+        j = int(np.argmin(d2))
+        if d2[j] > self._min_vtp_r ** 2:
+            return None
+        reached = np.zeros_like(m)
+        reached.flat[idx[j]] = 1
+        inner = reached
+        ks = self._geo_kernels
+        n = self._geo_steps
+        for i in range(n):
+            grown = cv2.bitwise_and(cv2.dilate(reached, ks[i % len(ks)]), m)
+            if i == n - 3:
+                inner = reached
+            reached = grown
+        band = cv2.subtract(reached, inner)
+        k, labels, stats, cents = cv2.connectedComponentsWithStats(band, connectivity=8)
+        if k <= 1:
+            return 0.0, 0.0, 0, True
+        r0, c0 = self.center_rc
+        o_r, o_c = self._crop_origin
+        ex = r0 - (cents[1:, 1] + o_r)
+        ey = (cents[1:, 0] + o_c) - c0
+        rad = np.maximum(np.hypot(ex, ey), 1e-9)
+        if self.prev_seen and k > 2:
+            # the piece nearest the way back is where the drone came from: the others are
+            # the ways on (the arc is not applied: a hairpin's next leg swings through it)
+            cb = -(ey * cos_p + ex * sin_p) / rad
+            cand = np.delete(np.arange(k - 1), int(np.argmax(cb)))
+        else:
+            cand = np.flatnonzero((ey * cos_p + ex * sin_p) / rad >= thr - 1e-12)
+        if not cand.size:
+            return 0.0, 0.0, 0, True
+        if cand.size > 1:          # a junction: continue the heading (a ~3-frame look-back)
+            hc, hs = self.heading
+            best = int(cand[int(np.argmax((ey[cand] * hc + ex[cand] * hs) / rad[cand]))])
+        else:
+            best = int(cand[0])
+        return (float(cents[best + 1, 1]), float(cents[best + 1, 0]),
+                int(stats[best + 1, cv2.CC_STAT_AREA]), True)
 
     def _threshold_matrix(self, image_rgb: np.ndarray) -> np.ndarray:
         """The binarisation matrix for this frame (adaptive K_T: half the frame's 99th
@@ -287,13 +379,13 @@ class ImageProcessor:
         or None: where to fly to find the line from a start beside it."""
         if binary is None:
             binary = cv2.transform(image_rgb, bin_m)
-        e = cv2.erode(binary, self._k_square)
+        e = cv2.erode(binary, self._k_frame)
         idx = np.flatnonzero(e)
         if not idx.size:
             return None
         w = self.params.width
         r0, c0 = self.center_rc
-        rows, cols = idx // w + self._vtp_shift, idx % w + self._vtp_shift
+        rows, cols = idx // w + self._shift_frame, idx % w + self._shift_frame
         k = int(np.argmin((rows - r0) ** 2 + (cols - c0) ** 2))
         return float(r0 - rows[k]), float(cols[k] - c0)
 
@@ -355,28 +447,45 @@ class ImageProcessor:
             crop = binary[cr, cc]
         else:
             crop = cv2.transform(image_rgb[cr, cc], bin_m)
-        eroded = cv2.erode(crop, self._k_square)
-        vals = eroded.ravel()[self._ring_idx]
+        if p.measured_width:
+            k_sq, shift = self._frame_kernel(crop)
+        else:
+            k_sq, shift = self._k_square, self._vtp_shift
+        self._k_frame, self._shift_frame = k_sq, shift
+        eroded = cv2.erode(crop, k_sq)
         cos_p, sin_p = math.cos(self.prev_direction), math.sin(self.prev_direction)
         thr = self._cos_half if self.prev_seen else (
             max(0.0, self._cos_half_search) if forward_only else self._cos_half_search)
-        sel = vals > 0
-        if thr > -1.0:
-            sel &= (self._ring_cos * cos_p + self._ring_sin * sin_p) >= thr - 1e-12
-        searching = not self.prev_seen
-        n = int(np.count_nonzero(sel))
         r0, c0 = self.center_rc
-        if n and ((searching and p.search_nearest) or p.nearest_always):
-            sel = self._nearest_branch(sel, self.prev_direction)
+        along = self._along_line(eroded, thr, cos_p, sin_p) if p.along_line else None
+        if along is not None:
+            n = along[2]
+            o_r, o_c = self._crop_origin
+            row, col = along[0] + o_r + shift, along[1] + o_c + shift
+        else:
+            vals = eroded.ravel()[self._ring_idx]
+            sel = vals > 0
+            if thr > -1.0:
+                sel &= (self._ring_cos * cos_p + self._ring_sin * sin_p) >= thr - 1e-12
+            searching = not self.prev_seen
             n = int(np.count_nonzero(sel))
+            if n and ((searching and p.search_nearest) or p.nearest_always):
+                sel = self._nearest_branch(sel, self.prev_direction)
+                n = int(np.count_nonzero(sel))
+            if n:
+                row = float(self._ring_row[sel].mean()) + shift
+                col = float(self._ring_col[sel].mean()) + shift
         if n:
-            row = float(self._ring_row[sel].mean()) + self._vtp_shift
-            col = float(self._ring_col[sel].mean()) + self._vtp_shift
             e_x, e_y = r0 - row, col - c0
             vtp: tuple[float, float] | None = (row, col)
             self.prev_seen = True
             if math.hypot(e_x, e_y) >= self._min_vtp_r:
-                self.prev_direction = math.atan2(e_x, e_y)
+                self.prev_direction = d = math.atan2(e_x, e_y)
+                hc = (1.0 - _HEADING_W) * self.heading[0] + _HEADING_W * math.cos(d)
+                hs = (1.0 - _HEADING_W) * self.heading[1] + _HEADING_W * math.sin(d)
+                hn = math.hypot(hc, hs)
+                self.heading = (hc / hn, hs / hn) if hn > 1e-9 else (math.cos(d),
+                                                                       math.sin(d))
         else:
             e_x = e_y = 0.0
             vtp = None
