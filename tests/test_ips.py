@@ -395,3 +395,27 @@ def test_a_thin_line_with_a_sharp_turn():
     path = _legs(120.0, first=-90.0, length=100.0, n=2)
     frames = _fly(path, GENERAL, width=7.0)
     assert all(a is not None and a > s and d < 4.0 for s, a, d in frames), frames
+
+
+@pytest.mark.parametrize("along", [True, False])
+def test_a_track_that_ends_just_past_a_crossing_goes_straight_to_its_end(along):
+    """Ours runs down over a crossing line and ends 0.15 m (22 px) past it, shorter than the
+    look-ahead: the line's end is the way on (then the marker), not an arm of the crossing.
+    The ring of issue 12 turns onto the crossing line there."""
+    path = np.array([[0.0, 0.0], [-122.0, 0.0]])
+    ips = ImageProcessor(replace(GENERAL, along_line=along))
+    ips.prev_direction = -math.pi / 2
+    ips.heading = (0.0, -1.0)
+    seen = []
+    for s in np.arange(40.0, 120.0, 3.0):
+        img, c, _ = _path_frame(path, s)
+        pts = [_cv(np.array(p) - c) for p in ([-100.0, -150.0], [-100.0, 150.0])]
+        cv2.line(img, pts[0], pts[1], RED, 14, cv2.LINE_AA, shift=4)
+        r = ips.process(img)
+        seen.append(r.flag_track and r.e_x < -5.0 and abs(r.e_y) < 0.5 * -r.e_x)
+        if along and r.flag_track:
+            assert seen[-1], (s, r.e_x, r.e_y)
+    if along:
+        assert seen[0] and not seen[-1]
+    else:
+        assert not all(seen[-5:])

@@ -306,17 +306,24 @@ class ImageProcessor:
         return kern, 0.5 * (k - 1) - k // 2
 
     def _along_line(self, eroded: np.ndarray, thr: float, cos_p: float, sin_p: float
-                    ) -> tuple[float, float, int, bool] | None:
-        """The look-ahead point measured along the line (``along_line``): grow from the line
-        pixel nearest the image centre through the eroded line for the ring's radius in steps;
-        the pixels reached in the last two steps form one piece per way on (behind, ahead, the
-        other arms at a crossing, both legs of a hairpin only once its vertex is that close
-        along the line). A leg that merely passes near on the floor (a hairpin's other side, a
-        crossing line further on) is not reached, unlike on the ring. Kept: the piece within
-        the arc nearest the heading (several: a crossing or a hairpin's vertex) or the
-        previous direction. (row, col) crop coordinates of its centroid, its pixel count, and
-        whether any line was reached; None when no line lies under the drone (seed farther
-        than r_min / 2 from the centre: the ring rules apply)."""
+                    ) -> tuple[float, float, int] | None:
+        """The look-ahead point measured along the line (``along_line``).
+
+        Grow from the line pixel nearest the image centre through the eroded line, one pixel
+        a step, for the ring's radius: the pixels reached in the last two steps form one
+        piece per way on (behind, ahead, the other arms at a crossing, both legs of a
+        hairpin only once its vertex is that close along the line). A leg that merely passes
+        near on the floor (a hairpin's other side, a line crossing further on) is not
+        reached, unlike on the ring. The piece nearest the way back is where the drone came
+        from; the others are the ways on (no arc: a hairpin's next leg swings through it).
+        Several ways on (a junction): the one that continues the heading (a ~3-frame
+        look-back), the line ends within reach counted as ways too (a track that goes
+        straight over a crossing and ends just after it), and none if no way lies within
+        the arc of the heading. After a miss: the pieces within the search arc.
+
+        (row, col) crop coordinates of the chosen point and its pixel count (0: none found);
+        None when no line lies under the drone (nearest line pixel farther than r_min / 2
+        from the centre: the ring rules apply)."""
         m = (eroded > 0).view(np.uint8)
         idx = np.flatnonzero(m)
         if not idx.size:
@@ -327,39 +334,57 @@ class ImageProcessor:
             return None
         reached = np.zeros_like(m)
         reached.flat[idx[j]] = 1
+        g = np.zeros(m.shape, np.uint8)            # step at which each pixel was reached
         inner = reached
         ks = self._geo_kernels
         n = self._geo_steps
         for i in range(n):
             grown = cv2.bitwise_and(cv2.dilate(reached, ks[i % len(ks)]), m)
+            g[cv2.subtract(grown, reached).view(bool)] = i + 1
             if i == n - 3:
                 inner = reached
             reached = grown
-        band = cv2.subtract(reached, inner)
-        k, labels, stats, cents = cv2.connectedComponentsWithStats(band, connectivity=8)
+        k, _, stats, cents = cv2.connectedComponentsWithStats(cv2.subtract(reached, inner),
+                                                               connectivity=8)
         if k <= 1:
-            return 0.0, 0.0, 0, True
+            return 0.0, 0.0, 0
         r0, c0 = self.center_rc
         o_r, o_c = self._crop_origin
-        ex = r0 - (cents[1:, 1] + o_r)
-        ey = (cents[1:, 0] + o_c) - c0
+        rows, cols = cents[1:, 1].copy(), cents[1:, 0].copy()
+        area = stats[1:, cv2.CC_STAT_AREA].copy()
+        ex, ey = r0 - (rows + o_r), (cols + o_c) - c0
         rad = np.maximum(np.hypot(ex, ey), 1e-9)
-        if self.prev_seen and k > 2:
-            # the piece nearest the way back is where the drone came from: the others are
-            # the ways on (the arc is not applied: a hairpin's next leg swings through it)
+        if not (self.prev_seen and k > 2):
+            cand = np.flatnonzero((ey * cos_p + ex * sin_p) / rad >= thr - 1e-12)
+        else:
             cb = -(ey * cos_p + ex * sin_p) / rad
             cand = np.delete(np.arange(k - 1), int(np.argmax(cb)))
-        else:
-            cand = np.flatnonzero((ey * cos_p + ex * sin_p) / rad >= thr - 1e-12)
+            if cand.size > 1:                      # a junction: line ends are ways on too
+                # a line end: no pixel within a line's width further along
+                w = 2 * self._k_frame.shape[0] + 3
+                tips = (g >= (n + 1) // 2) & (g <= n - 3) & (
+                    g >= cv2.dilate(g, np.ones((w, w), np.uint8)))
+                kt, _, st, ct = cv2.connectedComponentsWithStats(tips.view(np.uint8),
+                                                                 connectivity=8)
+                if kt > 1:
+                    rows = np.concatenate((rows, ct[1:, 1]))
+                    cols = np.concatenate((cols, ct[1:, 0]))
+                    area = np.concatenate((area, st[1:, cv2.CC_STAT_AREA]))
+                    ex, ey = r0 - (rows + o_r), (cols + o_c) - c0
+                    rad = np.maximum(np.hypot(ex, ey), 1e-9)
+                    cand = np.concatenate((cand, np.arange(k - 1, k - 1 + kt - 1)))
         if not cand.size:
-            return 0.0, 0.0, 0, True
-        if cand.size > 1:          # a junction: continue the heading (a ~3-frame look-back)
+            return 0.0, 0.0, 0
+        if cand.size > 1:
             hc, hs = self.heading
-            best = int(cand[int(np.argmax((ey[cand] * hc + ex[cand] * hs) / rad[cand]))])
+            cosh = (ey[cand] * hc + ex[cand] * hs) / rad[cand]
+            i = int(np.argmax(cosh))
+            if cosh[i] < self._cos_half:           # no way on ahead at this junction
+                return 0.0, 0.0, 0
+            best = int(cand[i])
         else:
             best = int(cand[0])
-        return (float(cents[best + 1, 1]), float(cents[best + 1, 0]),
-                int(stats[best + 1, cv2.CC_STAT_AREA]), True)
+        return float(rows[best]), float(cols[best]), int(area[best])
 
     def _threshold_matrix(self, image_rgb: np.ndarray) -> np.ndarray:
         """The binarisation matrix for this frame (adaptive K_T: half the frame's 99th
