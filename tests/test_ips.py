@@ -305,7 +305,6 @@ def _fly(path_px, params, step=3.0, s0=10.0, width=14.0, stop=40.0):
     """Fly the path with one ImageProcessor; per frame (s, VTP arc or None, VTP distance)."""
     ips = ImageProcessor(params)
     ips.prev_direction = math.atan2(*(path_px[1] - path_px[0]))
-    ips.heading = (math.cos(ips.prev_direction), math.sin(ips.prev_direction))
     _, _, arc = _path_frame(path_px, 0.0, width)
     out = []
     s = s0
@@ -352,7 +351,6 @@ def _cross(params, angle):
     other = np.array([x - 150 * u, x + 150 * u])
     ips = ImageProcessor(params)
     ips.prev_direction = h
-    ips.heading = (math.cos(h), math.sin(h))
     out = []
     for s in np.arange(40.0, 160.0, 3.0):
         img, c, _ = _path_frame(path, s)
@@ -405,7 +403,6 @@ def test_a_track_that_ends_just_past_a_crossing_goes_straight_to_its_end(along):
     path = np.array([[0.0, 0.0], [-122.0, 0.0]])
     ips = ImageProcessor(replace(GENERAL, along_line=along))
     ips.prev_direction = -math.pi / 2
-    ips.heading = (0.0, -1.0)
     seen = []
     for s in np.arange(40.0, 120.0, 3.0):
         img, c, _ = _path_frame(path, s)

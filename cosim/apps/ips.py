@@ -22,6 +22,15 @@ Steps (reference/minidrone.md §4):
    direction. ``search_nearest=False`` restores the literal released rule; it only matters
    in frames after a miss, which the released state machine never uses for following (its
    first miss latches End-Marker).
+   The general preset (issue 27) measures the look-ahead along the line instead
+   (``along_line``, see ``ImageProcessor._along_line``): from the line pixel under the drone
+   it grows through the eroded line for the ring's radius; the ways reached form separate
+   pieces, the one back where the drone came from is dropped, and at a junction the way
+   nearest the previous direction (a line end within reach counts) is kept. A hairpin's
+   other leg or a crossing line that only passes near is not reached; an X is passed
+   straight. With no line under the drone (a start beside it, a gap) the ring rules apply.
+   ``measured_width``: the square kernel is no wider than half the line in view (measured on
+   the ring from the distance transform), so a line thinner than configured is kept.
 3. Marker branch (the released code evaluates it only after the track is lost): erode ``bin``
    with a disk kernel; the marker is the centroid of all remaining pixels; found if any.
 
@@ -75,7 +84,6 @@ import numpy as np
 __all__ = ["IPSParams", "IPSResult", "ImageProcessor"]
 
 _SCALE = 64.0   # binarisation slope, see module docstring
-_HEADING_W = 0.3   # weight of a frame's VTP direction in the heading (a look-back of ~3 frames)
 
 
 @dataclass(frozen=True)
@@ -284,7 +292,6 @@ class ImageProcessor:
         """Back to the initial state: previous track "seen" in the initial direction."""
         self.prev_seen = not self.params.initial_search
         self.prev_direction = self.params.initial_direction
-        self.heading = (math.cos(self.prev_direction), math.sin(self.prev_direction))
 
     def _frame_kernel(self, crop: np.ndarray) -> tuple[np.ndarray, float]:
         """(square erosion kernel, VTP half-pixel shift) for this frame. ``measured_width``:
@@ -316,10 +323,12 @@ class ImageProcessor:
         near on the floor (a hairpin's other side, a line crossing further on) is not
         reached, unlike on the ring. The piece nearest the way back is where the drone came
         from; the others are the ways on (no arc: a hairpin's next leg swings through it).
-        Several ways on (a junction): the one that continues the heading (a ~3-frame
-        look-back), the line ends within reach counted as ways too (a track that goes
-        straight over a crossing and ends just after it), and none if no way lies within
-        the arc of the heading. After a miss: the pieces within the search arc.
+        Several ways on (a junction): the one nearest the previous direction (it points
+        0.19 m ahead along the line, so on a curve it leads into the turn: a longer
+        look-back lagged behind a crossing on a bend and took the other line), the line
+        ends within reach counted as ways too (a track that goes straight over a crossing
+        and ends just after it), and none if no way lies within the arc of that direction.
+        After a miss: the pieces within the search arc.
 
         (row, col) crop coordinates of the chosen point and its pixel count (0: none found);
         None when no line lies under the drone (nearest line pixel farther than r_min / 2
@@ -376,8 +385,7 @@ class ImageProcessor:
         if not cand.size:
             return 0.0, 0.0, 0
         if cand.size > 1:
-            hc, hs = self.heading
-            cosh = (ey[cand] * hc + ex[cand] * hs) / rad[cand]
+            cosh = (ey[cand] * cos_p + ex[cand] * sin_p) / rad[cand]
             i = int(np.argmax(cosh))
             if cosh[i] < self._cos_half:           # no way on ahead at this junction
                 return 0.0, 0.0, 0
@@ -505,12 +513,7 @@ class ImageProcessor:
             vtp: tuple[float, float] | None = (row, col)
             self.prev_seen = True
             if math.hypot(e_x, e_y) >= self._min_vtp_r:
-                self.prev_direction = d = math.atan2(e_x, e_y)
-                hc = (1.0 - _HEADING_W) * self.heading[0] + _HEADING_W * math.cos(d)
-                hs = (1.0 - _HEADING_W) * self.heading[1] + _HEADING_W * math.sin(d)
-                hn = math.hypot(hc, hs)
-                self.heading = (hc / hn, hs / hn) if hn > 1e-9 else (math.cos(d),
-                                                                       math.sin(d))
+                self.prev_direction = math.atan2(e_x, e_y)
         else:
             e_x = e_y = 0.0
             vtp = None
