@@ -292,6 +292,8 @@ class ImageProcessor:
         """Back to the initial state: previous track "seen" in the initial direction."""
         self.prev_seen = not self.params.initial_search
         self.prev_direction = self.params.initial_direction
+        self._ref_dir = self.prev_direction     # direction of the last clean frame (junctions)
+        self._clean = False
 
     def _frame_kernel(self, crop: np.ndarray) -> tuple[np.ndarray, float]:
         """(square erosion kernel, VTP half-pixel shift) for this frame. ``measured_width``:
@@ -323,9 +325,11 @@ class ImageProcessor:
         near on the floor (a hairpin's other side, a line crossing further on) is not
         reached, unlike on the ring. The piece nearest the way back is where the drone came
         from; the others are the ways on (no arc: a hairpin's next leg swings through it).
-        Several ways on (a junction): the one nearest the previous direction (it points
-        0.19 m ahead along the line, so on a curve it leads into the turn: a longer
-        look-back lagged behind a crossing on a bend and took the other line), the line
+        Several ways on (a junction): the one nearest the direction of the last clean frame
+        (one way on, one line wide; it points 0.19 m ahead along the line, so on a bend it
+        leads into the turn: an averaged heading lagged behind a crossing on a bend and took
+        the other line, and the previous frame's direction is pulled towards the other line
+        where the two overlap ahead), the line
         ends within reach counted as ways too (a track that goes straight over a crossing
         and ends just after it), and none if no way lies within the arc of that direction.
         After a miss: the pieces within the search arc.
@@ -384,14 +388,20 @@ class ImageProcessor:
                     cand = np.concatenate((cand, np.arange(k - 1, k - 1 + kt - 1)))
         if not cand.size:
             return 0.0, 0.0, 0
+        self._clean = cand.size == 1
         if cand.size > 1:
-            cosh = (ey[cand] * cos_p + ex[cand] * sin_p) / rad[cand]
+            cr, sr = math.cos(self._ref_dir), math.sin(self._ref_dir)
+            cosh = (ey[cand] * cr + ex[cand] * sr) / rad[cand]
             i = int(np.argmax(cosh))
             if cosh[i] < self._cos_half:           # no way on ahead at this junction
                 return 0.0, 0.0, 0
             best = int(cand[i])
         else:
             best = int(cand[0])
+        # one way on and a piece one line wide: a clean frame, its direction is the reference
+        # for the next junction (a piece wider than a line is a crossing merging ahead: its
+        # centroid is pulled towards the other line)
+        self._clean = self._clean and area[best] <= 6 * (self._k_frame.shape[0] + 1)
         return float(rows[best]), float(cols[best]), int(area[best])
 
     def _threshold_matrix(self, image_rgb: np.ndarray) -> np.ndarray:
@@ -514,6 +524,8 @@ class ImageProcessor:
             self.prev_seen = True
             if math.hypot(e_x, e_y) >= self._min_vtp_r:
                 self.prev_direction = math.atan2(e_x, e_y)
+                if along is None or self._clean:
+                    self._ref_dir = self.prev_direction
         else:
             e_x = e_y = 0.0
             vtp = None
