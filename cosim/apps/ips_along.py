@@ -66,13 +66,13 @@ class AlongLine:
             return None
         reached = np.zeros_like(m)
         reached.flat[idx[j]] = 1
-        g = np.zeros(m.shape, np.uint8)            # step at which each pixel was reached
+        steps = [reached]                          # what was reached after each step
         inner = reached
         ks = self._geo_kernels
         n = self._geo_steps
         for i in range(n):
             grown = cv2.bitwise_and(cv2.dilate(reached, ks[i % len(ks)]), m)
-            g[cv2.subtract(grown, reached).view(bool)] = i + 1
+            steps.append(grown)
             if i == n - 3:
                 inner = reached
             reached = grown
@@ -94,6 +94,10 @@ class AlongLine:
             if cand.size > 1:                      # a junction: line ends are ways on too
                 # a line end: no pixel within a line's width further along
                 w = 2 * self._k_frame.shape[0] + 3
+                # g: the step at which each pixel was reached (n + 1 - how many of the n + 1
+                # snapshots hold it; 0 where never reached)
+                g = np.where(reached > 0, n + 1 - np.sum(steps, axis=0, dtype=np.uint8),
+                             0).astype(np.uint8)
                 tips = (g >= (n + 1) // 2) & (g <= n - 3) & (
                     g >= cv2.dilate(g, np.ones((w, w), np.uint8)))
                 kt, _, st, ct = cv2.connectedComponentsWithStats(tips.view(np.uint8),
