@@ -111,3 +111,30 @@ def test_the_released_preset_fails_where_general_flies(name):
     s = summarize(run_scenario(sc))
     assert not s["passed"]
     assert s["metrics"].get("track_coverage", 0.0) < 0.9
+
+
+ISSUE27 = ["mambo_figure8", "mambo_hairpin150", "mambo_thin_sharp"]
+
+
+@pytest.mark.parametrize("name", ISSUE27)
+def test_the_ring_of_issue_12_fails_where_the_along_line_look_ahead_flies(name):
+    """Issue 27's tracks defeat the general preset as it was before it measured the
+    look-ahead along the line and the line's width (measured 2026-11-26, MIL, truth-fed:
+    figure-eight cut at a crossing, time limit at coverage 88 %; hairpins, time limit at
+    53 %; the 5 cm line eroded away on its diagonal leg, 41 %); with both they pass
+    (tests/test_scenarios.py)."""
+    sc = with_set(load_scenario(ROOT / "scenarios" / f"{name}.toml"),
+                  {"app.params.along_line": False, "app.params.measured_width": False})
+    s = summarize(run_scenario(sc))
+    assert not s["passed"]
+    assert s["metrics"].get("track_coverage", 0.0) < 0.95
+
+
+def test_along_line_and_measured_width_are_general_preset_switches():
+    assert LineFollowerApp({}).ips_params.along_line
+    assert LineFollowerApp({}).ips_params.measured_width
+    off = LineFollowerApp({"along_line": False, "measured_width": False}).ips_params
+    assert not off.along_line and not off.measured_width
+    assert not LineFollowerApp({"preset": "released"}).ips_params.along_line
+    with pytest.raises(ValueError, match="along_line"):
+        LineFollowerApp({"along_line": 1.0})

@@ -22,6 +22,15 @@ Steps (reference/minidrone.md §4):
    direction. ``search_nearest=False`` restores the literal released rule; it only matters
    in frames after a miss, which the released state machine never uses for following (its
    first miss latches End-Marker).
+   The general preset (issue 27) measures the look-ahead along the line instead
+   (``along_line``, see ``ImageProcessor._along_line``): from the line pixel under the drone
+   it grows through the eroded line for the ring's radius; the ways reached form separate
+   pieces, the one back where the drone came from is dropped, and at a junction the way
+   nearest the previous direction (a line end within reach counts) is kept. A hairpin's
+   other leg or a crossing line that only passes near is not reached; an X is passed
+   straight. With no line under the drone (a start beside it, a gap) the ring rules apply.
+   ``measured_width``: the square kernel is no wider than half the line in view (measured on
+   the ring from the distance transform), so a line thinner than configured is kept.
 3. Marker branch (the released code evaluates it only after the track is lost): erode ``bin``
    with a disk kernel; the marker is the centroid of all remaining pixels; found if any.
 
@@ -72,6 +81,8 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from cosim.apps.ips_along import AlongLine
+
 __all__ = ["IPSParams", "IPSResult", "ImageProcessor"]
 
 _SCALE = 64.0   # binarisation slope, see module docstring
@@ -103,6 +114,9 @@ class IPSParams:
     marker_r_px: float = 14.5                # px, the marker disc's radius in the image
     nearest_always: bool = False             # keep only the ring branch nearest the direction
     initial_search: bool = False             # the first frame searches the whole ring
+    along_line: bool = False                 # VTP at the look-ahead measured along the line
+                                             # from the drone (hairpins, crossings)
+    measured_width: bool = False             # track erosion no wider than the line in view
 
     @classmethod
     def released(cls, **overrides: float) -> IPSParams:
@@ -137,7 +151,8 @@ class IPSParams:
                    square_kernel=max(1, int(round(0.5 * line))),
                    disk_radius=max(1, int(round(0.75 * marker))), marker_r_px=marker,
                    width=width, height=height, adaptive_k_t=True, marker_shape=True,
-                   nearest_always=True, initial_search=True)
+                   nearest_always=True, initial_search=True, along_line=True,
+                   measured_width=True)
         return replace(base, **overrides)
 
     def __post_init__(self) -> None:
@@ -181,7 +196,7 @@ class IPSResult:
                                               # e_y) px of the nearest red in view (acquire)
 
 
-class ImageProcessor:
+class ImageProcessor(AlongLine):
     """Paper Algorithm 1 with the released code's details; keeps the VTP direction state."""
 
     def __init__(self, params: IPSParams | None = None) -> None:
@@ -227,6 +242,17 @@ class ImageProcessor:
         self._min_vtp_r = 0.5 * p.r_min
         self._ring_row = rows.ravel()[self._ring_idx].astype(float)
         self._ring_col = cols.ravel()[self._ring_idx].astype(float)
+        # along-line look-ahead: crop-relative squared distance to the centre (the seed is the
+        # line pixel nearest it), steps of the geodesic growth (cross, square, cross, cross,
+        # square: ~0.99 px per step on the diagonal as on the axes)
+        self._crop_d2 = ((rows - r0) ** 2 + (cols - c0) ** 2).ravel()
+        self._crop_origin = (cr.start, cc.start)
+        cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+        square = np.ones((3, 3), np.uint8)
+        self._geo_kernels = (cross, square, cross, cross, square)
+        self._geo_steps = max(3, int(round(0.5 * (p.r_min + p.r_max))))
+        self._kernels = {k: self._k_square}
+        self._k_frame, self._shift_frame = self._k_square, self._vtp_shift
         self._cos_half = math.cos(0.5 * p.arc_width)
         self._cos_half_search = math.cos(0.5 * p.search_arc_width)
         self.reset()
@@ -268,6 +294,8 @@ class ImageProcessor:
         """Back to the initial state: previous track "seen" in the initial direction."""
         self.prev_seen = not self.params.initial_search
         self.prev_direction = self.params.initial_direction
+        self._ref_dir = self.prev_direction     # direction of the last clean frame (junctions)
+        self._clean = False
 
     def _threshold_matrix(self, image_rgb: np.ndarray) -> np.ndarray:
         """The binarisation matrix for this frame (adaptive K_T: half the frame's 99th
@@ -287,13 +315,13 @@ class ImageProcessor:
         or None: where to fly to find the line from a start beside it."""
         if binary is None:
             binary = cv2.transform(image_rgb, bin_m)
-        e = cv2.erode(binary, self._k_square)
+        e = cv2.erode(binary, self._k_frame)
         idx = np.flatnonzero(e)
         if not idx.size:
             return None
         w = self.params.width
         r0, c0 = self.center_rc
-        rows, cols = idx // w + self._vtp_shift, idx % w + self._vtp_shift
+        rows, cols = idx // w + self._shift_frame, idx % w + self._shift_frame
         k = int(np.argmin((rows - r0) ** 2 + (cols - c0) ** 2))
         return float(r0 - rows[k]), float(cols[k] - c0)
 
@@ -355,28 +383,42 @@ class ImageProcessor:
             crop = binary[cr, cc]
         else:
             crop = cv2.transform(image_rgb[cr, cc], bin_m)
-        eroded = cv2.erode(crop, self._k_square)
-        vals = eroded.ravel()[self._ring_idx]
+        if p.measured_width:
+            k_sq, shift = self._frame_kernel(crop)
+        else:
+            k_sq, shift = self._k_square, self._vtp_shift
+        self._k_frame, self._shift_frame = k_sq, shift
+        eroded = cv2.erode(crop, k_sq)
         cos_p, sin_p = math.cos(self.prev_direction), math.sin(self.prev_direction)
         thr = self._cos_half if self.prev_seen else (
             max(0.0, self._cos_half_search) if forward_only else self._cos_half_search)
-        sel = vals > 0
-        if thr > -1.0:
-            sel &= (self._ring_cos * cos_p + self._ring_sin * sin_p) >= thr - 1e-12
-        searching = not self.prev_seen
-        n = int(np.count_nonzero(sel))
         r0, c0 = self.center_rc
-        if n and ((searching and p.search_nearest) or p.nearest_always):
-            sel = self._nearest_branch(sel, self.prev_direction)
+        along = self._along_line(eroded, thr, cos_p, sin_p) if p.along_line else None
+        if along is not None:
+            n = along[2]
+            o_r, o_c = self._crop_origin
+            row, col = along[0] + o_r + shift, along[1] + o_c + shift
+        else:
+            vals = eroded.ravel()[self._ring_idx]
+            sel = vals > 0
+            if thr > -1.0:
+                sel &= (self._ring_cos * cos_p + self._ring_sin * sin_p) >= thr - 1e-12
+            searching = not self.prev_seen
             n = int(np.count_nonzero(sel))
+            if n and ((searching and p.search_nearest) or p.nearest_always):
+                sel = self._nearest_branch(sel, self.prev_direction)
+                n = int(np.count_nonzero(sel))
+            if n:
+                row = float(self._ring_row[sel].mean()) + shift
+                col = float(self._ring_col[sel].mean()) + shift
         if n:
-            row = float(self._ring_row[sel].mean()) + self._vtp_shift
-            col = float(self._ring_col[sel].mean()) + self._vtp_shift
             e_x, e_y = r0 - row, col - c0
             vtp: tuple[float, float] | None = (row, col)
             self.prev_seen = True
             if math.hypot(e_x, e_y) >= self._min_vtp_r:
                 self.prev_direction = math.atan2(e_x, e_y)
+                if along is None or self._clean:
+                    self._ref_dir = self.prev_direction
         else:
             e_x = e_y = 0.0
             vtp = None

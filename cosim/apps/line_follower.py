@@ -21,6 +21,11 @@ Parameters (`[app.params]`), all optional:
 - `k_t` (threshold), `r_min_px`, `r_max_px`, `arc_width_rad`: IPS overrides.
 - `search_nearest` (bool, default true): after a miss, follow the ring branch nearest the last
   direction; false is the released code's centroid of all ring pixels.
+- `along_line`, `measured_width` (bool, default true; the general preset only): the
+  look-ahead point measured along the line from the drone (a hairpin's other leg or a line
+  crossing further on is not taken for the way on; at a crossing the way that continues the
+  heading), and a track erosion no wider than the line in view (a line thinner than
+  `line_width_m` is not eroded away). Both false: the general preset of issue 12.
 - `setpoint_every` (ticks between setpoints; 1 = the paper's 200 Hz planner rate).
 """
 
@@ -62,6 +67,8 @@ DEFAULTS: dict[str, Any] = {
     "marker_radius_m": 0.10,
     "lookahead_m": 0.19,
     "coast_m": None,
+    "along_line": True,
+    "measured_width": True,
 }
 
 
@@ -136,7 +143,8 @@ class LineFollowerApp:
                    "line_width_m": float(p["line_width_m"]),
                    "marker_radius_m": float(p["marker_radius_m"]),
                    "lookahead_m": float(p["lookahead_m"])}
-            ip = {**geo, **ip}
+            ip = {**geo, **ip, "along_line": bool(p["along_line"]),
+                  "measured_width": bool(p["measured_width"])}
             if "r_min" in ip or "r_max" in ip:
                 raise ValueError("app.params.r_min_px: the general preset derives the ring "
                                  "from lookahead_m; set that instead")
