@@ -162,6 +162,8 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
                  "relative move: vertical acceleration limit (chosen)"),
     OnboardParam("MB_YAW_RATE_MAX", 100.0, 1.0, 400.0, "deg/s",
                  "relative move: heading rate limit (Bebop 2 MaxRotationSpeed)"),
+    OnboardParam("MB_YAW_ACC_MAX", 180.0, 10.0, 2000.0, "deg/s^2",
+                 "relative move: heading acceleration limit (chosen)"),
 )
 
 # ---- what may change while armed (issue 14, item 6)

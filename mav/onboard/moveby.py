@@ -25,8 +25,11 @@ corrects the lag: a pure velocity command on that profile, tried first, overshot
 oscillated about a 1 m target with the Bebop 2's 0.5 s velocity loop; the vehicle still
 overshoots the reference's speed by ~13 % while it catches up, measured on a 1 m move at
 1 m/s; feeding the reference's acceleration forward made that 17 %). The heading
-reference turns towards its target at up to MB_YAW_RATE_MAX. Once the reference is at the
-target the move has ended and the vehicle holds the target (position, height, heading).
+reference does the same from the vehicle's turn rate, within MB_YAW_RATE_MAX and
+MB_YAW_ACC_MAX, flown as a yaw-rate command (the cascade takes no rate feed-forward with a
+heading setpoint, and a heading setpoint alone moved a stream of small moves at only
+MC_YAW_P x dPsi per second: E2's last key on moves took 40 s). Once the references are at the
+target the move has ended and the vehicle holds it (position, height, heading).
 
 Plain floats per tick (compiled with the rest of the per-tick path).
 """
@@ -43,7 +46,8 @@ MB_ARRIVE_M = 0.002      # m, the move has ended within this of its target (and 
 
 class MoveBy:
     __slots__ = ("active", "moving", "tx", "ty", "tz", "psi_t", "psi_ref", "rx", "ry", "rz",
-                 "cvx", "cvy", "cvz", "vmax", "amax", "rmax", "moves", "ended", "interrupted")
+                 "cvx", "cvy", "cvz", "vmax", "amax", "rmax", "alpha", "r_ref", "turning", "moves",
+                 "ended", "interrupted")
 
     def __init__(self) -> None:
         self.active = False          # a relative move is the offboard setpoint in use
@@ -53,7 +57,9 @@ class MoveBy:
         self.rx = self.ry = self.rz = 0.0      # m, the position reference on its way
         self.cvx = self.cvy = self.cvz = 0.0   # m/s, the reference's velocity
         self.vmax = self.amax = 0.0            # along the line to the target
-        self.rmax = 0.0                        # rad/s
+        self.rmax = self.alpha = 0.0           # rad/s, rad/s^2
+        self.r_ref = 0.0                       # rad/s, the heading reference's rate
+        self.turning = False                   # the heading reference is on its way
         self.moves = 0               # moves received
         self.ended = 0               # moves that reached their target
         self.interrupted = 0         # moves replaced by the next one before that
@@ -67,6 +73,8 @@ class MoveBy:
         self.tx, self.ty, self.tz = s.x + ex, s.y + ey, s.z + dz
         self.psi_ref = yaw
         self.psi_t = yaw + dpsi
+        self.r_ref = s.r                   # rad/s, from the vehicle's turn rate (level: r)
+        self.turning = True
         self.rx, self.ry, self.rz = s.x, s.y, s.z
         self.cvx, self.cvy, self.cvz = s.vx, s.vy, s.vz
         # the limits along this line: its horizontal part within MB_XY_*, vertical MB_Z_*
@@ -81,6 +89,7 @@ class MoveBy:
             vmax, amax = own["MB_XY_VEL_MAX"], own["MB_XY_ACC_MAX"]
         self.vmax, self.amax = vmax, amax
         self.rmax = own["MB_YAW_RATE_MAX"] * (math.pi / 180.0)
+        self.alpha = own["MB_YAW_ACC_MAX"] * (math.pi / 180.0)
         if self.moving:
             self.interrupted += 1              # the move in progress is replaced
         self.active = self.moving = True
@@ -88,18 +97,18 @@ class MoveBy:
 
     def stop(self) -> None:
         """Another kind of setpoint took over (or offboard ended)."""
-        self.active = self.moving = False
+        self.active = self.moving = self.turning = False
 
     def step(self, dt: float, sp) -> None:
         """One control tick of length dt (s): advances the reference, writes the setpoint."""
-        rem_psi = self.psi_t - self.psi_ref
-        dpsi = self.rmax * dt
-        if abs(rem_psi) <= dpsi:
-            self.psi_ref = self.psi_t
+        if self.turning and dt > 0.0:
+            self._turn(dt)
+        if self.turning:            # the heading reference's rate (its lag is corrected at
+            sp.yaw = NAN            # the end, by the heading loop on the target)
+            sp.yaw_rate = self.r_ref
         else:
-            self.psi_ref += math.copysign(dpsi, rem_psi)
-        sp.yaw = wrap_pi(self.psi_ref)
-        sp.yaw_rate = NAN
+            sp.yaw = wrap_pi(self.psi_t)
+            sp.yaw_rate = NAN
         if self.moving and dt > 0.0:
             self._advance(dt)
         if self.moving:
@@ -109,6 +118,23 @@ class MoveBy:
             sp.x, sp.y, sp.z = self.tx, self.ty, self.tz
             sp.vx = sp.vy = sp.vz = NAN
         sp.ax = sp.ay = NAN
+
+    def _turn(self, dt: float) -> None:
+        """The heading's profile: as the line's, with MB_YAW_RATE_MAX and MB_YAW_ACC_MAX."""
+        rem = self.psi_t - self.psi_ref
+        alpha = self.alpha
+        dr = alpha * dt
+        r = self.r_ref
+        cap = min(self.rmax, math.sqrt(2.0 * alpha * abs(rem)))
+        if abs(rem) <= 1e-6 and abs(r) <= dr or 0.0 < abs(rem) <= abs(r) * dt and (
+                r * rem > 0.0 and abs(r) <= cap + dr):
+            self.turning = False
+            self.psi_ref, self.r_ref = self.psi_t, 0.0
+            return
+        want = math.copysign(cap, rem)
+        r += min(max(want - r, -dr), dr)
+        self.r_ref = r
+        self.psi_ref += r * dt
 
     def _advance(self, dt: float) -> None:
         ex, ey, ez = self.tx - self.rx, self.ty - self.ry, self.tz - self.rz
