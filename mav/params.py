@@ -151,10 +151,13 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
     # flights such as moveBy"). Parrot publishes no default values: MB_Z_VEL_MAX and
     # MB_YAW_RATE_MAX take the Bebop 2's MaxVerticalSpeed (1 m/s) and MaxRotationSpeed
     # (100 deg/s) this stack uses for its velocity loop; the others are chosen (not Parrot's
-    # numbers), to be calibrated on paper 2's E1/E2. Not PX4 parameters (PX4 has no moveBy).
+    # numbers), to be calibrated on paper 2's E1/E2 with the camera stream's delay. Not PX4
+    # parameters (PX4 has no moveBy).
     OnboardParam("MB_XY_VEL_MAX", 1.0, 0.05, 5.0, "m/s",
                  "relative move: horizontal speed limit (chosen)"),
-    OnboardParam("MB_XY_ACC_MAX", 1.0, 0.05, 10.0, "m/s^2",
+    # 2 m/s^2: chosen from a sweep on E1 (0.5 / 1 / 2 / 4 m/s^2: the last key 21.0 / 17.4 /
+    # 12.7 / 10.1 s after the repeat's start, the paper 12 s); docs/papers/visual-servoing.md
+    OnboardParam("MB_XY_ACC_MAX", 2.0, 0.05, 10.0, "m/s^2",
                  "relative move: horizontal acceleration limit (chosen)"),
     OnboardParam("MB_Z_VEL_MAX", 1.0, 0.05, 2.5, "m/s",
                  "relative move: vertical speed limit (Bebop 2 MaxVerticalSpeed)"),

@@ -46,7 +46,7 @@ def fly(mb: MoveBy, s: VehicleState, sp: Setpoint, seconds: float, log=None) -> 
         else:
             s.vx = s.vy = s.vz = 0.0
         if log is not None:
-            log.append((s.x, s.y, s.z, s.vx, s.vy, s.vz, mb.psi_ref))
+            log.append((s.x, s.y, s.z, s.vx, s.vy, s.vz, mb.psi_ref, mb.r_ref))
 
 
 def test_the_target_is_relative_to_the_pose_at_reception():
@@ -85,10 +85,12 @@ def test_a_move_respects_its_limits_stops_at_the_target_and_holds():
     d = math.dist((0.0, 0.0, -1.0), target)
     h = math.dist((0.0, 0.0), target[:2])
     assert max(acc) <= OWN["MB_XY_ACC_MAX"] * d / h + 1e-6      # the line's limit
-    rate = [(b[6] - a[6]) / DT for a, b in zip(log, log[1:], strict=False)]
+    rate = [r[7] for r in log]                     # the heading reference's rate, flown
     assert max(map(abs, rate)) == pytest.approx(math.radians(OWN["MB_YAW_RATE_MAX"]), rel=1e-6)
     yaw_acc = [abs(b - a) / DT for a, b in zip(rate, rate[1:], strict=False)]
     assert max(yaw_acc) <= math.radians(OWN["MB_YAW_ACC_MAX"]) * (1 + 1e-6)
+    assert max(abs(b[6] - a[6]) for a, b in zip(log, log[1:], strict=False)) <= max(
+        map(abs, rate)) * DT * (1 + 1e-9)
     # the trajectory is the straight line (moves are rectilinear)
     for x, y, z, *_ in log[::50]:
         u = (x, y, z + 1.0)
@@ -147,9 +149,10 @@ def test_frame_9_over_mavlink_flies_a_relative_move_and_the_next_one_interrupts_
         peak = max(peak, math.hypot(*c.velocity[:2]))
     end = pos(rig)
     assert end == pytest.approx((start[0], start[1] + 1.0, start[2] - 0.2), abs=0.03)
-    # the reference keeps MB_XY_VEL_MAX (above); the vehicle overshoots it by ~13 % while
-    # its velocity loop (tau ~0.5 s) catches up with the reference
-    assert 0.8 < peak <= 1.2 * OWN["MB_XY_VEL_MAX"]
+    # the reference keeps MB_XY_VEL_MAX (above); the vehicle overshoots it while its velocity
+    # loop (tau ~0.5 s) catches up with the reference accelerating at MB_XY_ACC_MAX (2 m/s^2:
+    # 1.31 m/s measured)
+    assert 0.8 < peak <= 1.4 * OWN["MB_XY_VEL_MAX"]
     mb = ob.offboard.moveby
     assert mb.moves == 2 and mb.ended == 2 and mb.interrupted == 0
     # a long move, interrupted after 1 s by a zero move: it stops near where it was then

@@ -41,7 +41,14 @@ import math
 from mav import wire
 from mav.onboard.defs import NAN, wrap_pi
 
-MB_ARRIVE_M = 0.002      # m, the move has ended within this of its target (and slowed down)
+MB_ARRIVE_M = 0.0005     # m, the reference is at its target within this, once slowed down
+
+
+def stop_speed(rem: float, dv: float, dt: float) -> float:
+    """The speed from which braking by dv per tick of dt stops exactly `rem` ahead (the
+    discrete form of sqrt(2 a rem), a = dv / dt: n ticks of braking cover n (n + 1) / 2 dv dt,
+    and the last step is at most dv)."""
+    return dv * (math.sqrt(0.25 + 2.0 * rem / (dv * dt)) - 0.5)
 
 
 class MoveBy:
@@ -125,15 +132,17 @@ class MoveBy:
         alpha = self.alpha
         dr = alpha * dt
         r = self.r_ref
-        cap = min(self.rmax, math.sqrt(2.0 * alpha * abs(rem)))
-        if abs(rem) <= 1e-6 and abs(r) <= dr or 0.0 < abs(rem) <= abs(r) * dt and (
-                r * rem > 0.0 and abs(r) <= cap + dr):
+        if abs(rem) <= 1e-9 and abs(r) <= dr:     # at the heading target and stopped
             self.turning = False
             self.psi_ref, self.r_ref = self.psi_t, 0.0
             return
-        want = math.copysign(cap, rem)
+        want = math.copysign(min(self.rmax, stop_speed(abs(rem), dr, dt)), rem)
         r += min(max(want - r, -dr), dr)
         self.r_ref = r
+        if abs(r) <= dr * (1.0 + 1e-9) and r * rem >= 0.0 and (
+                abs(rem) <= abs(r) * dt * (1.0 + 1e-9)):   # this step reaches the target
+            self.psi_ref = self.psi_t
+            return
         self.psi_ref += r * dt
 
     def _advance(self, dt: float) -> None:
@@ -142,14 +151,13 @@ class MoveBy:
         amax = self.amax
         dv = amax * dt
         cvx, cvy, cvz = self.cvx, self.cvy, self.cvz
-        v = math.sqrt(cvx * cvx + cvy * cvy + cvz * cvz)
-        speed = min(self.vmax, math.sqrt(2.0 * amax * rem))
-        if rem <= MB_ARRIVE_M and v <= dv or 0.0 < rem <= v * dt and v <= speed + dv:
-            self.moving = False            # there (the next step would pass the target)
+        if rem <= MB_ARRIVE_M and cvx * cvx + cvy * cvy + cvz * cvz <= dv * dv:
+            self.moving = False          # at the target and stopped: the move has ended
             self.ended += 1
             self.rx, self.ry, self.rz = self.tx, self.ty, self.tz
             self.cvx = self.cvy = self.cvz = 0.0
             return
+        speed = min(self.vmax, stop_speed(rem, dv, dt))
         k = speed / rem if rem > 0.0 else 0.0
         wx, wy, wz = ex * k - cvx, ey * k - cvy, ez * k - cvz     # change wanted
         w = math.sqrt(wx * wx + wy * wy + wz * wz)
@@ -157,7 +165,12 @@ class MoveBy:
             f = dv / w
             wx, wy, wz = wx * f, wy * f, wz * f
         cvx, cvy, cvz = cvx + wx, cvy + wy, cvz + wz
+        v = math.sqrt(cvx * cvx + cvy * cvy + cvz * cvz)
         self.cvx, self.cvy, self.cvz = cvx, cvy, cvz
+        if v <= dv * (1.0 + 1e-9) and rem <= v * dt * (1.0 + 1e-9) and (
+                cvx * ex + cvy * ey + cvz * ez >= 0.0):    # this step reaches the target
+            self.rx, self.ry, self.rz = self.tx, self.ty, self.tz
+            return
         self.rx += cvx * dt
         self.ry += cvy * dt
         self.rz += cvz * dt
