@@ -23,8 +23,10 @@ horizontal part of the line and the MB_Z_* limits for its vertical part. The low
 controller tracks the reference with its velocity fed forward (its position loop only
 corrects the lag: a pure velocity command on that profile, tried first, overshot and
 oscillated about a 1 m target with the Bebop 2's 0.5 s velocity loop; the vehicle still
-overshoots the reference's speed by ~13 % while it catches up, measured on a 1 m move at
-1 m/s; feeding the reference's acceleration forward made that 17 %). The heading
+overshoots the reference's speed while it catches up: 1.13 m/s on a 1 m move at 1 m/s and
+1 m/s^2, 1.36 m/s at 4 m/s^2; feeding the reference's acceleration forward made it worse).
+The profile is the discrete one (`stop_speed`): the last step is at most a_max dt, so the
+reference's velocity never jumps. The heading
 reference does the same from the vehicle's turn rate, within MB_YAW_RATE_MAX and
 MB_YAW_ACC_MAX, flown as a yaw-rate command (the cascade takes no rate feed-forward with a
 heading setpoint, and a heading setpoint alone moved a stream of small moves at only
