@@ -382,6 +382,14 @@ class OffboardClient:
             yaw_rate = 0.0
         self._setpoint(fr, mask, 0.0, 0.0, 0.0, vx, vy, vz, yaw, yaw_rate)
 
+    def set_relative_move(self, dx: float, dy: float, dz: float, dyaw: float = 0.0) -> None:
+        """A relative move (Parrot's moveBy): dx forward, dy right, dz down (m) in the
+        vehicle's heading frame from where it is when the message arrives, and a heading
+        change dyaw (rad); SET_POSITION_TARGET_LOCAL_NED in MAV_FRAME_BODY_OFFSET_NED with
+        the offsets and the yaw offset. A new move replaces the one in progress."""
+        self._setpoint(M.MAV_FRAME_BODY_OFFSET_NED, _IGN_VEL | _IGN_ACC | _IGN_YAW_RATE,
+                       dx, dy, dz, 0.0, 0.0, 0.0, dyaw, 0.0)
+
     def _setpoint(self, frame: int, mask: int, x: float, y: float, z: float, vx: float,
                   vy: float, vz: float, yaw: float, yaw_rate: float) -> None:
         # wire.encode_set_position_target_local_ned

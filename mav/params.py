@@ -145,6 +145,28 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
                  "POSCTL: stick deadzone; inside it the vehicle holds position or height"),
     OnboardParam("COM_RC_LOSS_T", 0.5, 0.0, 35.0, "s",
                  "POSCTL: MANUAL_CONTROL silence after which the sticks count as centred"),
+    # relative moves (SET_POSITION_TARGET_LOCAL_NED in MAV_FRAME_BODY_OFFSET_NED, Parrot's
+    # moveBy; mav/onboard/moveby.py): the firmware's autonomous-flight maxima
+    # (ardrone3 PilotingSettings setAutonomousFlightMax*, "only used during autonomous
+    # flights such as moveBy"). Parrot publishes no default values: MB_Z_VEL_MAX and
+    # MB_YAW_RATE_MAX take the Bebop 2's MaxVerticalSpeed (1 m/s) and MaxRotationSpeed
+    # (100 deg/s) this stack uses for its velocity loop; the others are chosen (not Parrot's
+    # numbers), to be calibrated on paper 2's E1/E2 with the camera stream's delay. Not PX4
+    # parameters (PX4 has no moveBy).
+    OnboardParam("MB_XY_VEL_MAX", 1.0, 0.05, 5.0, "m/s",
+                 "relative move: horizontal speed limit (chosen)"),
+    # 4 m/s^2: of a sweep on paper 2's E1 and E2 (0.5, 1, 2, 4), the one value under which
+    # both meet their criteria (docs/papers/visual-servoing.md, "The low level")
+    OnboardParam("MB_XY_ACC_MAX", 4.0, 0.05, 10.0, "m/s^2",
+                 "relative move: horizontal acceleration limit (chosen)"),
+    OnboardParam("MB_Z_VEL_MAX", 1.0, 0.05, 2.5, "m/s",
+                 "relative move: vertical speed limit (Bebop 2 MaxVerticalSpeed)"),
+    OnboardParam("MB_Z_ACC_MAX", 1.0, 0.05, 10.0, "m/s^2",
+                 "relative move: vertical acceleration limit (chosen)"),
+    OnboardParam("MB_YAW_RATE_MAX", 100.0, 1.0, 400.0, "deg/s",
+                 "relative move: heading rate limit (Bebop 2 MaxRotationSpeed)"),
+    OnboardParam("MB_YAW_ACC_MAX", 180.0, 10.0, 2000.0, "deg/s^2",
+                 "relative move: heading acceleration limit (chosen)"),
 )
 
 # ---- what may change while armed (issue 14, item 6)

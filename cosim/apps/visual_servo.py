@@ -41,6 +41,7 @@ from cosim.apps.vs.features import (
     robust_inliers,
     sort_points,
 )
+from cosim.apps.vs.lowlevel import LowLevel
 from cosim.apps.vs.presets import resolve
 from cosim.apps.vs.tasks import (
     avoidance_task,
@@ -97,7 +98,6 @@ class VisualServoApp:
         self.reference_poses: list[tuple[float, float, float, float]] = []
         self._cmd = np.zeros(4)
         self._new_cmd = False
-        self._t_sent = -1e9
         self._frame_i = 0
         self.k = 0
         self._t_target = NAN
@@ -145,6 +145,8 @@ class VisualServoApp:
         s = p["sigma"]
         self.sigmas = s if isinstance(s, list) else [s]
         self.nu_p = self._feedforward() if p["feedforward"] else []
+        self.low = LowLevel(p["low_level"], float(p["moveby_dt_s"]),
+                            (ctx.frame_period_s or 0.0) * p["vision_every"])
 
     def _feedforward(self) -> list[np.ndarray]:
         """Eqs. 31-32: gamma S eTc nu_c(I*_k, I*_k+1) from consecutive key images."""
@@ -382,11 +384,8 @@ class VisualServoApp:
                 self.events.append((t, "repeat"))
             return
         if self.phase in ("matching", "servo", "final"):
-            if self._new_cmd or t - self._t_sent >= 0.1:
-                vx, vy, vz, wz = self._cmd
-                c.set_velocity_target(vx, vy, vz, yaw_rate=wz, frame="body")
+            if self.low.send(c, t, self._cmd, self._new_cmd):   # vs/lowlevel.py
                 self._new_cmd = False
-                self._t_sent = t
             return
         seq.step(t, c, self._hold)
         if seq.state == "landed":

@@ -106,6 +106,8 @@ class Commander:
                 self.set_landed(IN_AIR)
         elif mode == TAKEOFF:
             self.navigator.enter_takeoff()
+        if mode != OFFBOARD:
+            self.offboard.moveby.stop()       # a relative move ends with offboard
         vs.setpoint = vs.of if mode == OFFBOARD else vs.sp
 
     def request_mode(self, base_mode: float, main: float, sub: float) -> int:

@@ -1,5 +1,6 @@
 """Offboard control: SET_POSITION_TARGET_LOCAL_NED with PX4's type_mask rules, in LOCAL_NED
-and BODY_NED; SET_POSITION_TARGET_GLOBAL_INT turned into the same local setpoint; the refusal
+and BODY_NED, and as a relative move in BODY_OFFSET_NED (`moveby.py`);
+SET_POSITION_TARGET_GLOBAL_INT turned into the same local setpoint; the refusal
 of SET_ATTITUDE_TARGET; and the rule for when offboard setpoints count as a live stream."""
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from mav import wire
 from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     FRAME_BODY_NED,
+    FRAME_BODY_OFFSET_NED,
     FRAME_LOCAL_NED,
     IGN_VX,
     IGN_VY,
@@ -28,6 +30,7 @@ from mav.onboard.defs import (
     wrap_pi,
 )
 from mav.onboard.links import Chan, Outbox
+from mav.onboard.moveby import MoveBy
 from mav.onboard.status import VehicleStatus
 
 FRAME_GLOBAL_INT = M.MAV_FRAME_GLOBAL_INT                       # altitude AMSL
@@ -43,6 +46,7 @@ class Offboard:
         self.cmd = commander
         self.sysid, self.compid = sysid, compid
         self.geo = geo          # the flat-earth origin GLOBAL_POSITION_INT is published with
+        self.moveby = MoveBy()  # the relative move in progress (BODY_OFFSET_NED setpoints)
 
     def handlers(self) -> dict:
         """The setpoint messages handled here besides the local one (decoded by pymavlink)."""
@@ -71,8 +75,10 @@ class Offboard:
             return self.reject("target", f"setpoint for system {tsys}/{tcomp} rejected")
         if frame == FRAME_BODY_NED:
             mask |= IGN_X | IGN_Y | IGN_Z          # PX4: position is ignored in BODY_NED
+        elif frame == FRAME_BODY_OFFSET_NED:
+            return self.relative_move(x, y, z, yaw, mask)
         elif frame != FRAME_LOCAL_NED:
-            return self.reject("frame", f"setpoint frame {frame} unsupported (1 or 8)")
+            return self.reject("frame", f"setpoint frame {frame} unsupported (1, 8 or 9)")
         pxy = mask & (IGN_X | IGN_Y)
         vxy = mask & (IGN_VX | IGN_VY)
         use_pxy, use_vxy = pxy == 0, vxy == 0
@@ -95,6 +101,7 @@ class Offboard:
             c, s = math.cos(yaw_now), math.sin(yaw_now)
             vx, vy = c * vx - s * vy, s * vx + c * vy
         vs = self.vs
+        self.moveby.stop()
         of = vs.of
         of.x = x if use_pxy else NAN
         of.y = y if use_pxy else NAN
@@ -104,6 +111,28 @@ class Offboard:
         of.vz = vz if use_vz else NAN
         of.yaw = wrap_pi(yaw) if use_yaw else NAN
         of.yaw_rate = yaw_rate if use_rate else NAN
+        vs.of_last_us = vs.t_us
+        vs.stats["setpoints"] += 1
+
+    def relative_move(self, x: float, y: float, z: float, yaw: float, mask: int) -> None:
+        """MAV_FRAME_BODY_OFFSET_NED: a relative move of (x forward, y right, z down) in the
+        heading frame from where the vehicle is now, and a heading change `yaw` (0 when
+        ignored), as ArduPilot Copter takes the frame (GCS_Mavlink.cpp: offset rotated by the
+        heading, added to the current position; yaw relative) and as Parrot's moveBy works.
+        All three offsets are needed; velocities, accelerations and the yaw rate are
+        ignored. A new move replaces the one in progress (`moveby.py`)."""
+        if mask & (IGN_X | IGN_Y | IGN_Z):
+            return self.reject("mask", f"setpoint type_mask 0x{mask:04X}: a relative move "
+                                       "(frame 9) needs x, y and z")
+        if not (abs(x) <= SP_MAX_POS_M and abs(y) <= SP_MAX_POS_M and abs(z) <= SP_MAX_POS_M):
+            return self.reject("range", "setpoint position not finite or out of range")
+        use_yaw = not mask & IGN_YAW
+        if use_yaw and not abs(yaw) <= SP_MAX_YAW_RAD:
+            return self.reject("range", "setpoint yaw not finite or out of range")
+        vs = self.vs
+        mb = self.moveby
+        mb.start(vs.state, x, y, z, yaw if use_yaw else 0.0, vs.own)
+        mb.step(0.0, vs.of)                    # the setpoint at once (the next tick flies it)
         vs.of_last_us = vs.t_us
         vs.stats["setpoints"] += 1
 

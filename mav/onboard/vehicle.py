@@ -384,6 +384,8 @@ class Onboard:
             if t - vs.of_last_us > vs.of_loss_us:
                 self.failsafe.offboard_lost(t)
                 mode = LOITER
+            elif self.offboard.moveby.active:     # a relative move (frame 9) in flight
+                self.offboard.moveby.step(vs.dt_us * 1e-6, vs.of)
         elif mode == TAKEOFF:
             if vs.armed:
                 self.navigator.step_takeoff(t)

@@ -14,6 +14,7 @@ Values from paper 2 Sec. 5 (reference/paper2-visual-servoing.md §3). Names:
 - `ramp_s`: activation ramps h_a, h_m (Eq. 20); `smoothing`, `smoothing_s`, `h0`: Eqs. 28-30.
 - `feedforward`, `gamma`, `p`, `rising_n`: Eqs. 31-32 and the "error rising" switch rule;
   `rising_max_px` > 0 (ours, off by default) applies that rule only while eps is below it.
+- `low_level`, `moveby_dt_s`: how the command reaches the vehicle (`lowlevel.py`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from __future__ import annotations
 from typing import Any
 
 from cosim.apps.base import check_params
+from cosim.apps.vs.lowlevel import LOW_LEVELS
 
 DEFAULTS: dict[str, Any] = {
     "preset": "e1",
@@ -43,6 +45,10 @@ DEFAULTS: dict[str, Any] = {
     "v_max_mps": 1.0, "wz_max_dps": 60.0,
     "lost_timeout_s": 5.0, "target_timeout_s": 90.0, "hold_final_s": 1.0,
     "vision_every": 1,
+    # how the command reaches the vehicle (cosim/apps/vs/lowlevel.py): "velocity" setpoints,
+    # or "moveby", paper 2's ViSP setVelocity: a relative move of the command over dt per
+    # vision cycle; dt = moveby_dt_s, or the vision cycle's period when 0
+    "low_level": "velocity", "moveby_dt_s": 0.0,
 }
 
 # paper 2 Sec. 5; detector: SIFT in 5.1-5.2, Shi-Tomasi corners in 5.3. One deviation: E1's
@@ -94,6 +100,12 @@ def resolve(params: dict[str, Any]) -> dict[str, Any]:
     for k in ("ramp_s", "smoothing_s", "hold_final_s"):
         if not float(out[k]) >= 0.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number >= 0")
+    if out["low_level"] not in LOW_LEVELS:
+        raise ValueError(f"app.params.low_level: got {out['low_level']!r}; allowed: "
+                         f"{', '.join(LOW_LEVELS)}")
+    if not 0.0 <= float(out["moveby_dt_s"]) <= 10.0:
+        raise ValueError(f"app.params.moveby_dt_s: got {out['moveby_dt_s']!r}; expected a "
+                         "number in [0, 10] s (0: the vision cycle's period)")
     if out["homography"] not in ("virtual_plane", "dominant_plane"):
         raise ValueError(f"app.params.homography: got {out['homography']!r}; allowed: "
                          "virtual_plane, dominant_plane")
