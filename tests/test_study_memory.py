@@ -133,9 +133,10 @@ print(json.dumps([J.run_job(j)["_rss_mb"] for j in js]))
 @pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc (Linux)")
 def test_a_front_camera_worker_gives_freed_frames_back(tmp_path):
     """Four E1 runs cut to 4 s in a worker process, with and without `release_memory` after
-    each run: glibc keeps the freed frames of a front-camera run resident unless trimmed
-    (measured on E2: 265 MB growing ~0.1 MB a run, against 145 MB flat). The released worker
-    must hold clearly less, and not grow from run 2 to run 4."""
+    each run. glibc kept the freed frames of a front-camera run resident unless trimmed
+    (measured on E2 before the camera stream's frame buffers: 265 MB growing ~0.1 MB a run,
+    against 145 MB flat trimmed; since then both stay near 150 MB). The released worker must
+    hold no more than the other, and not grow from run 2 to run 4."""
     import subprocess
     if jobs_module._TRIM is None:
         pytest.skip("not glibc: no malloc_trim")
@@ -147,5 +148,5 @@ def test_a_front_camera_worker_gives_freed_frames_back(tmp_path):
         assert out.returncode == 0, out.stderr[-2000:]
         got[mode] = json.loads(out.stdout.strip().splitlines()[-1])
     print("worker RSS (MB) after each run, released / not:", got["on"], got["off"])
-    assert got["on"][-1] < got["off"][-1] - 20.0, got
+    assert got["on"][-1] <= got["off"][-1] + 1.0, got
     assert got["on"][-1] - got["on"][1] < 2.0, got
