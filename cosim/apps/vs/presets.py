@@ -43,6 +43,13 @@ DEFAULTS: dict[str, Any] = {
     "v_max_mps": 1.0, "wz_max_dps": 60.0,
     "lost_timeout_s": 5.0, "target_timeout_s": 90.0, "hold_final_s": 1.0,
     "vision_every": 1,
+    # issue 28 (ours): the homography choice held steady (vs/choice.py)
+    "h_jump": 0.15, "h_hold_n": 5,
+    # issue 28 (ours): fresh matches and the visibility task's bounds (vs/choice.py Refresh)
+    "vis_max_s": 3.0, "stall_s": 4.0, "refresh_frac": 0.3,
+    "vis_v_max_mps": 0.2, "vis_wz_max_dps": 15.0,
+    # issue 28 (ours): turn keys need their translation too (0: the paper's eps rule alone)
+    "turn_deg": 10.0, "turn_t_ev": 0.06, "turn_wait_s": 5.0,
 }
 
 # paper 2 Sec. 5; detector: SIFT in 5.1-5.2, Shi-Tomasi corners in 5.3. One deviation: E1's
@@ -74,24 +81,26 @@ def resolve(params: dict[str, Any]) -> dict[str, Any]:
     for k in ("l0", "linf", "l0_slope", "t_eps_px", "t_eps_final_px", "lambda_a", "lambda_m",
               "obstacle_width_m", "clearance_m", "lambda_c", "avoid_range_m", "outlier_px",
               "visibility_depth_m", "v_max_mps", "wz_max_dps",
-              "lost_timeout_s", "target_timeout_s", "takeoff_alt_m"):
+              "lost_timeout_s", "target_timeout_s", "takeoff_alt_m", "h_jump", "vis_max_s",
+              "stall_s", "vis_v_max_mps", "vis_wz_max_dps"):
         if not float(out[k]) > 0.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number > 0")
     if not float(out["rising_max_px"]) >= 0.0:
         raise ValueError(f"app.params.rising_max_px: got {out['rising_max_px']!r}; expected a "
                          "number >= 0 (0: no bound)")
-    for k in ("h0", "p", "gamma", "margin"):
+    for k in ("h0", "p", "gamma", "margin", "refresh_frac"):
         if not 0.0 <= float(out[k]) <= 1.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number in [0, 1]")
     if not float(out["margin"]) < 0.5:
         raise ValueError(f"app.params.margin: got {out['margin']!r}; expected < 0.5")
-    for k in ("min_matches", "min_tracked", "rising_n", "vision_every", "n_features"):
+    for k in ("min_matches", "min_tracked", "rising_n", "vision_every", "n_features",
+              "h_hold_n"):
         if not isinstance(out[k], int) or out[k] < 1:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected an integer >= 1")
     if out["min_tracked"] < 8 or out["min_matches"] < out["min_tracked"]:
         raise ValueError("app.params.min_tracked: a homography needs >= 8 points, and "
                          "min_matches must be >= min_tracked")
-    for k in ("ramp_s", "smoothing_s", "hold_final_s"):
+    for k in ("ramp_s", "smoothing_s", "hold_final_s", "turn_deg", "turn_t_ev", "turn_wait_s"):
         if not float(out[k]) >= 0.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number >= 0")
     if out["homography"] not in ("virtual_plane", "dominant_plane"):
