@@ -156,7 +156,8 @@ class VisualServoApp:
         self.turn_key = [False] + [e is not None and abs(float(e[4])) > turn for e in pairs]
         self._t_eps_ok = NAN
         self._e = np.zeros(6)
-        self.hchoice = HomographyChoice(p["homography"], p["h_jump"], p["h_hold_n"])
+        self.hchoice = HomographyChoice(p["homography"], p["h_jump"], p["h_hold_n"],
+                                        p["decouple"])
         self.refresh = Refresh(p["vis_max_s"], p["stall_s"], p["refresh_frac"])
 
     def _key_pairs(self) -> list[np.ndarray | None]:
@@ -393,7 +394,9 @@ class VisualServoApp:
                   and (p["rising_max_px"] <= 0.0 or eps < p["rising_max_px"])
                   and all(b > a for a, b in zip(hist[:-1], hist[1:], strict=False)))
         near = eps < p["t_eps_px"]
-        if near and self.turn_key[self.k] and p["turn_t_ev"] > 0.0:
+        turn = self.turn_key[self.k] and p["turn_t_ev"] > 0.0
+        rising = rising and not turn     # a turn key is not left half-turned (issue 28)
+        if near and turn:
             # a turn key is reached when its translation is too (issue 28, ours): eps is
             # mostly the rotation's, and small once the heading is right while the vehicle
             # is still inside the corner; e_v is the translation over the plane's depth.

@@ -22,14 +22,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from cosim.apps.vs.geometry import homography_error
+from cosim.apps.vs.geometry import decouple, homography_error
 
 MODELS = ("virtual_plane", "dominant_plane")
 
 
 class HomographyChoice:
-    def __init__(self, prefer: str, jump: float, hold_n: int) -> None:
+    def __init__(self, prefer: str, jump: float, hold_n: int, decoupled: bool = False
+                 ) -> None:
         self.prefer = prefer
+        self.decoupled = decoupled
         self.jump = float(jump)
         self.hold_n = int(hold_n)
         self.reset()
@@ -46,6 +48,8 @@ class HomographyChoice:
         """(e, method) of this cycle: method is the model used, "held" when the last error is
         held, "failed" when there is nothing (no candidate, nothing to hold)."""
         errs = {m: homography_error(*c) for m, c in candidates.items() if c is not None}
+        if self.decoupled:
+            errs = {m: decouple(e, candidates[m][1]) for m, e in errs.items()}
         order = [m for m in (self.model, self.prefer, *MODELS) if m in errs]
         if not errs:
             return None, "failed"

@@ -43,6 +43,28 @@ def homography_error(H: np.ndarray, m_star: np.ndarray = M_STAR) -> np.ndarray:
     return np.concatenate((e_v, e_w))
 
 
+def decouple(e: np.ndarray, m_star: np.ndarray = M_STAR) -> np.ndarray:
+    """Eq. 2's error with the rotation's share taken out of e_v (ours, issue 28).
+
+    For H = R + t n^T / d, e_v = (R - I) m* + t / Z* (Z* the depth of m* on the plane): at a
+    turn key the first term dominates (a 45 deg yaw gives e_v = (0.71, 0, -0.29) and the
+    servo drives forward into the corner before turning). With R estimated from e_w
+    ([e_w]x = H - H^T ~ R - R^T = 2 sin(angle) [axis]x), e_v - (R - I) m* leaves the
+    translation; e_w is kept. Exact for a pure rotation; for small rotations the change is
+    second order."""
+    w = e[3:]
+    s = float(np.linalg.norm(w)) / 2.0
+    if s < 1e-12:
+        return e.copy()
+    a = w / (2.0 * s)
+    ang = math.asin(min(s, 1.0))
+    K = skew(a)
+    R = np.eye(3) + math.sin(ang) * K + (1.0 - math.cos(ang)) * (K @ K)
+    out = e.copy()
+    out[:3] = e[:3] - (R - np.eye(3)) @ m_star
+    return out
+
+
 def adaptive_gain(norm_e: float, l0: float, linf: float, l0_slope: float) -> float:
     """Eq. 4 (Kermorgant & Chaumette): l0 at e = 0, linf for large e, slope l0' at 0."""
     if l0 == linf:

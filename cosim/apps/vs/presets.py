@@ -49,7 +49,8 @@ DEFAULTS: dict[str, Any] = {
     "vis_max_s": 3.0, "stall_s": 4.0, "refresh_frac": 0.3,
     "vis_v_max_mps": 0.2, "vis_wz_max_dps": 15.0,
     # issue 28 (ours): turn keys need their translation too (0: the paper's eps rule alone)
-    "turn_deg": 10.0, "turn_t_ev": 0.06, "turn_wait_s": 5.0,
+    "turn_deg": 20.0, "turn_t_ev": 0.06, "turn_wait_s": 5.0,
+    "decouple": True,             # the rotation's share taken out of e_v (geometry.decouple)
 }
 
 # paper 2 Sec. 5; detector: SIFT in 5.1-5.2, Shi-Tomasi corners in 5.3. One deviation: E1's
