@@ -137,3 +137,19 @@ def test_obstacle_memory_places_the_column_in_the_local_frame_and_forgets_it_whe
     assert mem.task((0.8 + 0.2, 3.09 + 0.39, -1.0), np.pi / 2, 0.35, 0.1) is not None
     assert mem.task((0.8 + 0.2, 3.09 + 0.41, -1.0), np.pi / 2, 0.35, 0.1) is None   # passed
     assert mem.ne is None
+
+
+def test_decoupling_takes_the_heading_out_of_e_v_and_keeps_the_equilibrium():
+    """A 45 deg turn alone: Eq. 2 asks for a translation (e_v = (0.71, 0, -0.29)); decoupled,
+    none. A forward offset with the turn keeps its translation; the parts of e_w a level
+    camera cannot turn by are not used; e = 0 stays e = 0."""
+    th = np.radians(45.0)
+    Ry = np.array([[np.cos(th), 0.0, np.sin(th)], [0.0, 1.0, 0.0],
+                   [-np.sin(th), 0.0, np.cos(th)]])
+    e = G.homography_error(Ry)
+    assert e[0] > 0.7 and G.decouple(e)[:3] == pytest.approx([0.0, 0.0, 0.0], abs=1e-12)
+    e = G.homography_error(Ry + np.outer([0.0, 0.0, 0.2], [0.0, 0.0, 1.0]))
+    assert G.decouple(e)[:3] == pytest.approx([0.0, 0.0, 0.2], abs=1e-12)
+    e = np.array([0.01, -0.02, 0.03, 0.05, 0.0, 0.04])          # no turn about camera y
+    assert np.array_equal(G.decouple(e), e)
+    assert np.array_equal(G.decouple(np.zeros(6)), np.zeros(6))

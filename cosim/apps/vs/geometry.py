@@ -44,23 +44,20 @@ def homography_error(H: np.ndarray, m_star: np.ndarray = M_STAR) -> np.ndarray:
 
 
 def decouple(e: np.ndarray, m_star: np.ndarray = M_STAR) -> np.ndarray:
-    """Eq. 2's error with the rotation's share taken out of e_v (ours, issue 28).
+    """Eq. 2's error with the heading's share taken out of e_v (ours, issue 28).
 
     For H = R + t n^T / d, e_v = (R - I) m* + t / Z* (Z* the depth of m* on the plane): at a
     turn key the first term dominates (a 45 deg yaw gives e_v = (0.71, 0, -0.29) and the
-    servo drives forward into the corner before turning). With R estimated from e_w
-    ([e_w]x = H - H^T ~ R - R^T = 2 sin(angle) [axis]x), e_v - (R - I) m* leaves the
-    translation; e_w is kept. Exact for a pure rotation; for small rotations the change is
-    second order."""
-    w = e[3:]
-    s = float(np.linalg.norm(w)) / 2.0
-    if s < 1e-12:
-        return e.copy()
-    a = w / (2.0 * s)
-    ang = math.asin(min(s, 1.0))
-    K = skew(a)
-    R = np.eye(3) + math.sin(ang) * K + (1.0 - math.cos(ang)) * (K @ K)
-    out = e.copy()
+    servo drives forward into the corner before turning). The camera is level (the
+    stabilised stream; eRc constant), so R is a turn about the camera's y axis by the angle
+    with 2 sin(angle) = e_w[1] ([e_w]x = H - H^T ~ R - R^T); e_v - (R - I) m* leaves the
+    translation. The other two parts of e_w are not rotations of a level camera (they come
+    from the translation's coupling, t n^T - n t^T, and cannot be servoed): they are not
+    used. At e = 0 nothing changes, so the equilibrium is the paper's."""
+    s = min(max(float(e[4]) / 2.0, -1.0), 1.0)
+    c = math.sqrt(1.0 - s * s)
+    R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    out = np.array(e, dtype=float)
     out[:3] = e[:3] - (R - np.eye(3)) @ m_star
     return out
 
