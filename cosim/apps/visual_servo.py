@@ -12,6 +12,11 @@ with the "error rising over the last five cycles" switch; none towards the last 
 a constant feed-forward would hold the vehicle off the final pose), the hierarchy avoidance >
 visibility > servoing (Eqs. 13-20) and the target-change smoothing (Eqs. 28-30). Switch on
 eps < T_eps (Eq. 7); at the last key, hold `hold_final_s` and land.
+For rooms and paths nobody tuned it for (issue 28, ours): the homography choice is held
+steady by a consistency test (vs/choice.py), the heading is taken out of e_v (decouple),
+columns out of view are remembered in the vehicle's local frame until passed (vs/memory.py),
+the visibility task is bounded in time and velocity and tracks are matched afresh when they
+thin out or stall, and a turn key needs its translation too.
 
 The vehicle is reached only through MAVLink: arm, AUTO.TAKEOFF to `takeoff_alt_m`, OFFBOARD,
 SET_POSITION_TARGET_LOCAL_NED velocity setpoints in MAV_FRAME_BODY_NED with yaw rate at the

@@ -14,6 +14,19 @@ Values from paper 2 Sec. 5 (reference/paper2-visual-servoing.md §3). Names:
 - `ramp_s`: activation ramps h_a, h_m (Eq. 20); `smoothing`, `smoothing_s`, `h0`: Eqs. 28-30.
 - `feedforward`, `gamma`, `p`, `rising_n`: Eqs. 31-32 and the "error rising" switch rule;
   `rising_max_px` > 0 (ours, off by default) applies that rule only while eps is below it.
+Ours, for rooms and paths nobody tuned the app for (issue 28; docs/papers/visual-servoing.md):
+- `h_jump`, `h_hold_n`: the homography choice (vs/choice.py HomographyChoice): a candidate
+  whose error changes by more than `h_jump` (max norm) in one cycle is not taken; the last
+  error is held for at most `h_hold_n` cycles, then the preferred candidate is taken.
+- `decouple`: the heading's share (R - I) m* taken out of e_v (geometry.decouple).
+- `vis_max_s`: the visibility task's longest activation, then a fresh match and as long off;
+  `vis_v_max_mps`, `vis_wz_max_dps`: the bounds of the velocity it asks for on its own.
+- `stall_s`, `refresh_frac`: match afresh when eps has not improved by 10 % for `stall_s`,
+  or fewer than `refresh_frac` of the matched points are still tracked (vs/choice.py Refresh).
+- `turn_deg`, `turn_t_ev`, `turn_wait_s`: a key turned more than `turn_deg` from the previous
+  one also needs |e_v| < `turn_t_ev` (0: off), at most `turn_wait_s` after eps < T_eps.
+Out-of-view columns are remembered in the vehicle's local frame (vs/memory.py): no parameter
+beyond `obstacle_width_m`, `clearance_m` and `avoid_range_m`.
 """
 
 from __future__ import annotations
