@@ -153,3 +153,14 @@ def test_decoupling_takes_the_heading_out_of_e_v_and_keeps_the_equilibrium():
     e = np.array([0.01, -0.02, 0.03, 0.05, 0.0, 0.04])          # no turn about camera y
     assert np.array_equal(G.decouple(e), e)
     assert np.array_equal(G.decouple(np.zeros(6)), np.zeros(6))
+
+
+def test_decoupling_is_used_only_while_the_vehicle_is_turned():
+    lo, hi = np.radians(10.0), np.radians(20.0)
+    for deg, share in ((5.0, 0.0), (15.0, 0.5), (45.0, 1.0)):
+        th = np.radians(deg)
+        Ry = np.array([[np.cos(th), 0.0, np.sin(th)], [0.0, 1.0, 0.0],
+                       [-np.sin(th), 0.0, np.cos(th)]])
+        e = G.homography_error(Ry)
+        assert G.decouple(e, G.M_STAR, lo, hi)[:3] == pytest.approx((1.0 - share) * e[:3],
+                                                                     abs=1e-9), deg

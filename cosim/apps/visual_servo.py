@@ -162,7 +162,7 @@ class VisualServoApp:
         self._t_eps_ok = NAN
         self._e = np.zeros(6)
         self.hchoice = HomographyChoice(p["homography"], p["h_jump"], p["h_hold_n"],
-                                        p["decouple"])
+                                        p["decouple"], math.radians(p["turn_deg"]))
         self.refresh = Refresh(p["vis_max_s"], p["stall_s"], p["refresh_frac"])
 
     def _key_pairs(self) -> list[np.ndarray | None]:

@@ -28,10 +28,11 @@ MODELS = ("virtual_plane", "dominant_plane")
 
 
 class HomographyChoice:
-    def __init__(self, prefer: str, jump: float, hold_n: int, decoupled: bool = False
-                 ) -> None:
+    def __init__(self, prefer: str, jump: float, hold_n: int, decoupled: bool = False,
+                 turn_rad: float = 0.0) -> None:
         self.prefer = prefer
         self.decoupled = decoupled
+        self.turn_rad = turn_rad     # decoupled from half this heading error, fully from it
         self.jump = float(jump)
         self.hold_n = int(hold_n)
         self.reset()
@@ -49,7 +50,8 @@ class HomographyChoice:
         held, "failed" when there is nothing (no candidate, nothing to hold)."""
         errs = {m: homography_error(*c) for m, c in candidates.items() if c is not None}
         if self.decoupled:
-            errs = {m: decouple(e, candidates[m][1]) for m, e in errs.items()}
+            errs = {m: decouple(e, candidates[m][1], 0.5 * self.turn_rad, self.turn_rad)
+                    for m, e in errs.items()}
         order = [m for m in (self.model, self.prefer, *MODELS) if m in errs]
         if not errs:
             return None, "failed"
