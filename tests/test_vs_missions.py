@@ -35,7 +35,7 @@ def _line(path: Path, s: dict) -> str:
     m = s["metrics"]
     failed = [k for k, c in s["criteria"].items() if not c["passed"]]
     return (f"{path.stem:24s} {'PASS' if s['passed'] else 'FAIL'}  {m.get('outcome')!s:28.28s} "
-            f"time {m.get('repeat_time_s') or float('nan'):6.1f} s  clearance "
+            f"time {m.get('mission_time_s') or float('nan'):6.1f} s  clearance "
             f"{m.get('min_clearance_m', float('nan')):6.3f} m  pose error "
             f"{m.get('final_pose_error_m') or float('nan'):5.2f} m  {' '.join(failed)}")
 

@@ -151,14 +151,17 @@ class VisualServoApp:
         self.h_t = G.Ramp(p["smoothing_s"], 1.0)
         s = p["sigma"]
         self.sigmas = s if isinstance(s, list) else [s]
-        pairs = self._key_pairs() if p["feedforward"] or p["turn_t_ev"] > 0.0 else []
+        pairs = (self._key_pairs() if p["feedforward"] or p["turn_t_ev"] > 0.0
+                 or p["decouple"] else [])
         # Eqs. 31-32: gamma S eTc nu_c(I*_k, I*_k+1)
         self.nu_p = [p["gamma"] * (self.body_from_cam @ self._law(e)[0]) if e is not None
                      else np.zeros(4) for e in pairs] if p["feedforward"] else []
         # turn keys (issue 28, ours): key k+1 is turned from key k by more than turn_deg (the
-        # yaw part of e_w, 2 sin(angle), camera y); the first key's turn is not known
+        # yaw part of e_w, 2 sin(angle), camera y); the first key's turn is not known. They
+        # need their translation (turn_t_ev) and are servoed decoupled (decouple)
         turn = 2.0 * math.sin(math.radians(p["turn_deg"]))
         self.turn_key = [False] + [e is not None and abs(float(e[4])) > turn for e in pairs]
+        self.turn_key += [False] * (len(vp.keys) - len(self.turn_key))
         self._t_eps_ok = NAN
         self._e = np.zeros(6)
         self.hchoice = HomographyChoice(p["homography"], p["h_jump"], p["h_hold_n"],
@@ -273,7 +276,8 @@ class VisualServoApp:
             if self._fresh_match(t, gray, 11 * self.k + len(self._switches)):
                 eps = float(np.mean(np.linalg.norm(self.cur - self.tgt, axis=1)))
         e, used = self.hchoice.choose(homographies(self.cur, self.tgt, self.K, p["homography"],
-                                                   self.seed + len(self.cur)))
+                                                   self.seed + len(self.cur)),
+                                      self.turn_key[self.k])
         if e is None:
             self.phase = "matching"
             self._hover(t, "homography failed")

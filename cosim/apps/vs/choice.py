@@ -44,12 +44,13 @@ class HomographyChoice:
         self.e: np.ndarray | None = None
         self._held = 0
 
-    def choose(self, candidates: dict[str, tuple[np.ndarray, np.ndarray] | None]
-               ) -> tuple[np.ndarray | None, str]:
+    def choose(self, candidates: dict[str, tuple[np.ndarray, np.ndarray] | None],
+               turn: bool = True) -> tuple[np.ndarray | None, str]:
         """(e, method) of this cycle: method is the model used, "held" when the last error is
-        held, "failed" when there is nothing (no candidate, nothing to hold)."""
+        held, "failed" when there is nothing (no candidate, nothing to hold). `turn`: the
+        key is a turn key (decoupled, when `decoupled`)."""
         errs = {m: homography_error(*c) for m, c in candidates.items() if c is not None}
-        if self.decoupled:
+        if self.decoupled and turn:
             errs = {m: decouple(e, candidates[m][1], 0.5 * self.turn_rad, self.turn_rad)
                     for m, e in errs.items()}
         order = [m for m in (self.model, self.prefer, *MODELS) if m in errs]

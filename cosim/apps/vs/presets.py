@@ -18,7 +18,7 @@ Ours, for rooms and paths nobody tuned the app for (issue 28; docs/papers/visual
 - `h_jump`, `h_hold_n`: the homography choice (vs/choice.py HomographyChoice): a candidate
   whose error changes by more than `h_jump` (max norm) in one cycle is not taken; the last
   error is held for at most `h_hold_n` cycles, then the preferred candidate is taken.
-- `decouple`: the heading's share (R - I) m* taken out of e_v (geometry.decouple).
+- `decouple`: the heading's share (R - I) m* taken out of e_v at turn keys (geometry.decouple).
 - `vis_max_s`: the visibility task's longest activation, then a fresh match and as long off;
   `vis_v_max_mps`, `vis_wz_max_dps`: the bounds of the velocity it asks for on its own.
 - `stall_s`, `refresh_frac`: match afresh when eps has not improved by 10 % for `stall_s`,
@@ -63,7 +63,7 @@ DEFAULTS: dict[str, Any] = {
     "vis_v_max_mps": 0.2, "vis_wz_max_dps": 15.0,
     # issue 28 (ours): turn keys need their translation too (0: the paper's eps rule alone)
     "turn_deg": 20.0, "turn_t_ev": 0.06, "turn_wait_s": 5.0,
-    "decouple": True,             # the rotation's share taken out of e_v (geometry.decouple)
+    "decouple": True,             # at turn keys: the heading out of e_v (geometry.decouple)
 }
 
 # paper 2 Sec. 5; detector: SIFT in 5.1-5.2, Shi-Tomasi corners in 5.3. One deviation: E1's
