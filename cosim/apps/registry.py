@@ -110,12 +110,17 @@ def check_app(spec: AppSpec) -> None:
         raise ScenarioError(head, _param_value(spec, head), rest) from None
 
 
-def check_inputs(spec: AppSpec, camera, source: str | None, arena=None) -> None:
+def check_inputs(spec: AppSpec, camera, source: str | None, arena=None, scene=None,
+                 body_radius: float = 0.0) -> None:
     """At load time: what the app reads (app_inputs) exists and fits the scenario (a visual
     path is a readable taught folder for the scenario's camera, with one `sigma` per key when
     a list), and every point it flies to is inside the arena and above the floor.
+    A taught pose of the visual servo (issue 28) must also be a pose the vehicle can hold in
+    the world (`scene`, a 3D world): its body sphere (`body_radius`) clear of every wall, the
+    ceiling, box and column (the collision query `Scene.clearance`) and of the floor.
     ScenarioError naming the field, with the file and field at fault."""
     points: list[tuple[str, tuple[float, ...]]] = []
+    poses: list[tuple[str, tuple[float, ...]]] = []      # taught poses: held in the world
     if spec.name == "scripted":
         wps = spec.params.get("waypoints", [])
         points += [(f"app.params.waypoints[{i}]", tuple(r[:3])) for i, r in enumerate(wps)]
@@ -123,7 +128,7 @@ def check_inputs(spec: AppSpec, camera, source: str | None, arena=None) -> None:
         from cosim.apps.vs.presets import resolve
 
         p = resolve(spec.params)
-        points += [(f"app.params.keys[{i}]", tuple(r[:3])) for i, r in enumerate(p["keys"])]
+        poses += [(f"app.params.keys[{i}]", tuple(r[:3])) for i, r in enumerate(p["keys"])]
         n_keys = len(p["keys"])
         for name, path in app_inputs(spec, source).items():
             from cosim.apps.vs import visual_path as VP
@@ -134,19 +139,38 @@ def check_inputs(spec: AppSpec, camera, source: str | None, arena=None) -> None:
                 raise ScenarioError(name, spec.params["visual_path"], "a taught folder for "
                                     f"the scenario's camera ({exc})") from None
             n_keys = len(meta["_poses"])
-            points += [(f"{name} (path.json keys[{i}].pose)", pose[:3])
-                       for i, pose in enumerate(meta["_poses"])]
+            poses += [(f"{name} (path.json keys[{i}].pose)", pose[:3])
+                      for i, pose in enumerate(meta["_poses"])]
         sigma = p["sigma"]
         if isinstance(sigma, list) and len(sigma) > 1 and len(sigma) != n_keys:
             raise ScenarioError("app.params.sigma", sigma, f"one number, or one per key "
                                 f"({n_keys} keys)")
     if arena is not None:
-        for name, (n, e, d) in points:
+        for name, (n, e, d) in points + poses:
             if not (arena.n_min <= n <= arena.n_max and arena.e_min <= e <= arena.e_max
                     and d <= 0.0):
                 raise ScenarioError(name, [n, e, d], f"a point inside the arena (N "
                                     f"{arena.n_min:g} to {arena.n_max:g}, E {arena.e_min:g} to "
                                     f"{arena.e_max:g}) and above the floor (d <= 0)")
+    if scene is not None and not scene.empty:
+        for name, (n, e, d) in poses:
+            _check_pose_clear(name, (n, e, d), scene, body_radius)
+
+
+def _check_pose_clear(name: str, ned: tuple[float, ...], scene, radius: float) -> None:
+    """A taught pose where the body sphere overlaps the floor, a wall, the ceiling, a box or
+    a column is refused, naming what it overlaps and by how much."""
+    n, e, d = ned
+    if -d < radius:
+        raise ScenarioError(name, [n, e, d], f"a pose the vehicle can hold: {-d:.2f} m above "
+                            f"the floor is under the body radius {radius:g} m (d <= "
+                            f"{-radius:g})")
+    gap, what = scene.clearance(n, e, d, radius)
+    if gap < 0.0:
+        where = "inside" if gap < -radius else "closer than the body radius to"
+        raise ScenarioError(name, [n, e, d], f"a pose the vehicle can hold: it is {where} "
+                            f"the {what.removeprefix('the ')} (clearance {gap:.2f} m with "
+                            f"the body radius {radius:g} m)")
 
 
 def _param_value(spec: AppSpec, path: str) -> object:

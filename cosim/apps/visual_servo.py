@@ -12,6 +12,11 @@ with the "error rising over the last five cycles" switch; none towards the last 
 a constant feed-forward would hold the vehicle off the final pose), the hierarchy avoidance >
 visibility > servoing (Eqs. 13-20) and the target-change smoothing (Eqs. 28-30). Switch on
 eps < T_eps (Eq. 7); at the last key, hold `hold_final_s` and land.
+For rooms and paths nobody tuned it for (issue 28, ours): the homography choice is held
+steady by a consistency test (vs/choice.py), the heading is taken out of e_v (decouple),
+columns out of view are remembered in the vehicle's local frame until passed (vs/memory.py),
+the visibility task is bounded in time and velocity and tracks are matched afresh when they
+thin out or stall, and a turn key needs its translation too.
 
 The vehicle is reached only through MAVLink: arm, AUTO.TAKEOFF to `takeoff_alt_m`, OFFBOARD,
 SET_POSITION_TARGET_LOCAL_NED velocity setpoints in MAV_FRAME_BODY_NED with yaw rate at the
@@ -32,16 +37,19 @@ import numpy as np
 from cosim.apps.base import NAN, AppContext, FlightSequencer
 from cosim.apps.vs import geometry as G
 from cosim.apps.vs import visual_path as VP
+from cosim.apps.vs.choice import HomographyChoice, Refresh
 from cosim.apps.vs.features import (
     Detector,
     Tracker,
     gray_of,
+    homographies,
     homography,
     match,
     robust_inliers,
     sort_points,
 )
 from cosim.apps.vs.lowlevel import LowLevel
+from cosim.apps.vs.memory import ObstacleMemory
 from cosim.apps.vs.presets import resolve
 from cosim.apps.vs.tasks import (
     avoidance_task,
@@ -55,7 +63,7 @@ from cosim.apps.vs.tasks import (
 FRAME_COLUMNS = ("t", "target", "eps_px", "n_points", "homography", "e_vx", "e_vy", "e_vz",
                  "e_wx", "e_wy", "e_wz", "lambda", "h_a", "h_m", "h_t", "vx", "vy", "vz",
                  "wz", "ff_vx", "ff_vy", "ff_vz", "ff_wz", "obstacle_px")
-H_CODE = {"failed": -1.0, "dominant_plane": 0.0, "virtual_plane": 1.0}
+H_CODE = {"failed": -1.0, "dominant_plane": 0.0, "virtual_plane": 1.0, "held": 0.5}
 
 
 def _intervals(log: list[tuple[float, float]]) -> list[list[float]]:
@@ -110,8 +118,7 @@ class VisualServoApp:
         self._hm_log: list[tuple[float, float]] = []
         self._dnu_max = 0.0
         self._last_J_a = None
-        self._t_pass = NAN
-        self._Z_last = 0.0
+        self.memory = ObstacleMemory()
 
     # ---------------------------------------------------------------- set-up
     def prepare(self, scenario, run_dir: Path) -> None:
@@ -144,24 +151,39 @@ class VisualServoApp:
         self.h_t = G.Ramp(p["smoothing_s"], 1.0)
         s = p["sigma"]
         self.sigmas = s if isinstance(s, list) else [s]
-        self.nu_p = self._feedforward() if p["feedforward"] else []
+        pairs = (self._key_pairs() if p["feedforward"] or p["turn_t_ev"] > 0.0
+                 or p["decouple"] else [])
+        # Eqs. 31-32: gamma S eTc nu_c(I*_k, I*_k+1)
+        self.nu_p = [p["gamma"] * (self.body_from_cam @ self._law(e)[0]) if e is not None
+                     else np.zeros(4) for e in pairs] if p["feedforward"] else []
+        # turn keys (issue 28, ours): key k+1 is turned from key k by more than turn_deg (the
+        # yaw part of e_w, 2 sin(angle), camera y); the first key's turn is not known. They
+        # need their translation (turn_t_ev) and are servoed decoupled (decouple)
+        turn = 2.0 * math.sin(math.radians(p["turn_deg"]))
+        self.turn_key = [False] + [e is not None and abs(float(e[4])) > turn for e in pairs]
+        self.turn_key += [False] * (len(vp.keys) - len(self.turn_key))
+        self._t_eps_ok = NAN
+        self._e = np.zeros(6)
+        self.hchoice = HomographyChoice(p["homography"], p["h_jump"], p["h_hold_n"],
+                                        p["decouple"], math.radians(p["turn_deg"]))
+        self.refresh = Refresh(p["vis_max_s"], p["stall_s"], p["refresh_frac"])
         self.low = LowLevel(p["low_level"], float(p["moveby_dt_s"]),
                             (ctx.frame_period_s or 0.0) * p["vision_every"])
 
-    def _feedforward(self) -> list[np.ndarray]:
-        """Eqs. 31-32: gamma S eTc nu_c(I*_k, I*_k+1) from consecutive key images."""
-        out = []
+    def _key_pairs(self) -> list[np.ndarray | None]:
+        """Eq. 2's error between consecutive key images (I*_k+1 seen from I*_k), or None
+        where they do not match: the feed-forward of Eqs. 31-32 and the turn keys."""
+        out: list[np.ndarray | None] = []
         keys = self.path.keys
         for a, b in zip(keys[:-1], keys[1:], strict=False):
             tgt, cur = match(self.det, b.pts, b.desc, a.pts, a.desc, self.seed)
-            nu = np.zeros(4)
+            e = None
             if len(tgt) >= self.p["min_tracked"]:
                 tgt, cur = sort_points(tgt, cur)
                 r = homography(cur, tgt, self.K, self.p["homography"], self.seed)
                 if r.H is not None:
-                    nu = self.p["gamma"] * (self.body_from_cam @ self._law(G.homography_error(
-                        r.H))[0])
-            out.append(nu)
+                    e = G.homography_error(r.H)
+            out.append(e)
         return out
 
     def _law(self, e: np.ndarray) -> tuple[np.ndarray, float]:
@@ -193,13 +215,31 @@ class VisualServoApp:
         pts, desc = self.det.detect(gray)
         tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + self.k)
         if len(tgt) >= self.p["min_matches"]:
-            self.tgt, self.cur = sort_points(tgt, cur)
+            self._use_points(t, tgt, cur)
             self.phase = "servo"
             self._lost_since = NAN
             self._eps_hist = []
             return
         self._rematches += 1
         self._hover(t, "few matches")
+
+    def _use_points(self, t: float, tgt: np.ndarray, cur: np.ndarray) -> None:
+        """Servo on a freshly matched point set from now on."""
+        self.tgt, self.cur = sort_points(tgt, cur)
+        self.hchoice.reset()
+        self.refresh.matched(t, len(tgt))
+
+    def _fresh_match(self, t: float, gray: np.ndarray, salt: int) -> bool:
+        """Match this frame with the key afresh (vs/choice.py Refresh); on enough matches
+        servo on them. Whether it did."""
+        key = self.path.keys[self.k]
+        pts, desc = self.det.detect(gray)
+        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * salt)
+        if len(tgt) < self.p["min_matches"]:
+            return False
+        self._use_points(t, tgt, cur)
+        self._rematches += 1
+        return True
 
     def _hover(self, t: float, why: str) -> None:
         """Zero velocity; give up after lost_timeout_s without a usable view."""
@@ -225,18 +265,27 @@ class VisualServoApp:
                 self.cur, self.tgt = self.cur[inl], self.tgt[inl]
             if head_lost:        # a point of the virtual plane is gone: sort again
                 self.tgt, self.cur = sort_points(self.tgt, self.cur)
+                self.hchoice.reset()      # another virtual plane: its error starts anew
         if len(self.cur) < p["min_tracked"]:
             self.phase = "matching"
             self._hover(t, "features lost")
             return
         eps = float(np.mean(np.linalg.norm(self.cur - self.tgt, axis=1)))
-        r = homography(self.cur, self.tgt, self.K, p["homography"], self.seed + len(self.cur))
-        if r.H is None:
+        why = self.refresh.due(t, len(self.cur), eps)
+        if why is not None:
+            if why == "visibility":
+                self.h_m.set(t, 0.0)
+            if self._fresh_match(t, gray, 11 * self.k + len(self._switches)):
+                eps = float(np.mean(np.linalg.norm(self.cur - self.tgt, axis=1)))
+        e, used = self.hchoice.choose(homographies(self.cur, self.tgt, self.K, p["homography"],
+                                                   self.seed + len(self.cur)),
+                                      self.turn_key[self.k])
+        if e is None:
             self.phase = "matching"
             self._hover(t, "homography failed")
             return
         self._lost_since = NAN
-        e = G.homography_error(r.H)
+        self._e = e
         nu_c, lam = self._law(e)
         nu_v = self.body_from_cam @ nu_c
         ff = np.zeros(4)
@@ -250,17 +299,22 @@ class VisualServoApp:
         J_m = edot_m = None
         if p["visibility"]:
             out = outside_rectangle(self.cur, self.tgt, self.W, self.H, p["margin"])
-            self.h_m.set(t, 1.0 if out else 0.0)
+            self.h_m.set(t, 1.0 if self.refresh.visibility_allowed(t, out) else 0.0)
             e_m, J_m = visibility_task(self.cur, self.K, p["visibility_depth_m"],
                                        self.cam_from_body)
             edot_m = -p["lambda_m"] * e_m
+            # its authority bounded (issue 28): the velocity it asks for on its own
+            v_m = G.pinv(J_m) @ edot_m
+            scale = min(1.0, p["vis_v_max_mps"] / max(float(np.linalg.norm(v_m[:3])), 1e-9),
+                        math.radians(p["vis_wz_max_dps"]) / max(abs(float(v_m[3])), 1e-9))
+            edot_m = scale * edot_m
         h_m = self.h_m.value(t)
         nu, _, _ = G.hierarchy(nu_v, J_a, edot_a, h_a, J_m, edot_m, h_m)
         h_t = self.h_t.value(t) if p["smoothing"] else 1.0
         self._command(t, h_t * nu)
         self._ha_log.append((t, h_a))
         self._hm_log.append((t, h_m))
-        self.frame_log.append((t, float(self.k), eps, float(len(self.cur)), H_CODE[r.method],
+        self.frame_log.append((t, float(self.k), eps, float(len(self.cur)), H_CODE[used],
                                *map(float, e), lam, h_a, h_m, h_t, *map(float, self._cmd),
                                *map(float, ff), ob_px))
         self._switch(t, eps, gray)
@@ -268,45 +322,62 @@ class VisualServoApp:
     def _avoidance(self, t: float, image: np.ndarray, v_fwd: float) -> tuple[Any, Any, float]:
         """Sec. 3.1: (J_a, desired rate, apparent width px) and the activation's target.
 
-        Corridor task: once the column has gone out of view beside the vehicle, the task
-        stays on as a sideways hold (`lateral_hold`) for the time the vehicle needs to pass
-        it at the commanded forward speed (its last depth plus the clearance, at most 5 s),
-        then ramps down (ours: the paper ramps down as soon as the column leaves the view,
-        which lets the servo pull the vehicle back into the column's side). It is wanted only
-        while the servo moves forward (towards the column)."""
+        Corridor task (ours, the default): wanted while the column, estimated `avoid_range_m`
+        or closer, stands in the corridor the vehicle sweeps and the servo moves forward
+        (towards it). Each sighting is remembered in the vehicle's own local frame
+        (vs/memory.py, from LOCAL_POSITION_NED and ATTITUDE); once the column has left the
+        view the task goes on from that memory until the column is passed: pushing out while
+        it is in the corridor, holding the side otherwise (issue 28: the paper ramps down as
+        soon as the column leaves the view, and a sideways hold for a fixed time froze the
+        offset reached so far, short of clear when the column left the view early)."""
         p = self.p
         ob = find_obstacle(image)
+        corridor = p["avoidance_task"] == "corridor"
         if ob is None:
-            J_a = self._last_J_a
-            if J_a is None:
-                self.h_a.set(t, 0.0)
-                return None, 0.0, 0.0
-            if p["avoidance_task"] == "corridor":
-                J_a = lateral_hold(J_a)
-                if math.isnan(self._t_pass):
-                    v = max(float(self._cmd[0]), 0.05)
-                    self._t_pass = t + min((self._Z_last + p["clearance_m"]) / v, 5.0)
-            self.h_a.set(t, 1.0 if t < self._t_pass and self.h_a.target > 0.0 else 0.0)
-            return J_a, np.zeros(J_a.shape[0]), 0.0
-        self._t_pass = NAN
+            if corridor:
+                return self._remembered(t, v_fwd)
+            self.h_a.set(t, 0.0)
+            return self._last_J_a, 0.0, 0.0
         ob_w = ob.x_right_px - ob.x_left_px
         sigma = self.sigmas[min(self.k, len(self.sigmas) - 1)]
         e_a, J_a = avoidance_task(ob, self.K, sigma, p["obstacle_width_m"], self.cam_from_body)
         edot_a = -p["lambda_a"] * e_a
         want = e_a > 0.0
-        if p["avoidance_task"] == "corridor":
+        if corridor:
             e_c, J_a = corridor_task(ob, self.K, p["obstacle_width_m"], p["clearance_m"],
                                      self.cam_from_body)
             edot_a = -p["lambda_c"] * e_c
-            self._Z_last = p["obstacle_width_m"] * self.K[0, 0] / max(ob_w, 1.0)
+            Z = p["obstacle_width_m"] * self.K[0, 0] / max(ob_w, 1.0)
+            self.memory.see(ob, self.K, p["obstacle_width_m"], self.client.position,
+                            self.client.attitude[2], self.path.mount_B[0])
             # only while the servo closes on it: a key that stands near a column (E2's second
             # key is 0.75 m in front of the bar) is reached, not held off by the corridor
-            want = e_c > 0.0 and self._Z_last < p["avoid_range_m"] and v_fwd > 0.02
+            want = e_c > 0.0 and Z < p["avoid_range_m"] and v_fwd > 0.02
         self._last_J_a = J_a if want or self.h_a.target > 0.0 else None
         self.h_a.set(t, 1.0 if want else 0.0)
         return J_a, edot_a, ob_w
 
-    def _verified(self, gray: np.ndarray) -> bool:
+    def _remembered(self, t: float, v_fwd: float) -> tuple[Any, Any, float]:
+        """The corridor task from the obstacle memory while the column is out of view."""
+        p = self.p
+        yaw = self.client.attitude[2]
+        r = self.memory.task(self.client.position, yaw, p["clearance_m"],
+                             p["obstacle_width_m"])
+        if r is None:                       # nothing remembered, or passed: ramp down
+            self.h_a.set(t, 0.0)
+            J = self._last_J_a
+            return (lateral_hold(J), np.zeros(1), 0.0) if J is not None else (None, 0.0, 0.0)
+        e_c, J = r
+        ahead = self.memory.body(self.client.position, yaw)[0] < p["avoid_range_m"]
+        if e_c > 0.0 and ahead and (self.h_a.target > 0.0 or v_fwd > 0.02):
+            self.h_a.set(t, 1.0)
+            self._last_J_a = J
+            return J, np.array([-p["lambda_c"] * e_c]), 0.0
+        if self.h_a.target > 0.0:           # clear of the corridor, not passed: hold the side
+            return J, np.zeros(1), 0.0
+        return None, 0.0, 0.0
+
+    def _verified(self, t: float, gray: np.ndarray) -> bool:
         """At the last key: eps from tracked points can drift low while the pose is still off
         (LK drift, a thinned point set), so the goal is confirmed by matching the frame with
         the key afresh (ours). When the fresh matches disagree, servoing goes on with them."""
@@ -317,7 +388,7 @@ class VisualServoApp:
             return False
         if float(np.mean(np.linalg.norm(cur - tgt, axis=1))) < self.p["t_eps_final_px"]:
             return True
-        self.tgt, self.cur = sort_points(tgt, cur)
+        self._use_points(t, tgt, cur)
         self._rematches += 1
         return False
 
@@ -333,16 +404,28 @@ class VisualServoApp:
         rising = (p["feedforward"] and not last and len(hist) == p["rising_n"] + 1
                   and (p["rising_max_px"] <= 0.0 or eps < p["rising_max_px"])
                   and all(b > a for a, b in zip(hist[:-1], hist[1:], strict=False)))
-        if last and eps < p["t_eps_final_px"] and (gray is None or self._verified(gray)):
+        near = eps < p["t_eps_px"]
+        turn = self.turn_key[self.k] and p["turn_t_ev"] > 0.0
+        rising = rising and not turn     # a turn key is not left half-turned (issue 28)
+        if near and turn:
+            # a turn key is reached when its translation is too (issue 28, ours): eps is
+            # mostly the rotation's, and small once the heading is right while the vehicle
+            # is still inside the corner; e_v is the translation over the plane's depth.
+            # After turn_wait_s with eps below T_eps it is taken as it is.
+            if math.isnan(self._t_eps_ok):
+                self._t_eps_ok = t
+            near = (float(np.linalg.norm(self._e[:3])) < p["turn_t_ev"]
+                    or t - self._t_eps_ok >= p["turn_wait_s"])
+        if last and eps < p["t_eps_final_px"] and (gray is None or self._verified(t, gray)):
             self._switches.append((t, self.k, "eps"))
             self._t_goal = t
             self.phase = "final"
             self.events.append((t, "goal_reached"))
             self._command(t, np.zeros(4))
-        elif not last and (eps < p["t_eps_px"] or rising):
-            self._switches.append((t, self.k, "rising" if rising and eps >= p["t_eps_px"]
-                                   else "eps"))
+        elif not last and (near or rising):
+            self._switches.append((t, self.k, "rising" if rising and not near else "eps"))
             self.k += 1
+            self._t_eps_ok = NAN
             self.phase = "matching"
             self._t_target = t
             if p["smoothing"]:
@@ -411,4 +494,7 @@ class VisualServoApp:
             "visibility_active_s": _intervals(self._hm_log),
             "command_step_max": self._dnu_max,
             "vision_cycles": len(self.frame_log),
+            "homography_changes": self.hchoice.changes if self.path else 0,
+            "homography_holds": self.hchoice.holds if self.path else 0,
+            "refreshes": dict(self.refresh.count) if self.path else {},
         }

@@ -211,7 +211,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
                             f"E {a.e_min:g} to {a.e_max:g})")
     camera = parse_camera(camera_table, "camera") if camera_table is not None else None
     check_app(app)
-    check_inputs(app, camera, source, world.arena)
+    check_inputs(app, camera, source, world.arena, world.scene, vehicle.body_radius)
     return Scenario(
         name=name, description=description, seed=seed, vehicle=vehicle, start=start,
         timing=timing, world=world, camera=camera, app=app, noise=noise,

@@ -185,17 +185,25 @@ def _virtual_plane(F: np.ndarray, x: np.ndarray, xp: np.ndarray) -> np.ndarray |
     return A - np.outer(ep, v)
 
 
-def homography(current: np.ndarray, target: np.ndarray, K: np.ndarray, method: str,
-               seed: int, planar_px: float = 2.0, gate: float = 0.3) -> HomographyResult:
-    """The Euclidean homography from current to target points (pixels, sorted: the first 3
-    define the virtual plane)."""
+def homographies(current: np.ndarray, target: np.ndarray, K: np.ndarray, method: str,
+                 seed: int, planar_px: float = 2.0, gate: float = 0.3
+                 ) -> dict[str, tuple[np.ndarray, np.ndarray] | None]:
+    """Both candidate Euclidean homographies from current to target points (pixels, sorted:
+    the first 3 define the virtual plane), each with the point m* (normalised, z = 1) its
+    error of Eq. 2 is taken at: {"virtual_plane": (H, m*) or None, "dominant_plane": (H, m*)
+    or None}. The virtual plane is None where it is degenerate or wild (see the module
+    docstring), and always with `method` = "dominant_plane". Its m* is the principal point;
+    the dominant plane's is the centroid of its inlier target points (ours, issue 28: Eq. 2
+    wants m* on the plane; a side wall as the dominant plane has the principal point far off
+    it, and there a forward offset gives no e_v at all)."""
+    out: dict[str, tuple[np.ndarray, np.ndarray] | None] = {"virtual_plane": None,
+                                                             "dominant_plane": None}
     if len(current) < 8:
-        return HomographyResult(None, "failed")
+        return out
     cv2.setRNGSeed(int(seed))
-    Hd, _ = cv2.findHomography(current, target, cv2.RANSAC, 2.0)
+    Hd, inl = cv2.findHomography(current, target, cv2.RANSAC, 2.0)
     Kinv = np.linalg.inv(K)
     H_px = None
-    used = "dominant_plane"
     if method == "virtual_plane":
         planar = False
         if Hd is not None:
@@ -207,15 +215,31 @@ def homography(current: np.ndarray, target: np.ndarray, K: np.ndarray, method: s
             F, _ = cv2.findFundamentalMat(current, target, cv2.FM_RANSAC, 1.0, 0.999, 500)
             if F is not None and F.shape == (3, 3):
                 H_px = _virtual_plane(F, current.astype(np.float64), target.astype(np.float64))
-                used = "virtual_plane"
     Hd_e = _normalise(Kinv @ Hd @ K) if Hd is not None else None
+    if Hd_e is not None and np.all(np.isfinite(Hd_e)):
+        on = inl.ravel().astype(bool) if inl is not None else np.ones(len(target), bool)
+        c = np.mean(target[on] if on.any() else target, axis=0)
+        m = Kinv @ np.array([c[0], c[1], 1.0])
+        out["dominant_plane"] = (Hd_e, m / m[2])
+    else:
+        Hd_e = None
     if H_px is not None:
         H = _normalise(Kinv @ H_px @ K)
         # an ill-conditioned F (3 nearly collinear points, little parallax) gives a wild H:
         # it must not disagree with the dominant plane by more than a plausible plane change
         if H is not None and np.all(np.isfinite(H)) and (
                 Hd_e is None or np.abs(H - Hd_e).max() <= gate):
-            return HomographyResult(H, used)
-    if Hd_e is None or not np.all(np.isfinite(Hd_e)):
-        return HomographyResult(None, "failed")
-    return HomographyResult(Hd_e, "dominant_plane")
+            out["virtual_plane"] = (H, np.array([0.0, 0.0, 1.0]))
+    return out
+
+
+def homography(current: np.ndarray, target: np.ndarray, K: np.ndarray, method: str,
+               seed: int, planar_px: float = 2.0, gate: float = 0.3) -> HomographyResult:
+    """The Euclidean homography from current to target points (pixels, sorted: the first 3
+    define the virtual plane): the virtual plane's when it is usable, else the dominant
+    plane's (one cycle on its own; the app holds its choice steady: vs/choice.py)."""
+    c = homographies(current, target, K, method, seed, planar_px, gate)
+    for used in ("virtual_plane", "dominant_plane"):
+        if c[used] is not None:
+            return HomographyResult(c[used][0], used)
+    return HomographyResult(None, "failed")

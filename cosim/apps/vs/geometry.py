@@ -43,6 +43,33 @@ def homography_error(H: np.ndarray, m_star: np.ndarray = M_STAR) -> np.ndarray:
     return np.concatenate((e_v, e_w))
 
 
+def decouple(e: np.ndarray, m_star: np.ndarray = M_STAR, lo_rad: float = 0.0,
+             hi_rad: float = 0.0) -> np.ndarray:
+    """Eq. 2's error with the heading's share taken out of e_v (ours, issue 28).
+
+    For H = R + t n^T / d, e_v = (R - I) m* + t / Z* (Z* the depth of m* on the plane): at a
+    turn key the first term dominates (a 45 deg yaw gives e_v = (0.71, 0, -0.29) and the
+    servo drives forward into the corner before turning). The camera is level (the
+    stabilised stream; eRc constant), so R is a turn about the camera's y axis by the angle
+    with 2 sin(angle) = e_w[1] ([e_w]x = H - H^T ~ R - R^T); e_v - (R - I) m* leaves the
+    translation. The other two parts of e_w are not rotations of a level camera (they come
+    from the translation's coupling, t n^T - n t^T, and cannot be servoed): they are not
+    used. Only while the vehicle is turned: a share rising from 0 at a heading error of
+    `lo_rad` to all of it at `hi_rad` (0, 0: always all), so near a key, where e_w[1] is
+    mostly the translation's coupling again, the law is the paper's; at e = 0 nothing
+    changes."""
+    s = min(max(float(e[4]) / 2.0, -1.0), 1.0)
+    ang = abs(math.asin(s))
+    share = 1.0 if hi_rad <= lo_rad else min(max((ang - lo_rad) / (hi_rad - lo_rad), 0.0), 1.0)
+    out = np.array(e, dtype=float)
+    if share == 0.0:
+        return out
+    c = math.sqrt(1.0 - s * s)
+    R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    out[:3] = e[:3] - share * ((R - np.eye(3)) @ m_star)
+    return out
+
+
 def adaptive_gain(norm_e: float, l0: float, linf: float, l0_slope: float) -> float:
     """Eq. 4 (Kermorgant & Chaumette): l0 at e = 0, linf for large e, slope l0' at 0."""
     if l0 == linf:

@@ -15,6 +15,19 @@ Values from paper 2 Sec. 5 (reference/paper2-visual-servoing.md §3). Names:
 - `feedforward`, `gamma`, `p`, `rising_n`: Eqs. 31-32 and the "error rising" switch rule;
   `rising_max_px` > 0 (ours, off by default) applies that rule only while eps is below it.
 - `low_level`, `moveby_dt_s`: how the command reaches the vehicle (`lowlevel.py`).
+Ours, for rooms and paths nobody tuned the app for (issue 28; docs/papers/visual-servoing.md):
+- `h_jump`, `h_hold_n`: the homography choice (vs/choice.py HomographyChoice): a candidate
+  whose error changes by more than `h_jump` (max norm) in one cycle is not taken; the last
+  error is held for at most `h_hold_n` cycles, then the preferred candidate is taken.
+- `decouple`: the heading's share (R - I) m* taken out of e_v at turn keys (geometry.decouple).
+- `vis_max_s`: the visibility task's longest activation, then a fresh match and as long off;
+  `vis_v_max_mps`, `vis_wz_max_dps`: the bounds of the velocity it asks for on its own.
+- `stall_s`, `refresh_frac`: match afresh when eps has not improved by 10 % for `stall_s`,
+  or fewer than `refresh_frac` of the matched points are still tracked (vs/choice.py Refresh).
+- `turn_deg`, `turn_t_ev`, `turn_wait_s`: a key turned more than `turn_deg` from the previous
+  one also needs |e_v| < `turn_t_ev` (0: off), at most `turn_wait_s` after eps < T_eps.
+Out-of-view columns are remembered in the vehicle's local frame (vs/memory.py): no parameter
+beyond `obstacle_width_m`, `clearance_m` and `avoid_range_m`.
 """
 
 from __future__ import annotations
@@ -49,6 +62,14 @@ DEFAULTS: dict[str, Any] = {
     # or "moveby", paper 2's ViSP setVelocity: a relative move of the command over dt per
     # vision cycle; dt = moveby_dt_s, or the vision cycle's period when 0
     "low_level": "velocity", "moveby_dt_s": 0.0,
+    # issue 28 (ours): the homography choice held steady (vs/choice.py)
+    "h_jump": 0.15, "h_hold_n": 5,
+    # issue 28 (ours): fresh matches and the visibility task's bounds (vs/choice.py Refresh)
+    "vis_max_s": 3.0, "stall_s": 4.0, "refresh_frac": 0.3,
+    "vis_v_max_mps": 0.2, "vis_wz_max_dps": 15.0,
+    # issue 28 (ours): turn keys need their translation too (0: the paper's eps rule alone)
+    "turn_deg": 20.0, "turn_t_ev": 0.06, "turn_wait_s": 5.0,
+    "decouple": True,             # at turn keys: the heading out of e_v (geometry.decouple)
 }
 
 # paper 2 Sec. 5; detector: SIFT in 5.1-5.2, Shi-Tomasi corners in 5.3. One deviation: E1's
@@ -80,24 +101,26 @@ def resolve(params: dict[str, Any]) -> dict[str, Any]:
     for k in ("l0", "linf", "l0_slope", "t_eps_px", "t_eps_final_px", "lambda_a", "lambda_m",
               "obstacle_width_m", "clearance_m", "lambda_c", "avoid_range_m", "outlier_px",
               "visibility_depth_m", "v_max_mps", "wz_max_dps",
-              "lost_timeout_s", "target_timeout_s", "takeoff_alt_m"):
+              "lost_timeout_s", "target_timeout_s", "takeoff_alt_m", "h_jump", "vis_max_s",
+              "stall_s", "vis_v_max_mps", "vis_wz_max_dps"):
         if not float(out[k]) > 0.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number > 0")
     if not float(out["rising_max_px"]) >= 0.0:
         raise ValueError(f"app.params.rising_max_px: got {out['rising_max_px']!r}; expected a "
                          "number >= 0 (0: no bound)")
-    for k in ("h0", "p", "gamma", "margin"):
+    for k in ("h0", "p", "gamma", "margin", "refresh_frac"):
         if not 0.0 <= float(out[k]) <= 1.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number in [0, 1]")
     if not float(out["margin"]) < 0.5:
         raise ValueError(f"app.params.margin: got {out['margin']!r}; expected < 0.5")
-    for k in ("min_matches", "min_tracked", "rising_n", "vision_every", "n_features"):
+    for k in ("min_matches", "min_tracked", "rising_n", "vision_every", "n_features",
+              "h_hold_n"):
         if not isinstance(out[k], int) or out[k] < 1:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected an integer >= 1")
     if out["min_tracked"] < 8 or out["min_matches"] < out["min_tracked"]:
         raise ValueError("app.params.min_tracked: a homography needs >= 8 points, and "
                          "min_matches must be >= min_tracked")
-    for k in ("ramp_s", "smoothing_s", "hold_final_s"):
+    for k in ("ramp_s", "smoothing_s", "hold_final_s", "turn_deg", "turn_t_ev", "turn_wait_s"):
         if not float(out[k]) >= 0.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number >= 0")
     if out["low_level"] not in LOW_LEVELS:
