@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import struct
 
+import cython
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
@@ -129,6 +130,8 @@ def encode_truth(mav, t_us: int, q: tuple, pqr: tuple, lat_e7: int, lon_e7: int,
         v_cms[1], v_cms[2]))
 
 
+@cython.locals(i=cython.Py_ssize_t, n=cython.Py_ssize_t, end=cython.Py_ssize_t,
+               bad=cython.long)
 def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
     """The sensor frames of one HIL datagram: ({msgid: payload tuple in wire order}, number
     of frames that were not well-formed sensor messages). ({}, n) for anything else."""

@@ -242,6 +242,8 @@ def send_msg(mav, msg) -> bytes:
 
 
 # ----------------------------------------------------------------------------------- decoding
+@cython.locals(i=cython.Py_ssize_t, n=cython.Py_ssize_t, end=cython.Py_ssize_t,
+               magic=cython.long)
 def frame_end(data: bytes, i: int = 0) -> int:
     """End index of the frame starting at data[i], or -1 if data[i] is not a magic byte or
     the frame is truncated (the length field points past the end of `data`)."""
@@ -264,6 +266,7 @@ def frame_end(data: bytes, i: int = 0) -> int:
     return end if end <= n else -1
 
 
+@cython.locals(i=cython.Py_ssize_t)
 def msgid_of(data: bytes, i: int = 0) -> int:
     """Message id of the (complete) frame starting at data[i]."""
     if data[i] == MAGIC_V2:
@@ -271,6 +274,8 @@ def msgid_of(data: bytes, i: int = 0) -> int:
     return data[i + 5]
 
 
+@cython.locals(m=FastMsg, i=cython.Py_ssize_t, end=cython.Py_ssize_t, flags=cython.long,
+               plen=cython.Py_ssize_t, crc_at=cython.Py_ssize_t)
 def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | None:
     """Decode one MAVLink 2 frame data[i:end] of type `m`; None unless it is well formed,
     of that type and CRC-correct. The signature block (if any) is NOT checked: use this only
