@@ -136,8 +136,8 @@ assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
 
 
 # ----------------------------------------------------------------------------------- encoding
-@cython.locals(m=FastMsg, seq=cython.int, n=cython.Py_ssize_t, mid=cython.long,
-               crc=cython.long, buf=bytearray, sysid=cython.int, compid=cython.int)
+@cython.locals(seq=cython.int, n=cython.Py_ssize_t, mid=cython.long, crc=cython.long,
+               buf=bytearray, sysid=cython.int, compid=cython.int)
 def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     """Frame a packed payload as MAVLink 2, as `mav.send(msg)` would (and advance mav.seq).
 
@@ -242,8 +242,7 @@ def send_msg(mav, msg) -> bytes:
 
 
 # ----------------------------------------------------------------------------------- decoding
-@cython.locals(i=cython.Py_ssize_t, n=cython.Py_ssize_t, end=cython.Py_ssize_t,
-               magic=cython.long)
+@cython.locals(n=cython.Py_ssize_t, end=cython.Py_ssize_t, magic=cython.long)
 def frame_end(data: bytes, i: int = 0) -> int:
     """End index of the frame starting at data[i], or -1 if data[i] is not a magic byte or
     the frame is truncated (the length field points past the end of `data`)."""
@@ -266,7 +265,6 @@ def frame_end(data: bytes, i: int = 0) -> int:
     return end if end <= n else -1
 
 
-@cython.locals(i=cython.Py_ssize_t)
 def msgid_of(data: bytes, i: int = 0) -> int:
     """Message id of the (complete) frame starting at data[i]."""
     if data[i] == MAGIC_V2:
@@ -274,8 +272,7 @@ def msgid_of(data: bytes, i: int = 0) -> int:
     return data[i + 5]
 
 
-@cython.locals(m=FastMsg, i=cython.Py_ssize_t, end=cython.Py_ssize_t, flags=cython.long,
-               plen=cython.Py_ssize_t, crc_at=cython.Py_ssize_t)
+@cython.locals(flags=cython.long, plen=cython.Py_ssize_t, crc_at=cython.Py_ssize_t)
 def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | None:
     """Decode one MAVLink 2 frame data[i:end] of type `m`; None unless it is well formed,
     of that type and CRC-correct. The signature block (if any) is NOT checked: use this only
@@ -311,6 +308,8 @@ def one_frame_decoder(m: FastMsg, used: struct.Struct):
     id3, extra, zeros, used_len = m.id3, m.extra, m.zeros, used.size
     unpack, unpack_from = used.unpack, used.unpack_from
 
+    @cython.locals(data=bytes, n=cython.Py_ssize_t, flags=cython.long, crc_at=cython.Py_ssize_t,
+                   plen=cython.Py_ssize_t)
     def decode(data: bytes) -> tuple | None:
         n = len(data)
         if n < 12 or data[0] != MAGIC_V2 or data[7:10] != id3:
