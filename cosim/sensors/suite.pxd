@@ -1,6 +1,7 @@
 # Types Cython reads beside cosim/sensors/suite.py (plain Python): the sensor set's per-tick
 # parameters and state as C fields, its IMU filters and noise streams as compiled objects.
 from cosim.sensors.imu cimport Gauss, Imu3
+from mav cimport hil_sensors as hs
 
 
 cdef class SensorSuite:
