@@ -38,6 +38,13 @@ HEADER_LEN_V2 = 10
 HEADER_LEN_V1 = 6
 SIGNATURE_LEN = 13
 IFLAG_SIGNED = 0x01
+# the same as C constants for the compiled frame walkers (a module global is a Python object)
+_MAGIC2 = cython.declare(cython.long, MAGIC_V2)
+_MAGIC1 = cython.declare(cython.long, MAGIC_V1)
+_HDR2 = cython.declare(cython.Py_ssize_t, HEADER_LEN_V2)
+_HDR1 = cython.declare(cython.Py_ssize_t, HEADER_LEN_V1)
+_SIGLEN = cython.declare(cython.Py_ssize_t, SIGNATURE_LEN)
+_SIGNED = cython.declare(cython.long, IFLAG_SIGNED)
 
 
 def _crc16_py(data: bytes, crc: int = 0xFFFF) -> int:
@@ -250,16 +257,16 @@ def frame_end(data: bytes, i: int = 0) -> int:
     if i >= n:
         return -1
     magic = data[i]
-    if magic == MAGIC_V2:
+    if magic == _MAGIC2:
         if i + 3 > n:
             return -1
-        end = i + HEADER_LEN_V2 + data[i + 1] + 2
-        if data[i + 2] & IFLAG_SIGNED:
-            end += SIGNATURE_LEN
-    elif magic == MAGIC_V1:
+        end = i + _HDR2 + data[i + 1] + 2
+        if data[i + 2] & _SIGNED:
+            end += _SIGLEN
+    elif magic == _MAGIC1:
         if i + 2 > n:
             return -1
-        end = i + HEADER_LEN_V1 + data[i + 1] + 2
+        end = i + _HDR1 + data[i + 1] + 2
     else:
         return -1
     return end if end <= n else -1
@@ -267,7 +274,7 @@ def frame_end(data: bytes, i: int = 0) -> int:
 
 def msgid_of(data: bytes, i: int = 0) -> int:
     """Message id of the (complete) frame starting at data[i]."""
-    if data[i] == MAGIC_V2:
+    if data[i] == _MAGIC2:
         return data[i + 7] | data[i + 8] << 8 | data[i + 9] << 16
     return data[i + 5]
 
@@ -285,20 +292,20 @@ def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | N
         end = frame_end(data, i)
         if end < 0:
             return None
-    if data[i] != MAGIC_V2 or data[i + 7:i + 10] != m.id3:
+    if data[i] != _MAGIC2 or data[i + 7:i + 10] != m.id3:
         return None
     flags = data[i + 2]
-    if flags & ~IFLAG_SIGNED:
+    if flags & ~_SIGNED:
         return None
     plen = data[i + 1]
-    crc_at = i + HEADER_LEN_V2 + plen
-    if crc_at + 2 + (SIGNATURE_LEN if flags else 0) != end:
+    crc_at = i + _HDR2 + plen
+    if crc_at + 2 + (_SIGLEN if flags else 0) != end:
         return None
     if crc16(data[i + 1:crc_at] + m.extra) != (data[crc_at] | data[crc_at + 1] << 8):
         return None
     if plen >= m.size:
-        return m.st.unpack_from(data, i + HEADER_LEN_V2)
-    return m.st.unpack(data[i + HEADER_LEN_V2:crc_at] + m.zeros[plen:])
+        return m.st.unpack_from(data, i + _HDR2)
+    return m.st.unpack(data[i + _HDR2:crc_at] + m.zeros[plen:])
 
 
 def one_frame_decoder(m: FastMsg, used: struct.Struct):
@@ -312,21 +319,21 @@ def one_frame_decoder(m: FastMsg, used: struct.Struct):
                    plen=cython.Py_ssize_t)
     def decode(data: bytes) -> tuple | None:
         n = len(data)
-        if n < 12 or data[0] != MAGIC_V2 or data[7:10] != id3:
+        if n < 12 or data[0] != _MAGIC2 or data[7:10] != id3:
             return None
         flags = data[2]
-        crc_at = HEADER_LEN_V2 + data[1]
+        crc_at = _HDR2 + data[1]
         if flags == 0:
             if n != crc_at + 2:
                 return None
-        elif flags != IFLAG_SIGNED or n != crc_at + 2 + SIGNATURE_LEN:
+        elif flags != _SIGNED or n != crc_at + 2 + _SIGLEN:
             return None
         if crc16(data[1:crc_at] + extra) != (data[crc_at] | data[crc_at + 1] << 8):
             return None
         plen = data[1]
         if plen >= used_len:
-            return unpack_from(data, HEADER_LEN_V2)
-        return unpack(data[HEADER_LEN_V2:crc_at] + zeros[plen:used_len])
+            return unpack_from(data, _HDR2)
+        return unpack(data[_HDR2:crc_at] + zeros[plen:used_len])
 
     return decode
 
