@@ -13,3 +13,8 @@ cpdef bytes frame(mav, FastMsg m, bytes payload)
 cpdef Py_ssize_t frame_end(bytes data, Py_ssize_t i=*) except? -2
 cpdef long msgid_of(bytes data, Py_ssize_t i=*) except? -1
 cpdef decode_fast(FastMsg m, bytes data, Py_ssize_t i=*, Py_ssize_t end=*)
+
+
+cdef class FlatEarth:
+    cdef public double lat0_deg, lon0_deg, alt0_m, _dlat_dn, _dlon_de
+    cpdef tuple to_geodetic(self, double n_m, double e_m, double d_m)

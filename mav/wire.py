@@ -135,6 +135,7 @@ ODO_CHILD_FRAME_ID = ODO_FRAME_ID + 1
 _HDR = struct.Struct("<BBBBBBB")           # magic, len, incompat, compat, seq, sysid, compid
 _HDR6 = struct.Struct("<BBBBBB")           # the same without the magic byte
 _CRC = struct.Struct("<H")
+_MAGIC2_B = bytes((MAGIC_V2,))
 _SIGN_TS = struct.Struct("<BQ")
 # time_usec, flags, controls[0..3], controls[4..15] = 0 (pad bytes), mode
 _HIL_CTRL = struct.Struct("<QQ4f48xB")
@@ -143,8 +144,7 @@ assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
 
 
 # ----------------------------------------------------------------------------------- encoding
-@cython.locals(seq=cython.int, n=cython.Py_ssize_t, mid=cython.long, crc=cython.long,
-               buf=bytearray, sysid=cython.int, compid=cython.int)
+@cython.locals(seq=cython.int, n=cython.Py_ssize_t, body=bytes)
 def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     """Frame a packed payload as MAVLink 2, as `mav.send(msg)` would (and advance mav.seq).
 
@@ -165,29 +165,14 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
         signed += hashlib.sha256(signing.secret_key + signed).digest()[:6]
         signing.timestamp += 1
         return signed
-    # one buffer, filled in place: header, payload (trailing zeros trimmed), CRC_EXTRA where
-    # the checksum goes, then the checksum over bytes 1.. and CRC_EXTRA written over it
+    # the header after the magic byte (length, flags, seq, ids) and the payload with its
+    # trailing zeros trimmed; the checksum over them and CRC_EXTRA
     n = len(payload)
     while n > 1 and payload[n - 1] == 0:
         n -= 1
-    sysid = mav.srcSystem
-    compid = mav.srcComponent
-    buf = bytearray(n + 12)
-    buf[0] = 0xFD          # MAGIC_V2
-    buf[1] = n
-    buf[4] = seq
-    buf[5] = sysid
-    buf[6] = compid
-    mid = m.id
-    buf[7] = mid & 0xFF
-    buf[8] = (mid >> 8) & 0xFF
-    buf[9] = mid >> 16
-    buf[10:10 + n] = payload[:n]
-    buf[10 + n] = m.crc_extra
-    crc = crc16(buf[1:11 + n])
-    buf[10 + n] = crc & 0xFF
-    buf[11 + n] = crc >> 8
-    return bytes(buf)
+    body = _HDR6.pack(n, 0, 0, seq, mav.srcSystem, mav.srcComponent) + m.id3 + (
+        payload if n == len(payload) else payload[:n])
+    return _MAGIC2_B + body + _CRC.pack(crc16(body + m.extra))
 
 
 def pack(mav, m: FastMsg, *values) -> bytes:
@@ -385,6 +370,7 @@ class FlatEarth:
         self._dlat_dn = math.degrees(math.atan2(1.0, r_m))                     # deg/m north
         self._dlon_de = math.degrees(math.atan2(1.0, r_n * math.cos(math.radians(lat0_deg))))
 
+    @cython.locals(lon=cython.double)
     def to_geodetic(self, n_m: float, e_m: float, d_m: float) -> tuple[float, float, float]:
         """(lat_deg, lon_deg, alt_m AMSL) of the NED point (n, e, d) in m."""
         lon = self.lon0_deg + e_m * self._dlon_de
@@ -398,7 +384,8 @@ class FlatEarth:
                 self.alt0_m - alt_m)
 
     def to_int(self, n_m: float, e_m: float, d_m: float) -> tuple[int, int, int]:
-        """(lat_e7, lon_e7, alt_mm) as GLOBAL_POSITION_INT and HOME_POSITION carry them."""
+        """(lat_e7, lon_e7, alt_mm) as GLOBAL_POSITION_INT and HOME_POSITION carry them
+        (rounded as Python rounds: Cython calls the builtin round)."""
         lat, lon, alt = self.to_geodetic(n_m, e_m, d_m)
         return round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0)
 
