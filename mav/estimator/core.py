@@ -73,13 +73,15 @@ class Estimator:
         if not self.enabled or not hs.is_sensor_bundle(data):
             return None
         msgs, bad = hs.decode_bundle(data)
-        self.stats["est_bad_frames"] += bad
+        if bad:
+            self.stats["est_bad_frames"] += bad
         imu = msgs.get(_ID_IMU)
         if imu is None:
             return None
         t_us = imu[0]
         e = self.update(msgs, t_us)
-        self.stats["est_lost"] += e.lost
+        if e.lost:
+            self.stats["est_lost"] += 1
         qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)
         return (t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p, e.q, e.r,
                 FRAME_LOCAL_NED, FRAME_LOCAL_NED, -1 if e.lost else 100)
