@@ -31,20 +31,27 @@ _ODO_TAIL = wire.ODOMETRY.st.pack(0, *(0.0,) * 13, math.nan, *(0.0,) * 20, math.
 _ODO_TAIL_LOST = _ODO_TAIL[:-1] + struct.pack("<b", -1)     # quality -1: the estimate failed
 
 
+def odometry(mav, t_us: int, m: tuple[float, ...], lost: bool) -> bytes:
+    """ODOMETRY of m = (x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r) on mav: the same bytes as
+    `wire.encode_odometry(mav, t_us, *m, estimator_type=1, quality=100)` (quality -1 if
+    `lost`), with the constant tail of the payload packed once. The simulator's truth, and
+    the onboard estimator's estimate (mav/estimator/link.py)."""
+    return wire.frame(mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + (
+        _ODO_TAIL_LOST if lost else _ODO_TAIL))
+
+
 class HilSimulatorCodec:
     def __init__(self) -> None:
         self.mav = mavlink2.MAVLink(None, srcSystem=SIM_SYSID, srcComponent=SIM_COMPID)
 
     def encode_odometry(self, t_us: int, m: tuple[float, ...]) -> bytes:
-        """m = (x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r), SI, NED/FRD. The same bytes as
-        `wire.encode_odometry(mav, t_us, *m, estimator_type=1, quality=100)`, with the
-        constant tail of the payload packed once."""
-        return wire.frame(self.mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL)
+        """m = (x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r), SI, NED/FRD (`odometry`)."""
+        return odometry(self.mav, t_us, m, False)
 
     def encode_odometry_lost(self, t_us: int, m: tuple[float, ...]) -> bytes:
         """The same with quality -1 (MAVLink: odometry has failed): the position and velocity
         in `m` are stale, attitude and rates live (a fault: cosim.sim.faults)."""
-        return wire.frame(self.mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + _ODO_TAIL_LOST)
+        return odometry(self.mav, t_us, m, True)
 
     def decode_actuators(self, data: bytes) -> tuple[int, float, float, float, float]:
         f = wire.decode_hil_actuator_controls(data)

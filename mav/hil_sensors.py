@@ -21,6 +21,9 @@ total on bytes, it returns what it could decode and counts the rest.
 
 from __future__ import annotations
 
+import struct
+
+import cython
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
@@ -41,42 +44,94 @@ ORIENT_DOWN = mavlink2.MAV_SENSOR_ROTATION_PITCH_270
 RANGE_ULTRASOUND = mavlink2.MAV_DISTANCE_SENSOR_ULTRASOUND
 
 
+# Each message's payload less its first field, the stamp (time_usec; DISTANCE_SENSOR's
+# time_boot_ms): a reading is packed once when it is taken and framed when it is sent, with
+# the stamp of that tick (the simulator's delay line, cosim/sensors/suite.py)
+def _rest(m: wire.FastMsg) -> struct.Struct:
+    return struct.Struct("<" + m.st.format[2:])
+
+
+_STAMP_US = struct.Struct("<Q")
+_STAMP_MS = struct.Struct("<I")
+_SENSOR_REST = _rest(HIL_SENSOR)
+_FLOW_REST = _rest(HIL_OPTICAL_FLOW)
+_DIST_REST = _rest(DISTANCE_SENSOR)
+_GPS_REST = _rest(HIL_GPS)
+_TRUTH_REST = _rest(HIL_STATE_QUATERNION)
+
+
+def stamped(mav, m: wire.FastMsg, t_us: int, rest: bytes) -> bytes:
+    """The frame of message m stamped t_us (us; ms for DISTANCE_SENSOR) with the payload's
+    other fields `rest` (packed by the *_rest functions below)."""
+    if m is DISTANCE_SENSOR:
+        return wire.frame(mav, m, _STAMP_MS.pack(t_us // 1000) + rest)
+    return wire.frame(mav, m, _STAMP_US.pack(t_us) + rest)
+
+
+def hil_sensor_rest(ax: float, ay: float, az: float, gx: float, gy: float, gz: float,
+                    mx: float, my: float, mz: float, abs_hpa: float, p_alt: float,
+                    temp_c: float, fields: int) -> bytes:
+    return _SENSOR_REST.pack(ax, ay, az, gx, gy, gz, mx, my, mz, abs_hpa, 0.0, p_alt, temp_c,
+                             fields, 0)
+
+
+def flow_rest(dt_us: int, ix: float, iy: float, gx: float, gy: float, gz: float,
+              quality: int) -> bytes:
+    """distance -1: the sensor has none of its own (the vehicle uses its altitude)."""
+    return _FLOW_REST.pack(dt_us, ix, iy, gx, gy, gz, 0, -1.0, 0, 0, quality)
+
+
+def distance_rest(min_cm: int, max_cm: int, cur_cm: int, quality: int) -> bytes:
+    return _DIST_REST.pack(min_cm, max_cm, cur_cm, RANGE_ULTRASOUND, 0, ORIENT_DOWN, 0, 0.0,
+                           0.0, 0.0, 0.0, 0.0, 0.0, quality)
+
+
+def gps_rest(lat_e7: int, lon_e7: int, alt_mm: int, eph_cm: int, vn_cms: int, ve_cms: int,
+             vd_cms: int) -> bytes:
+    vel = int(min(65534, (vn_cms * vn_cms + ve_cms * ve_cms) ** 0.5))
+    return _GPS_REST.pack(lat_e7, lon_e7, alt_mm, eph_cm, eph_cm * 2, vel, vn_cms, ve_cms,
+                          vd_cms, 65535, 3, 10, 0, 0)
+
+
+def truth_rest(qw: float, qx: float, qy: float, qz: float, p: float, q: float, r: float,
+               lat_e7: int, lon_e7: int, alt_mm: int, vn_cms: int, ve_cms: int,
+               vd_cms: int) -> bytes:
+    return _TRUTH_REST.pack(qw, qx, qy, qz, p, q, r, lat_e7, lon_e7, alt_mm, vn_cms, ve_cms,
+                            vd_cms, 0, 0, 0, 0, 0)
+
+
 def encode_hil_sensor(mav, t_us: int, acc: tuple, gyro: tuple, mag: tuple, abs_hpa: float,
                       p_alt: float, temp_c: float, fields: int) -> bytes:
-    return wire.frame(mav, HIL_SENSOR, HIL_SENSOR.st.pack(
-        t_us, acc[0], acc[1], acc[2], gyro[0], gyro[1], gyro[2], mag[0], mag[1], mag[2],
-        abs_hpa, 0.0, p_alt, temp_c, fields, 0))
+    return stamped(mav, HIL_SENSOR, t_us, hil_sensor_rest(
+        acc[0], acc[1], acc[2], gyro[0], gyro[1], gyro[2], mag[0], mag[1], mag[2], abs_hpa,
+        p_alt, temp_c, fields))
 
 
 def encode_flow(mav, t_us: int, dt_us: int, ix: float, iy: float, gx: float, gy: float,
                 gz: float, quality: int) -> bytes:
-    """distance -1: the sensor has none of its own (the vehicle uses its altitude)."""
-    return wire.frame(mav, HIL_OPTICAL_FLOW, HIL_OPTICAL_FLOW.st.pack(
-        t_us, dt_us, ix, iy, gx, gy, gz, 0, -1.0, 0, 0, quality))
+    return stamped(mav, HIL_OPTICAL_FLOW, t_us, flow_rest(dt_us, ix, iy, gx, gy, gz, quality))
 
 
 def encode_distance(mav, t_us: int, min_cm: int, max_cm: int, cur_cm: int,
                     quality: int) -> bytes:
-    return wire.frame(mav, DISTANCE_SENSOR, DISTANCE_SENSOR.st.pack(
-        t_us // 1000, min_cm, max_cm, cur_cm, RANGE_ULTRASOUND, 0, ORIENT_DOWN, 0, 0.0, 0.0,
-        0.0, 0.0, 0.0, 0.0, quality))
+    return stamped(mav, DISTANCE_SENSOR, t_us, distance_rest(min_cm, max_cm, cur_cm, quality))
 
 
 def encode_gps(mav, t_us: int, lat_e7: int, lon_e7: int, alt_mm: int, eph_cm: int,
                vn_cms: int, ve_cms: int, vd_cms: int) -> bytes:
-    vel = int(min(65534, (vn_cms * vn_cms + ve_cms * ve_cms) ** 0.5))
-    return wire.frame(mav, HIL_GPS, HIL_GPS.st.pack(
-        t_us, lat_e7, lon_e7, alt_mm, eph_cm, eph_cm * 2, vel, vn_cms, ve_cms, vd_cms,
-        65535, 3, 10, 0, 0))
+    return stamped(mav, HIL_GPS, t_us, gps_rest(lat_e7, lon_e7, alt_mm, eph_cm, vn_cms, ve_cms,
+                                                vd_cms))
 
 
 def encode_truth(mav, t_us: int, q: tuple, pqr: tuple, lat_e7: int, lon_e7: int, alt_mm: int,
                  v_cms: tuple) -> bytes:
-    return wire.frame(mav, HIL_STATE_QUATERNION, HIL_STATE_QUATERNION.st.pack(
-        t_us, q[0], q[1], q[2], q[3], pqr[0], pqr[1], pqr[2], lat_e7, lon_e7, alt_mm,
-        v_cms[0], v_cms[1], v_cms[2], 0, 0, 0, 0, 0))
+    return stamped(mav, HIL_STATE_QUATERNION, t_us, truth_rest(
+        q[0], q[1], q[2], q[3], pqr[0], pqr[1], pqr[2], lat_e7, lon_e7, alt_mm, v_cms[0],
+        v_cms[1], v_cms[2]))
 
 
+@cython.locals(i=cython.Py_ssize_t, n=cython.Py_ssize_t, end=cython.Py_ssize_t,
+               bad=cython.long)
 def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
     """The sensor frames of one HIL datagram: ({msgid: payload tuple in wire order}, number
     of frames that were not well-formed sensor messages). ({}, n) for anything else."""

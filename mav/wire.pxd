@@ -5,3 +5,16 @@ cdef class FastMsg:
     cdef public object cls, name, extra, st, id3, zeros
     cdef public long id, crc_extra
     cdef public Py_ssize_t size
+
+
+# the framing and the frame walkers, called directly by the compiled modules that cimport them
+# (the sensor bundle, mav/hil_sensors.pxd); a payload and a datagram are bytes
+cpdef bytes frame(mav, FastMsg m, bytes payload)
+cpdef Py_ssize_t frame_end(bytes data, Py_ssize_t i=*) except? -2
+cpdef long msgid_of(bytes data, Py_ssize_t i=*) except? -1
+cpdef decode_fast(FastMsg m, bytes data, Py_ssize_t i=*, Py_ssize_t end=*)
+
+
+cdef class FlatEarth:
+    cdef public double lat0_deg, lon0_deg, alt0_m, _dlat_dn, _dlon_de
+    cpdef tuple to_geodetic(self, double n_m, double e_m, double d_m)

@@ -25,6 +25,8 @@ import math
 import struct
 
 import cython
+from cython.cimports.libc.math import asin as _asin
+from cython.cimports.libc.math import atan2 as _atan2
 from pymavlink.dialects.v20 import common as mavlink2
 
 try:  # pymavlink itself uses fastcrc when it is installed; so do we
@@ -38,6 +40,13 @@ HEADER_LEN_V2 = 10
 HEADER_LEN_V1 = 6
 SIGNATURE_LEN = 13
 IFLAG_SIGNED = 0x01
+# the same as C constants for the compiled frame walkers (a module global is a Python object)
+_MAGIC2 = cython.declare(cython.long, MAGIC_V2)
+_MAGIC1 = cython.declare(cython.long, MAGIC_V1)
+_HDR2 = cython.declare(cython.Py_ssize_t, HEADER_LEN_V2)
+_HDR1 = cython.declare(cython.Py_ssize_t, HEADER_LEN_V1)
+_SIGLEN = cython.declare(cython.Py_ssize_t, SIGNATURE_LEN)
+_SIGNED = cython.declare(cython.long, IFLAG_SIGNED)
 
 
 def _crc16_py(data: bytes, crc: int = 0xFFFF) -> int:
@@ -128,6 +137,7 @@ ODO_CHILD_FRAME_ID = ODO_FRAME_ID + 1
 _HDR = struct.Struct("<BBBBBBB")           # magic, len, incompat, compat, seq, sysid, compid
 _HDR6 = struct.Struct("<BBBBBB")           # the same without the magic byte
 _CRC = struct.Struct("<H")
+_MAGIC2_B = bytes((MAGIC_V2,))
 _SIGN_TS = struct.Struct("<BQ")
 # time_usec, flags, controls[0..3], controls[4..15] = 0 (pad bytes), mode
 _HIL_CTRL = struct.Struct("<QQ4f48xB")
@@ -136,8 +146,7 @@ assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
 
 
 # ----------------------------------------------------------------------------------- encoding
-@cython.locals(m=FastMsg, seq=cython.int, n=cython.Py_ssize_t, mid=cython.long,
-               crc=cython.long, buf=bytearray, sysid=cython.int, compid=cython.int)
+@cython.locals(seq=cython.int, n=cython.Py_ssize_t, body=bytes)
 def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     """Frame a packed payload as MAVLink 2, as `mav.send(msg)` would (and advance mav.seq).
 
@@ -158,29 +167,14 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
         signed += hashlib.sha256(signing.secret_key + signed).digest()[:6]
         signing.timestamp += 1
         return signed
-    # one buffer, filled in place: header, payload (trailing zeros trimmed), CRC_EXTRA where
-    # the checksum goes, then the checksum over bytes 1.. and CRC_EXTRA written over it
+    # the header after the magic byte (length, flags, seq, ids) and the payload with its
+    # trailing zeros trimmed; the checksum over them and CRC_EXTRA
     n = len(payload)
     while n > 1 and payload[n - 1] == 0:
         n -= 1
-    sysid = mav.srcSystem
-    compid = mav.srcComponent
-    buf = bytearray(n + 12)
-    buf[0] = 0xFD          # MAGIC_V2
-    buf[1] = n
-    buf[4] = seq
-    buf[5] = sysid
-    buf[6] = compid
-    mid = m.id
-    buf[7] = mid & 0xFF
-    buf[8] = (mid >> 8) & 0xFF
-    buf[9] = mid >> 16
-    buf[10:10 + n] = payload[:n]
-    buf[10 + n] = m.crc_extra
-    crc = crc16(buf[1:11 + n])
-    buf[10 + n] = crc & 0xFF
-    buf[11 + n] = crc >> 8
-    return bytes(buf)
+    body = _HDR6.pack(n, 0, 0, seq, mav.srcSystem, mav.srcComponent) + m.id3 + (
+        payload if n == len(payload) else payload[:n])
+    return _MAGIC2_B + body + _CRC.pack(crc16(body + m.extra))
 
 
 def pack(mav, m: FastMsg, *values) -> bytes:
@@ -242,6 +236,7 @@ def send_msg(mav, msg) -> bytes:
 
 
 # ----------------------------------------------------------------------------------- decoding
+@cython.locals(n=cython.Py_ssize_t, end=cython.Py_ssize_t, magic=cython.long)
 def frame_end(data: bytes, i: int = 0) -> int:
     """End index of the frame starting at data[i], or -1 if data[i] is not a magic byte or
     the frame is truncated (the length field points past the end of `data`)."""
@@ -249,16 +244,16 @@ def frame_end(data: bytes, i: int = 0) -> int:
     if i >= n:
         return -1
     magic = data[i]
-    if magic == MAGIC_V2:
+    if magic == _MAGIC2:
         if i + 3 > n:
             return -1
-        end = i + HEADER_LEN_V2 + data[i + 1] + 2
-        if data[i + 2] & IFLAG_SIGNED:
-            end += SIGNATURE_LEN
-    elif magic == MAGIC_V1:
+        end = i + _HDR2 + data[i + 1] + 2
+        if data[i + 2] & _SIGNED:
+            end += _SIGLEN
+    elif magic == _MAGIC1:
         if i + 2 > n:
             return -1
-        end = i + HEADER_LEN_V1 + data[i + 1] + 2
+        end = i + _HDR1 + data[i + 1] + 2
     else:
         return -1
     return end if end <= n else -1
@@ -266,11 +261,12 @@ def frame_end(data: bytes, i: int = 0) -> int:
 
 def msgid_of(data: bytes, i: int = 0) -> int:
     """Message id of the (complete) frame starting at data[i]."""
-    if data[i] == MAGIC_V2:
+    if data[i] == _MAGIC2:
         return data[i + 7] | data[i + 8] << 8 | data[i + 9] << 16
     return data[i + 5]
 
 
+@cython.locals(flags=cython.long, plen=cython.Py_ssize_t, crc_at=cython.Py_ssize_t)
 def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | None:
     """Decode one MAVLink 2 frame data[i:end] of type `m`; None unless it is well formed,
     of that type and CRC-correct. The signature block (if any) is NOT checked: use this only
@@ -283,20 +279,20 @@ def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | N
         end = frame_end(data, i)
         if end < 0:
             return None
-    if data[i] != MAGIC_V2 or data[i + 7:i + 10] != m.id3:
+    if data[i] != _MAGIC2 or data[i + 7:i + 10] != m.id3:
         return None
     flags = data[i + 2]
-    if flags & ~IFLAG_SIGNED:
+    if flags & ~_SIGNED:
         return None
     plen = data[i + 1]
-    crc_at = i + HEADER_LEN_V2 + plen
-    if crc_at + 2 + (SIGNATURE_LEN if flags else 0) != end:
+    crc_at = i + _HDR2 + plen
+    if crc_at + 2 + (_SIGLEN if flags else 0) != end:
         return None
     if crc16(data[i + 1:crc_at] + m.extra) != (data[crc_at] | data[crc_at + 1] << 8):
         return None
     if plen >= m.size:
-        return m.st.unpack_from(data, i + HEADER_LEN_V2)
-    return m.st.unpack(data[i + HEADER_LEN_V2:crc_at] + m.zeros[plen:])
+        return m.st.unpack_from(data, i + _HDR2)
+    return m.st.unpack(data[i + _HDR2:crc_at] + m.zeros[plen:])
 
 
 def one_frame_decoder(m: FastMsg, used: struct.Struct):
@@ -306,23 +302,25 @@ def one_frame_decoder(m: FastMsg, used: struct.Struct):
     id3, extra, zeros, used_len = m.id3, m.extra, m.zeros, used.size
     unpack, unpack_from = used.unpack, used.unpack_from
 
+    @cython.locals(data=bytes, n=cython.Py_ssize_t, flags=cython.long, crc_at=cython.Py_ssize_t,
+                   plen=cython.Py_ssize_t)
     def decode(data: bytes) -> tuple | None:
         n = len(data)
-        if n < 12 or data[0] != MAGIC_V2 or data[7:10] != id3:
+        if n < 12 or data[0] != _MAGIC2 or data[7:10] != id3:
             return None
         flags = data[2]
-        crc_at = HEADER_LEN_V2 + data[1]
+        crc_at = _HDR2 + data[1]
         if flags == 0:
             if n != crc_at + 2:
                 return None
-        elif flags != IFLAG_SIGNED or n != crc_at + 2 + SIGNATURE_LEN:
+        elif flags != _SIGNED or n != crc_at + 2 + _SIGLEN:
             return None
         if crc16(data[1:crc_at] + extra) != (data[crc_at] | data[crc_at + 1] << 8):
             return None
         plen = data[1]
         if plen >= used_len:
-            return unpack_from(data, HEADER_LEN_V2)
-        return unpack(data[HEADER_LEN_V2:crc_at] + zeros[plen:used_len])
+            return unpack_from(data, _HDR2)
+        return unpack(data[_HDR2:crc_at] + zeros[plen:used_len])
 
     return decode
 
@@ -374,6 +372,7 @@ class FlatEarth:
         self._dlat_dn = math.degrees(math.atan2(1.0, r_m))                     # deg/m north
         self._dlon_de = math.degrees(math.atan2(1.0, r_n * math.cos(math.radians(lat0_deg))))
 
+    @cython.locals(lon=cython.double)
     def to_geodetic(self, n_m: float, e_m: float, d_m: float) -> tuple[float, float, float]:
         """(lat_deg, lon_deg, alt_m AMSL) of the NED point (n, e, d) in m."""
         lon = self.lon0_deg + e_m * self._dlon_de
@@ -387,7 +386,8 @@ class FlatEarth:
                 self.alt0_m - alt_m)
 
     def to_int(self, n_m: float, e_m: float, d_m: float) -> tuple[int, int, int]:
-        """(lat_e7, lon_e7, alt_mm) as GLOBAL_POSITION_INT and HOME_POSITION carry them."""
+        """(lat_e7, lon_e7, alt_mm) as GLOBAL_POSITION_INT and HOME_POSITION carry them
+        (rounded as Python rounds: Cython calls the builtin round)."""
         lat, lon, alt = self.to_geodetic(n_m, e_m, d_m)
         return round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0)
 
@@ -403,12 +403,15 @@ def clamp_int(v: float, lo: int, hi: int) -> int:
     return int(round(v))
 
 
+@cython.locals(qw=cython.double, qx=cython.double, qy=cython.double, qz=cython.double,
+               roll=cython.double, sp=cython.double, pitch=cython.double, yaw=cython.double)
 def euler_from_quat(qw: float, qx: float, qy: float, qz: float) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) in rad, ZYX (aerospace) from the body->world quaternion."""
-    roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
+    """(roll, pitch, yaw) in rad, ZYX (aerospace) from the body->world quaternion (compiled:
+    C doubles and libm's atan2 and asin, which Python's math calls)."""
+    roll = _atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
     sp = 2.0 * (qw * qy - qz * qx)
-    pitch = math.asin(sp if -1.0 < sp < 1.0 else (1.0 if sp >= 1.0 else -1.0))
-    yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    pitch = _asin(sp if -1.0 < sp < 1.0 else (1.0 if sp >= 1.0 else -1.0))
+    yaw = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
     return roll, pitch, yaw
 
 

@@ -44,6 +44,12 @@ def test_bench_quick_reports_every_figure(tmp_path):
     est = res["mission_mil_estimate"]           # issue 27: on the estimate, its target
     assert est["exit_reason"] == "mission_complete"
     assert est["target"] == 0.6 * res["mission_mil"]["median"]
+    assert est["ratio_to_truth_fed"] == est["median"] / res["mission_mil"]["median"]
+    be = res["mil_tick_breakdown_estimate"]["parts_us_per_tick"]   # its own lines
+    for name in ("sensor models + HIL_SENSOR & co.", "  onboard estimator (decode + filters)",
+                 "HIL answer + estimate decode"):
+        assert be[name] > 0, name
+    assert "ODOMETRY encode" not in be and "sensor model" not in be   # truth-fed parts
     for mode in ("mission_mil", "mission_sil"):
         m = res[mode]
         assert m["exit_reason"] == "mission_complete"
@@ -64,6 +70,7 @@ def test_bench_quick_reports_every_figure(tmp_path):
     for label in ("plant step", "render 160x120 frame", "seed mission MIL (tick loop)",
                   "seed mission SIL (end to end)", "MIL tick breakdown", "floor:",
                   "flood on the vehicle's gcs port", "seed mission MIL on the estimate",
+                  "estimate-fed / truth-fed MIL (same run)", "MIL tick breakdown on the estimate",
                   "paper 2 E2 mission (x real time)", "front-camera tick of E2"):
         assert label in r.stdout, label
     p2 = res["paper2"]                      # issue 29: E2 flown, its camera tick in parts

@@ -25,6 +25,9 @@ from __future__ import annotations
 
 import math
 
+import cython
+from cython.cimports.libc.math import acos as _acos
+
 from cosim.plant.fmu import (
     Y_AX,
     Y_AY,
@@ -51,11 +54,14 @@ from mav.onboard.config import OnboardConfig
 from mav.wire import FlatEarth
 
 NAN = math.nan
+INF = cython.declare(cython.double, math.inf)
+SENSOR_FIELDS = hs.FIELDS_IMU | hs.FIELDS_MAG | hs.FIELDS_BARO
 
 
 class SensorSuite:
     """`encode(t_us, y) -> bytes`: the tick's HIL datagram. `measure(y)` is the truth tuple
-    the loop records in the odometry columns (the estimate replaces it: cosim/sim/estimate.py)."""
+    the loop records in the odometry columns (the estimate replaces it: cosim/sim/estimate.py).
+    The per-tick parameters and state are C fields when compiled (suite.pxd)."""
 
     def __init__(self, spec: SensorsSpec, seed: int, h: float, home: tuple[float, float],
                  floor_textured: bool, faults: tuple = ()) -> None:
@@ -67,16 +73,32 @@ class SensorSuite:
         self.mav = mavlink2.MAVLink(None, srcSystem=SIM_SYSID, srcComponent=SIM_COMPID)
         self.n = [Gauss(seed, i) for i in range(8)]   # imu acc, gyro, baro, mag, range, flow,
         self.home = home                               # gps, faults
+        self.home_n, self.home_e = home
         g = 9.81
         self.acc = Imu3(p.imu_wn, p.imu_zeta, h, (0.0, 0.0, -g), p.acc_scale, p.acc_noise,
                         self.n[0])
         self.gyro = Imu3(p.imu_wn, p.imu_zeta, h, (0.0, 0.0, 0.0), p.gyro_scale, p.gyro_noise,
                          self.n[1])
+        self.g_baro, self.g_mag, self.g_range, self.g_flow = self.n[2:6]
+        self.ba0, self.ba1, self.ba2 = p.acc_bias
+        self.bg0, self.bg1, self.bg2 = p.gyro_bias
+        self.acc_max, self.gyro_max = p.acc_max, p.gyro_max
+        self.baro_p0, self.baro_gain, self.baro_noise = p.baro_p0_pa, p.baro_gain, p.baro_noise_pa
+        self.mag0, self.mag1, self.mag2 = p.mag_field
+        self.mag_noise = p.mag_noise
+        self.range_min, self.range_max, self.range_noise = (p.range_min_m, p.range_max_m,
+                                                            p.range_noise_m)
+        self.range_every, self.flow_every = p.range_every, p.flow_every
+        self.flow_noise, self.flow_max_tilt, self.flow_max_rate = (
+            p.flow_noise_rad_s, p.flow_max_tilt_rad, p.flow_max_rate_rad_s)
+        self.delay = p.delay_ticks
+        self.gps = spec.gps
         self.range_cm = (int(p.range_min_m * 100), int(p.range_max_m * 100))
         self.flow_base = p.flow_quality_textured if floor_textured else p.flow_quality_plain
-        self.flow_acc = [0.0, 0.0, 0.0, 0.0, 0.0]      # integrated x, y, gyro x, y, z
-        self.flow_n = 0
-        self.queue: list[bytes] = []
+        self.fa0 = self.fa1 = self.fa2 = self.fa3 = self.fa4 = 0.0   # integrated flow x, y,
+        self.flow_n = 0                                              # gyro x, y, z
+        self.queue: list[list] = []
+        self.truth = b""
         cfg = OnboardConfig()
         self.geo = FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
         self.faults = faults
@@ -91,21 +113,41 @@ class SensorSuite:
         return (y[Y_X], y[Y_Y], y[Y_Z])
 
     # ------------------------------------------------------------------ one tick
+    @cython.locals(q=list, parts=list, i=cython.Py_ssize_t, n=cython.Py_ssize_t)
     def encode(self, t_us: int, y) -> bytes:
         """The datagram sent at t_us: this tick's readings are queued and the one
         `delay_ticks` old is sent (the first tick's repeated until the queue fills), then the
         truth of this tick (HIL_STATE_QUATERNION, not delayed)."""
-        data = self.read(t_us, y)
-        truth = data.pop()
         q = self.queue
-        q.append(data)
-        parts = q.pop(0) if len(q) > self.p.delay_ticks else q[0]
-        return b"".join([f(t_us) for f in parts]) + truth(t_us)
+        q.append(self.read(t_us, y))
+        parts = q.pop(0) if len(q) > self.delay else q[0]
+        mav = self.mav
+        out = []
+        n = len(parts)
+        for i in range(0, n, 2):       # (message, payload less its stamp) pairs
+            out.append(hs.stamped(mav, parts[i], t_us, parts[i + 1]))
+        out.append(hs.stamped(mav, hs.HIL_STATE_QUATERNION, t_us, self.truth))
+        return b"".join(out)
 
+    @cython.locals(k=cython.longlong, t=cython.double, qw=cython.double, qx=cython.double,
+                   qy=cython.double, qz=cython.double, pr=cython.double, qr=cython.double,
+                   rr=cython.double, r00=cython.double, r01=cython.double, r02=cython.double,
+                   r10=cython.double, r11=cython.double, r12=cython.double, r20=cython.double,
+                   r21=cython.double, r22=cython.double, ba0=cython.double, ba1=cython.double,
+                   ba2=cython.double, bg0=cython.double, bg1=cython.double, bg2=cython.double,
+                   gsat=cython.double, height=cython.double, pa=cython.double,
+                   p_alt=cython.double, mx=cython.double, my=cython.double, mz=cython.double,
+                   sm=cython.double, m0=cython.double, m1=cython.double, m2=cython.double,
+                   tilt_c=cython.double, slant=cython.double, rng=cython.double,
+                   echo=cython.bint, vx=cython.double, vy=cython.double, vz=cython.double,
+                   vbx=cython.double, vby=cython.double, d=cython.double, h=cython.double,
+                   fn=cython.double, c=cython.double, tilt=cython.double, ok=cython.bint,
+                   ix=cython.double, iy=cython.double, send=cython.bint, i=cython.Py_ssize_t,
+                   buf=list, acc=Imu3, gyr=Imu3, parts=list)
     def read(self, t_us: int, y) -> list:
-        """The readings of y(t_k) as closures that encode them at a given stamp (the delay
-        line sends them one tick later, stamped with the lockstep time then)."""
-        p, n, mav = self.p, self.n, self.mav
+        """The readings of y(t_k) as (message, payload less its stamp) pairs, flat (the delay
+        line sends them one tick later, stamped with the lockstep time then); the truth of
+        y(t_k) in `truth`."""
         k = self.k
         self.k = k + 1
         t = t_us * 1e-6
@@ -125,63 +167,79 @@ class SensorSuite:
         r21 = 2 * (qy * qz + qw * qx)
         r22 = 1 - 2 * (qx * qx + qy * qy)
         # IMU
-        bias_a, bias_g, gsat = p.acc_bias, p.gyro_bias, p.gyro_max
+        ba0, ba1, ba2, bg0, bg1, bg2 = self.ba0, self.ba1, self.ba2, self.bg0, self.bg1, self.bg2
+        gsat = self.gyro_max
         for f in act:
             if f.kind == "imu_bias":
-                bias_a = tuple(b + v for b, v in zip(bias_a, f.value, strict=True))
-                bias_g = tuple(b + v for b, v in zip(bias_g, f.gyro, strict=True))
-            elif f.kind == "gyro_saturation":
-                gsat = min(gsat, f.value[0])
-        acc = self.acc.read(y[Y_AX], y[Y_AY], y[Y_AZ], bias_a, p.acc_max)
-        gyr = self.gyro.read(pr, qr, rr, bias_g, gsat)
+                ba0, ba1, ba2 = ba0 + f.value[0], ba1 + f.value[1], ba2 + f.value[2]
+                bg0, bg1, bg2 = bg0 + f.gyro[0], bg1 + f.gyro[1], bg2 + f.gyro[2]
+            elif f.kind == "gyro_saturation" and f.value[0] < gsat:
+                gsat = f.value[0]
+        acc, gyr = self.acc, self.gyro
+        acc.read(y[Y_AX], y[Y_AY], y[Y_AZ], ba0, ba1, ba2, self.acc_max)
+        gyr.read(pr, qr, rr, bg0, bg1, bg2, gsat)
         # barometer
         height = -y[Y_Z]
-        pa = p.baro_p0_pa - p.baro_gain * height + p.baro_noise_pa * n[2].take(1)[0]
+        g = self.g_baro
+        i = g.at(1)
+        pa = self.baro_p0 - self.baro_gain * height + self.baro_noise * g.buf[i]
         for f in act:
             if f.kind == "baro_drift":
                 pa += f.value[0] * (t - f.start_s)
-        p_alt = (p.baro_p0_pa - pa) / p.baro_gain
+        p_alt = (self.baro_p0 - pa) / self.baro_gain
         # magnetometer
-        mx, my, mz = p.mag_field
-        sm = p.mag_noise
-        n0, n1, n2 = n[3].take(3)
-        mag = (r00 * mx + r10 * my + r20 * mz + sm * n0, r01 * mx + r11 * my + r21 * mz + sm * n1,
-               r02 * mx + r12 * my + r22 * mz + sm * n2)
+        mx, my, mz = self.mag0, self.mag1, self.mag2
+        sm = self.mag_noise
+        g = self.g_mag
+        i = g.at(3)
+        buf = g.buf
+        m0 = r00 * mx + r10 * my + r20 * mz + sm * buf[i]
+        m1 = r01 * mx + r11 * my + r21 * mz + sm * buf[i + 1]
+        m2 = r02 * mx + r12 * my + r22 * mz + sm * buf[i + 2]
         for f in act:
             if f.kind == "mag_interference":
-                mag = tuple(m + v for m, v in zip(mag, f.value, strict=True))
-        parts = [_sensor(mav, acc, gyr, mag, pa * 0.01, p_alt)]
+                m0, m1, m2 = m0 + f.value[0], m1 + f.value[1], m2 + f.value[2]
+        parts = [hs.HIL_SENSOR, hs.hil_sensor_rest(
+            acc.o0, acc.o1, acc.o2, gyr.o0, gyr.o1, gyr.o2, m0, m1, m2, pa * 0.01, p_alt, 25.0,
+            SENSOR_FIELDS)]
         # range finder (down) and flow share the slant distance along body z
         tilt_c = r22                               # cos(roll) cos(pitch)
-        slant = height / tilt_c if tilt_c > 0.05 else math.inf
-        if k % p.range_every == 0:
-            rng = slant + p.range_noise_m * n[4].take(1)[0]
-            echo = p.range_min_m <= rng <= p.range_max_m and not (act and any(
-                f.kind == "sonar_dropout" for f in act))
+        slant = height / tilt_c if tilt_c > 0.05 else INF
+        if k % self.range_every == 0:
+            g = self.g_range
+            i = g.at(1)
+            rng = slant + self.range_noise * g.buf[i]
+            echo = self.range_min <= rng <= self.range_max
+            for f in act:
+                if f.kind == "sonar_dropout":
+                    echo = False
             self.counts["range_echoes" if echo else "range_none"] += 1
             lo, hi = self.range_cm
-            parts.append(_distance(mav, lo, hi, int(round(rng * 100)) if echo else 0,
-                                   100 if echo else hs.NO_ECHO))
+            parts += [hs.DISTANCE_SENSOR, hs.distance_rest(
+                lo, hi, _round(rng * 100) if echo else 0, 100 if echo else hs.NO_ECHO)]
         # optical flow: body velocity over the slant distance, plus the body rates
         vx, vy, vz = y[Y_VX], y[Y_VY], y[Y_VZ]
         vbx = r00 * vx + r10 * vy + r20 * vz
         vby = r01 * vx + r11 * vy + r21 * vz
-        d = max(slant, 0.05)
-        nf, h = n[5], self.h
-        fa = self.flow_acc
-        n0, n1 = nf.take(2)
-        fa[0] += (pr - vby / d + p.flow_noise_rad_s * n0) * h
-        fa[1] += (qr + vbx / d + p.flow_noise_rad_s * n1) * h
-        fa[2] += gyr[0] * h
-        fa[3] += gyr[1] * h
-        fa[4] += gyr[2] * h
+        d = 0.05 if 0.05 > slant else slant        # max(slant, 0.05)
+        h = self.h
+        g = self.g_flow
+        i = g.at(2)
+        fn = self.flow_noise
+        self.fa0 += (pr - vby / d + fn * g.buf[i]) * h
+        self.fa1 += (qr + vbx / d + fn * g.buf[i + 1]) * h
+        self.fa2 += gyr.o0 * h
+        self.fa3 += gyr.o1 * h
+        self.fa4 += gyr.o2 * h
         self.flow_n += 1
-        if self.flow_n >= p.flow_every:
-            tilt = math.acos(max(-1.0, min(1.0, tilt_c)))
-            ok = tilt < p.flow_max_tilt_rad and abs(pr) < p.flow_max_rate_rad_s and abs(
-                qr) < p.flow_max_rate_rad_s and height > 0.05
+        if self.flow_n >= self.flow_every:
+            c = tilt_c if tilt_c < 1.0 else 1.0    # clamped to [-1, 1] as max(-1, min(1, .))
+            c = c if c > -1.0 else -1.0
+            tilt = _acos(c)
+            ok = tilt < self.flow_max_tilt and abs(pr) < self.flow_max_rate and abs(
+                qr) < self.flow_max_rate and height > 0.05
             qual = int(self.flow_base) if ok else 0
-            ix, iy = fa[0], fa[1]
+            ix, iy = self.fa0, self.fa1
             send = True
             for f in act:   # (none most ticks)
                 if f.kind == "flow_loss":
@@ -190,31 +248,35 @@ class SensorSuite:
                     if f.value[0]:
                         ix = iy = NAN
                     else:
-                        n0, n1 = nf.take(2)
+                        n0, n1 = g.take(2)
                         ix, iy = f.value[1] * n0, f.value[1] * n1
                     qual = 255
             if send:
                 self.counts["flow_msgs"] += 1
-                parts.append(_flow(mav, int(round(self.flow_n * h * 1e6)), ix, iy, fa[2],
-                                   fa[3], fa[4], qual))
+                parts += [hs.HIL_OPTICAL_FLOW, hs.flow_rest(
+                    _round(self.flow_n * h * 1e6), ix, iy, self.fa2, self.fa3, self.fa4, qual)]
             self.flow_n = 0
-            fa[0] = fa[1] = fa[2] = fa[3] = fa[4] = 0.0
+            self.fa0 = self.fa1 = self.fa2 = self.fa3 = self.fa4 = 0.0
         # GPS and the truth, in the vehicle's geodetic frame (origin = the start point)
-        hn, he = self.home
-        if self.spec.gps and k % p.gps_every == 0:
-            g = n[6].take(6)
-            sp, sv = p.gps_noise_m, p.gps_vel_noise_mps
-            lat, lon, alt = self.geo.to_int(y[Y_X] - hn + sp * g[0], y[Y_Y] - he + sp * g[1],
-                                            y[Y_Z] + sp * g[2])
-            self.counts["gps_msgs"] += 1
-            parts.append(_gps(mav, lat, lon, alt, int(round(sp * 100)),
-                              int(round((vx + sv * g[3]) * 100)),
-                              int(round((vy + sv * g[4]) * 100)),
-                              int(round((vz + sv * g[5]) * 100))))
-        lat, lon, alt = self.geo.to_int(y[Y_X] - hn, y[Y_Y] - he, y[Y_Z])
-        parts.append(_truth(mav, (qw, qx, qy, qz), (pr, qr, rr), lat, lon, alt,
-                            (_cms(vx), _cms(vy), _cms(vz))))
+        if self.gps and k % self.p.gps_every == 0:
+            parts += self._gps(y)
+        lat, lon, alt = self.geo.to_int(y[Y_X] - self.home_n, y[Y_Y] - self.home_e, y[Y_Z])
+        self.truth = hs.truth_rest(qw, qx, qy, qz, pr, qr, rr, lat, lon, alt, _cms(vx),
+                                   _cms(vy), _cms(vz))
         return parts
+
+    def _gps(self, y) -> list:
+        """A GPS fix of y: [HIL_GPS, its payload less the stamp]."""
+        p = self.p
+        g = self.n[6].take(6)
+        sp, sv = p.gps_noise_m, p.gps_vel_noise_mps
+        lat, lon, alt = self.geo.to_int(y[Y_X] - self.home_n + sp * g[0],
+                                        y[Y_Y] - self.home_e + sp * g[1], y[Y_Z] + sp * g[2])
+        self.counts["gps_msgs"] += 1
+        return [hs.HIL_GPS, hs.gps_rest(lat, lon, alt, _round(sp * 100),
+                                        _round((y[Y_VX] + sv * g[3]) * 100),
+                                        _round((y[Y_VY] + sv * g[4]) * 100),
+                                        _round((y[Y_VZ] + sv * g[5]) * 100))]
 
     def _update_faults(self, t: float) -> None:
         self.active = [f for f in self.faults if f.start_s <= t < f.end_s]
@@ -224,27 +286,11 @@ class SensorSuite:
                 self.fired.append((t, f"sensor {f.kind}"))
 
 
+def _round(v: float) -> int:
+    """int(round(v)), as Python rounds (half to even; an untyped argument, so that compiled
+    code calls Python's round too)."""
+    return int(round(v))
+
+
 def _cms(v: float) -> int:
     return max(-32767, min(32767, int(round(v * 100))))
-
-
-# each reading as a closure that frames it at the stamp it is sent with (after the delay)
-def _sensor(mav, acc, gyr, mag, hpa, p_alt):
-    fields = hs.FIELDS_IMU | hs.FIELDS_MAG | hs.FIELDS_BARO
-    return lambda t_us: hs.encode_hil_sensor(mav, t_us, acc, gyr, mag, hpa, p_alt, 25.0, fields)
-
-
-def _distance(mav, lo, hi, cur, quality):
-    return lambda t_us: hs.encode_distance(mav, t_us, lo, hi, cur, quality)
-
-
-def _flow(mav, dt_us, ix, iy, gx, gy, gz, quality):
-    return lambda t_us: hs.encode_flow(mav, t_us, dt_us, ix, iy, gx, gy, gz, quality)
-
-
-def _gps(mav, lat, lon, alt, eph, vn, ve, vd):
-    return lambda t_us: hs.encode_gps(mav, t_us, lat, lon, alt, eph, vn, ve, vd)
-
-
-def _truth(mav, q, pqr, lat, lon, alt, v):
-    return lambda t_us: hs.encode_truth(mav, t_us, q, pqr, lat, lon, alt, v)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import struct
 
+import cython
 import numpy as np
 
 from cosim.sensors.suite import SensorSuite
@@ -54,6 +55,7 @@ class SensorFeed:
 
     encode_odometry_lost = encode_odometry
 
+    @cython.locals(end=cython.Py_ssize_t, x=cython.double, y=cython.double, z=cython.double)
     def decode_actuators(self, ans: bytes) -> tuple[int, float, float, float, float]:
         """(t_us, u1..u4) of the answer's HIL_ACTUATOR_CONTROLS (ValueError if it has none,
         as HilSimulatorCodec's); its estimate (if any) is logged."""

@@ -18,8 +18,9 @@ _HIL = "HIL exchange (onboard)"
 _TICK_PARTS = (
     ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None, "__init__"),
     # sensor-fed (feed = "hil"): the sensor models, the vehicle's estimator, the answer split
-    ("cosim.sensors.suite", "SensorSuite", "encode", "sensor models + HIL_SENSOR & co.", None,
-     None),
+    # (the suite is a compiled extension type: timed through the feed that calls it)
+    ("cosim.sim.estimate", "SensorFeed", "encode_odometry", "sensor models + HIL_SENSOR & co.",
+     None, None),
     ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None, None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None, None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_tick", "app on_tick", None, None),

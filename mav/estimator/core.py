@@ -5,8 +5,9 @@ ESTIMATOR_STATUS's flags. Its own module so the per-tick part is compiled (mav/_
 
 from __future__ import annotations
 
-import math
-
+import cython
+from cython.cimports.libc.math import cos as _cos
+from cython.cimports.libc.math import sin as _sin
 from pymavlink.dialects.v20 import common as M
 
 from mav import hil_sensors as hs
@@ -17,10 +18,13 @@ _ID_IMU, _ID_FLOW = hs.HIL_SENSOR.id, hs.HIL_OPTICAL_FLOW.id
 _ID_RNG, _ID_GPS = hs.DISTANCE_SENSOR.id, hs.HIL_GPS.id
 
 
+@cython.locals(roll=cython.double, pitch=cython.double, yaw=cython.double, cr=cython.double,
+               sr=cython.double, cp=cython.double, sp=cython.double, cy=cython.double,
+               sy=cython.double)
 def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    cr, sr = _cos(0.5 * roll), _sin(0.5 * roll)
+    cp, sp = _cos(0.5 * pitch), _sin(0.5 * pitch)
+    cy, sy = _cos(0.5 * yaw), _sin(0.5 * yaw)
     return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
             cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
@@ -69,13 +73,15 @@ class Estimator:
         if not self.enabled or not hs.is_sensor_bundle(data):
             return None
         msgs, bad = hs.decode_bundle(data)
-        self.stats["est_bad_frames"] += bad
+        if bad:
+            self.stats["est_bad_frames"] += bad
         imu = msgs.get(_ID_IMU)
         if imu is None:
             return None
         t_us = imu[0]
         e = self.update(msgs, t_us)
-        self.stats["est_lost"] += e.lost
+        if e.lost:
+            self.stats["est_lost"] += 1
         qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)
         return (t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p, e.q, e.r,
                 FRAME_LOCAL_NED, FRAME_LOCAL_NED, -1 if e.lost else 100)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from mav import wire
+from mav.hil import odometry
 
 
 class EstimatorLink:
@@ -35,9 +35,8 @@ class EstimatorLink:
         if od is None:                # ODOMETRY (motion capture), a fault command, garbage
             self._frame = b""
             return data
-        self._frame = fr = wire.encode_odometry(self.mav, *od[:14], frame_id=od[14],
-                                                child_frame_id=od[15], estimator_type=1,
-                                                quality=od[16])
+        # ODOMETRY (frame ids LOCAL_NED, estimator type 1), quality -1 when lost
+        self._frame = fr = odometry(self.mav, od[0], od[1:14], od[16] < 0)
         return fr
 
     def send(self, data: bytes) -> None:

@@ -31,45 +31,63 @@ from __future__ import annotations
 
 import math
 
+import cython
+from cython.cimports.libc.math import atan2 as _atan2
+from cython.cimports.libc.math import cos as _cos
+from cython.cimports.libc.math import sin as _sin
+from cython.cimports.libc.math import sqrt as _sqrt
+from cython.cimports.libc.math import tan as _tan
+
+# (compiled: the estimator's state as C doubles in template.pxd, its arithmetic in C doubles
+# and C's libm, the functions Python's math module calls: the same results bit for bit)
+f64 = cython.typedef(cython.double)
 G = 9.81
 CAL_TICKS = 10               # gyro bias: the mean of the first 10 readings (50 ms at rest:
                              # the apps arm at once and the vehicle lifts off within 0.1 s)
-BIAS_KI = 2e-6               # rad/s per rad and tick: the gyro bias follows the accelerometer
-ACC_LP = 0.1                 # accelerometer low-pass weight per tick (~50 ms)
+BIAS_KI = cython.declare(cython.double, 2e-6)   # rad/s per rad and tick: the gyro bias
+                                                # follows the accelerometer
+ACC_LP = cython.declare(cython.double, 0.1)     # accelerometer low-pass weight per tick (~50 ms)
 RNG_RESET_US = 500_000       # us of consecutive sonar rejections that reset the altitude
-ACC_MAX, GYRO_MAX = 160.0, 35.0   # beyond: not a reading (NaN, garbage) -> rejected
-ZUPT_DECAY = 0.9             # per tick, on the ground
+# beyond: not a reading (NaN, garbage) -> rejected
+ACC_MAX = cython.declare(cython.double, 160.0)
+GYRO_MAX = cython.declare(cython.double, 35.0)
+ZUPT_DECAY = cython.declare(cython.double, 0.9)   # per tick, on the ground
+_G = cython.declare(cython.double, G)
+_CAL = cython.declare(cython.long, CAL_TICKS)
+_PI = cython.declare(cython.double, math.pi)
+_TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
 
 STATS = ("est_imu", "est_rej_imu", "est_rej_baro", "est_baro_fused", "est_rej_rng",
          "est_rng_fused", "est_rng_none", "est_rej_flow", "est_flow_fused", "est_rej_mag",
          "est_gps_fused", "est_rej_gps", "est_rng_resets")
 
 
-def _finite(*v: float) -> bool:
-    s = 0.0
-    for x in v:
-        s += x
+def _finite(s: float) -> bool:
+    """Of a sum of readings: whether all are finite (a NaN or an infinity among them makes the
+    sum NaN or infinite; finite ones whose sum overflows are rejected too)."""
     return s - s == 0.0
 
 
+@cython.locals(sph=f64, cph=f64, sth=f64, cth=f64, sps=f64, cps=f64)
 def to_world(roll: float, pitch: float, yaw: float, x: float, y: float,
              z: float) -> tuple[float, float, float]:
     """Body FRD -> world NED (ZYX Euler angles)."""
-    sph, cph, sth, cth = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
-    sps, cps = math.sin(yaw), math.cos(yaw)
+    sph, cph, sth, cth = _sin(roll), _cos(roll), _sin(pitch), _cos(pitch)
+    sps, cps = _sin(yaw), _cos(yaw)
     return (cth * cps * x + (sph * sth * cps - cph * sps) * y + (cph * sth * cps + sph * sps) * z,
             cth * sps * x + (sph * sth * sps + cph * cps) * y + (cph * sth * sps - sph * cps) * z,
             -sth * x + sph * cth * y + cph * cth * z)
 
 
 def wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+    return (a + _PI) % _TWO_PI - _PI
 
 
 class TemplateEstimator:
     """`update(hil_sensor, flow, distance, gps, t_us)`: one tick; the estimate in the fields
     (x, y, z, vx, vy, vz m and m/s world NED relative to the start; roll, pitch, yaw rad;
-    p, q, r rad/s), `lost` when the position is not aided."""
+    p, q, r rad/s), `lost` when the position is not aided. Its fields' C types are in
+    template.pxd."""
 
     def __init__(self, own: dict[str, float], stats: dict[str, int]) -> None:
         self.stats = stats
@@ -82,8 +100,8 @@ class TemplateEstimator:
         self.vx = self.vy = self.vz = 0.0
         self.roll = self.pitch = self.yaw = 0.0
         self.p = self.q = self.r = 0.0
-        self.bg = [0.0, 0.0, 0.0]
-        self.alp = [0.0, 0.0, -G]
+        self.bg0 = self.bg1 = self.bg2 = 0.0              # gyro bias
+        self.alp0, self.alp1, self.alp2 = 0.0, 0.0, -G     # low-passed specific force
         self.p0_hpa = math.nan
         self.pzz, self.pzv, self.pvv = 1.0, 0.0, 1.0       # altitude covariance
         self.pvx = self.pvy = 1.0                          # velocity variances
@@ -109,6 +127,7 @@ class TemplateEstimator:
         self.w_gps = own["EKF2_GPS_W"]
 
     # ------------------------------------------------------------------ one tick
+    @cython.locals(dt=f64, lost=cython.bint)
     def update(self, imu: tuple | None, flow: tuple | None, rng: tuple | None,
                gps: tuple | None, geo, t_us: int) -> None:
         """imu: HIL_SENSOR's payload (wire order); flow: HIL_OPTICAL_FLOW's; rng:
@@ -138,72 +157,77 @@ class TemplateEstimator:
         lost = self.z < -0.5 and t_us - self.aid_us > self.noaid_us
         if lost != self.lost:
             self.lost = lost
-        st["est_imu"] += imu is not None
+        if imu is not None:
+            st["est_imu"] += 1
 
+    @cython.locals(ax=f64, ay=f64, az=f64, gx=f64, gy=f64, gz=f64, n=cython.long, p=f64,
+                   q=f64, r=f64, ph=f64, th=f64, sph=f64, cph=f64, sth=f64, cth=f64, tth=f64,
+                   fn=f64, w=f64, er=f64, ep=f64, mx=f64, my=f64, mz=f64, hx=f64, hy=f64,
+                   yaw_m=f64, fx_w=f64, fy_w=f64, fz_w=f64, az_w=f64, qa=f64, pzz=f64,
+                   pzv=f64, pvv=f64, hpa=f64, z_b=f64)
     def _imu(self, m: tuple, dt: float) -> None:
         # m: time_usec, xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag, abs_pressure,
         #    diff_pressure, pressure_alt, temperature, fields_updated, id
         st = self.stats
         ax, ay, az, gx, gy, gz = m[1], m[2], m[3], m[4], m[5], m[6]
-        if not (_finite(ax, ay, az, gx, gy, gz) and abs(ax) < ACC_MAX and abs(ay) < ACC_MAX
-                and abs(az) < ACC_MAX and abs(gx) < GYRO_MAX and abs(gy) < GYRO_MAX
-                and abs(gz) < GYRO_MAX):
+        if not (_finite(ax + ay + az + gx + gy + gz) and abs(ax) < ACC_MAX
+                and abs(ay) < ACC_MAX and abs(az) < ACC_MAX and abs(gx) < GYRO_MAX
+                and abs(gy) < GYRO_MAX and abs(gz) < GYRO_MAX):
             st["est_rej_imu"] += 1
             return
         n = self.n
         self.n = n + 1
-        bg = self.bg
-        if n < CAL_TICKS:                          # at rest: gyro bias and initial attitude
-            bg[0] += (gx - bg[0]) / (n + 1)
-            bg[1] += (gy - bg[1]) / (n + 1)
-            bg[2] += (gz - bg[2]) / (n + 1)
-            am = self.alp                          # the mean specific force at rest
-            am[0] += (ax - am[0]) / (n + 1)
-            am[1] += (ay - am[1]) / (n + 1)
-            am[2] += (az - am[2]) / (n + 1)
-            self.roll = math.atan2(-am[1], -am[2])
-            self.pitch = math.atan2(am[0], math.sqrt(am[1] * am[1] + am[2] * am[2]))
-        p, q, r = gx - bg[0], gy - bg[1], gz - bg[2]
+        if n < _CAL:                               # at rest: gyro bias and initial attitude
+            self.bg0 += (gx - self.bg0) / (n + 1)
+            self.bg1 += (gy - self.bg1) / (n + 1)
+            self.bg2 += (gz - self.bg2) / (n + 1)
+            # the mean specific force at rest
+            self.alp0 += (ax - self.alp0) / (n + 1)
+            self.alp1 += (ay - self.alp1) / (n + 1)
+            self.alp2 += (az - self.alp2) / (n + 1)
+            self.roll = _atan2(-self.alp1, -self.alp2)
+            self.pitch = _atan2(self.alp0, _sqrt(self.alp1 * self.alp1 + self.alp2 * self.alp2))
+        p, q, r = gx - self.bg0, gy - self.bg1, gz - self.bg2
         self.p, self.q, self.r = p, q, r
         # attitude: Euler-rate integration of the gyro
         ph, th = self.roll, self.pitch
-        sph, cph = math.sin(ph), math.cos(ph)
-        cth = math.cos(th)
-        tth = math.tan(th)
+        sph, cph = _sin(ph), _cos(ph)
+        cth = _cos(th)
+        tth = _tan(th)
         self.roll = ph + (p + (sph * q + cph * r) * tth) * dt
         self.pitch = th + (cph * q - sph * r) * dt
         self.yaw = wrap(self.yaw + (sph * q + cph * r) / cth * dt)
-        alp = self.alp
-        if n < CAL_TICKS:
-            ax, ay, az = alp
-        alp[0] += ACC_LP * (ax - alp[0])
-        alp[1] += ACC_LP * (ay - alp[1])
-        alp[2] += ACC_LP * (az - alp[2])
-        fn = math.sqrt(alp[0] * alp[0] + alp[1] * alp[1] + alp[2] * alp[2])
-        if abs(fn - G) < self.acc_gate:
+        if n < _CAL:
+            ax, ay, az = self.alp0, self.alp1, self.alp2
+        self.alp0 += ACC_LP * (ax - self.alp0)
+        self.alp1 += ACC_LP * (ay - self.alp1)
+        self.alp2 += ACC_LP * (az - self.alp2)
+        fn = _sqrt(self.alp0 * self.alp0 + self.alp1 * self.alp1 + self.alp2 * self.alp2)
+        if abs(fn - _G) < self.acc_gate:
             w = self.w_acc
-            er = math.atan2(-alp[1], -alp[2]) - self.roll
-            ep = math.atan2(alp[0], math.sqrt(alp[1] * alp[1] + alp[2] * alp[2])) - self.pitch
+            er = _atan2(-self.alp1, -self.alp2) - self.roll
+            ep = _atan2(self.alp0, _sqrt(self.alp1 * self.alp1 + self.alp2 * self.alp2)) \
+                - self.pitch
             self.roll += w * er
             self.pitch += w * ep
-            if n >= CAL_TICKS:                     # near level: body p, q ~ roll, pitch rates
-                bg[0] -= BIAS_KI * er
-                bg[1] -= BIAS_KI * ep
+            if n >= _CAL:                          # near level: body p, q ~ roll, pitch rates
+                self.bg0 -= BIAS_KI * er
+                self.bg1 -= BIAS_KI * ep
         # heading from the compass
         mx, my, mz = m[7], m[8], m[9]
-        if _finite(mx, my, mz) and 0.05 < mx * mx + my * my + mz * mz < 4.0:
+        if _finite(mx + my + mz) and 0.05 < mx * mx + my * my + mz * mz < 4.0:
             ph, th = self.roll, self.pitch
-            sph, cph, sth, cth = math.sin(ph), math.cos(ph), math.sin(th), math.cos(th)
+            sph, cph, sth, cth = _sin(ph), _cos(ph), _sin(th), _cos(th)
             hx = mx * cth + my * sph * sth + mz * cph * sth
             hy = my * cph - mz * sph
-            yaw_m = wrap(math.atan2(-hy, hx) + self.decl)
-            w = 1.0 / (n + 1) if n < CAL_TICKS else self.w_mag
+            yaw_m = wrap(_atan2(-hy, hx) + self.decl)
+            w = 1.0 / (n + 1) if n < _CAL else self.w_mag
             self.yaw = wrap(self.yaw + w * wrap(yaw_m - self.yaw))
         else:
             st["est_rej_mag"] += 1
         # world acceleration from the specific force
         fx_w, fy_w, fz_w = to_world(self.roll, self.pitch, self.yaw, ax, ay, az)
-        az_w = fz_w + G if n >= CAL_TICKS else 0.0
+        az_w = fz_w + _G if n >= _CAL else 0.0
         # altitude filter: predict
         self.z += self.vz * dt + 0.5 * az_w * dt * dt
         self.vz += az_w * dt
@@ -213,7 +237,7 @@ class TemplateEstimator:
         pzv = pzv + dt * pvv + qa * dt ** 3 / 2.0
         pvv = pvv + qa * dt * dt
         self.pzz, self.pzv, self.pvv = pzz, pzv, pvv
-        if n >= CAL_TICKS:
+        if n >= _CAL:
             self.vx += fx_w * dt
             self.vy += fy_w * dt
             self.pvx += self.of_q
@@ -223,16 +247,17 @@ class TemplateEstimator:
         if not (_finite(hpa) and 300.0 < hpa < 1200.0):
             st["est_rej_baro"] += 1
             return
-        if n < CAL_TICKS:
+        if n < _CAL:
             self.p0_hpa = hpa if n == 0 else self.p0_hpa + (hpa - self.p0_hpa) / (n + 1)
             return
-        z_b = (hpa - self.p0_hpa) * 100.0 / (1.225 * G)
+        z_b = (hpa - self.p0_hpa) * 100.0 / (1.225 * _G)
         if abs(z_b - self.z) > self.baro_gate:
             st["est_rej_baro"] += 1
             return
         st["est_baro_fused"] += 1
         self._z_fuse(z_b, self.r_baro)
 
+    @cython.locals(pzz=f64, pzv=f64, pvv=f64, s=f64, kz=f64, kv=f64, e=f64)
     def _z_fuse(self, zm: float, r: float) -> None:
         pzz, pzv, pvv = self.pzz, self.pzv, self.pvv
         s = pzz + r
@@ -242,6 +267,8 @@ class TemplateEstimator:
         self.vz += kv * e
         self.pzz, self.pzv, self.pvv = (1.0 - kz) * pzz, (1.0 - kz) * pzv, pvv - kv * pzv
 
+    @cython.locals(lo=cython.long, hi=cython.long, cur=cython.long, quality=cython.long,
+                   c=f64, zm=f64)
     def _range(self, m: tuple, t_us: int) -> None:
         # m: time_boot_ms, min, max, current (cm), type, id, orientation, covariance, hfov,
         #    vfov, quaternion[4], signal_quality
@@ -251,7 +278,7 @@ class TemplateEstimator:
             st["est_rng_none"] += 1
             self.rng_rej_since = -1
             return
-        c = math.cos(self.roll) * math.cos(self.pitch)
+        c = _cos(self.roll) * _cos(self.pitch)
         zm = -cur * 0.01 * c
         if abs(zm - self.z) > self.rng_gate:
             st["est_rej_rng"] += 1
@@ -266,28 +293,32 @@ class TemplateEstimator:
         st["est_rng_fused"] += 1
         self._z_fuse(zm, self.r_rng)
 
+    @cython.locals(dt_us=cython.longlong, ix=f64, iy=f64, gx=f64, gy=f64, quality=cython.long,
+                   ok=cython.bint, dt=f64, ph=f64, th=f64, ps=f64, sph=f64, cph=f64, sth=f64,
+                   cth=f64, d=f64, vbx=f64, vby=f64, sps=f64, cps=f64, vbz=f64, vn=f64, ve=f64,
+                   r=f64, k=f64)
     def _flow(self, m: tuple, t_us: int) -> None:
         # m: time_usec, integration_time_us, integrated_x, integrated_y, integrated_xgyro,
         #    integrated_ygyro, integrated_zgyro, time_delta_distance_us, distance,
         #    temperature, sensor_id, quality
         st = self.stats
         dt_us, ix, iy, gx, gy, quality = m[1], m[2], m[3], m[4], m[5], m[11]
-        ok = (_finite(ix, iy, gx, gy) and 0 < dt_us < 1_000_000 and quality >= self.of_qmin
+        ok = (_finite(ix + iy + gx + gy) and 0 < dt_us < 1_000_000 and quality >= self.of_qmin
               and self.z < -0.4 and abs(self.roll) < 0.6 and abs(self.pitch) < 0.6
               and abs(self.p) < 7.0 and abs(self.q) < 7.0)
         if not ok:
             st["est_rej_flow"] += 1
             return
         dt = dt_us * 1e-6
-        gx -= self.bg[0] * dt          # the flow sensor's gyro integral is the IMU's: less its
-        gy -= self.bg[1] * dt          # bias (uncorrected, 3 mrad/s x 1.1 m = 3 mm/s of drift)
+        gx -= self.bg0 * dt            # the flow sensor's gyro integral is the IMU's: less its
+        gy -= self.bg1 * dt            # bias (uncorrected, 3 mrad/s x 1.1 m = 3 mm/s of drift)
         ph, th, ps = self.roll, self.pitch, self.yaw
-        sph, cph, sth, cth = math.sin(ph), math.cos(ph), math.sin(th), math.cos(th)
+        sph, cph, sth, cth = _sin(ph), _cos(ph), _sin(th), _cos(th)
         d = -self.z / (cph * cth)
         vbx = (iy - gy) / dt * d
         vby = -(ix - gx) / dt * d
         # body z velocity from the estimate, then the body velocity to world N, E
-        sps, cps = math.sin(ps), math.cos(ps)
+        sps, cps = _sin(ps), _cos(ps)
         vbz = (cph * sth * cps + sph * sps) * self.vx + (cph * sth * sps - sph * cps) * self.vy \
             + cph * cth * self.vz
         vn, ve, _ = to_world(ph, th, ps, vbx, vby, vbz)

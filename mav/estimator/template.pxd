@@ -1,0 +1,26 @@
+# Types Cython reads beside mav/estimator/template.py (which stays plain Python): the
+# estimator's state as C doubles, its per-tick steps as C methods. The times (us) stay Python
+# ints: time_usec is a uint64 on the wire, and any value must behave as in Python.
+
+cdef bint _finite(double s)
+cdef (double, double, double) to_world(double roll, double pitch, double yaw, double x,
+                                       double y, double z)
+cdef double wrap(double a)
+
+
+cdef class TemplateEstimator:
+    cdef public dict stats
+    cdef public long n
+    cdef public object t_us, aid_us, rng_us, gps_us, rng_rej_since, noaid_us
+    cdef public double x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r
+    cdef public double bg0, bg1, bg2, alp0, alp1, alp2
+    cdef public double p0_hpa, pzz, pzv, pvv, pvx, pvy
+    cdef public bint lost
+    cdef public double w_acc, acc_gate, w_mag, decl, q_acc, r_baro, baro_gate, r_rng
+    cdef public double rng_gate, of_q, of_r, of_qmin, of_gate, w_gps
+    cpdef update(self, imu, flow, rng, gps, geo, t_us)
+    cdef _imu(self, tuple m, double dt)
+    cdef _z_fuse(self, double zm, double r)
+    cdef _range(self, tuple m, t_us)
+    cdef _flow(self, tuple m, t_us)
+    cdef _gps(self, tuple m, geo, t_us)
