@@ -37,6 +37,9 @@ def test_fit_and_ratio_commands(tmp_path, capsys):
         (tmp_path / name / "sweep.json").write_text(json.dumps(runs))
     assert C.main(["fit", str(tmp_path / "e1"), str(tmp_path / "e2")]) == 0
     assert "within 30%" in capsys.readouterr().out
+    assert C.main(["fit", str(tmp_path / "e1"), str(tmp_path / "e2"),
+                   "--where", "camera.latency_s=0.2"]) == 1          # no such grid point
+    assert "no grid point passes" in capsys.readouterr().out
     assert C.main(["ratio", str(tmp_path / "e3"), str(tmp_path / "e4"), "--plot",
                    str(tmp_path / "r.png")]) == 0
     out = capsys.readouterr().out

@@ -103,6 +103,14 @@ def ratio_rows(e3: list[dict], e4: list[dict]) -> list[dict[str, Any]]:
     return rows
 
 
+def _where(grid: dict, where: list[str]) -> bool:
+    for w in where:
+        k, _, v = w.partition("=")
+        if k not in grid or str(grid[k]) != v:
+            return False
+    return True
+
+
 def _fmt(v) -> str:
     if v is None:
         return "-"
@@ -155,13 +163,16 @@ def main(argv: list[str] | None = None) -> int:
     f = sub.add_parser("fit", help="cost of each grid point against E1's and E2's times")
     f.add_argument("e1")
     f.add_argument("e2")
+    f.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
+                   help="only the grid points with this value (a constant held, e.g. one the "
+                        "times do not identify)")
     r = sub.add_parser("ratio", help="E4/E3 over the grid")
     r.add_argument("e3")
     r.add_argument("e4")
     r.add_argument("--plot", type=Path)
     a = p.parse_args(argv)
     if a.cmd == "fit":
-        rows = fit_rows(_runs(a.e1), _runs(a.e2))
+        rows = [r for r in fit_rows(_runs(a.e1), _runs(a.e2)) if _where(r["grid"], a.where)]
         print(f"paper: E1 {PAPER_E1_S:g} s; E2 switches "
               f"{'/'.join(f'{x:g}' for x in PAPER_E2_SWITCHES_S)} s (from the repeat's start)")
         for row in rows:
