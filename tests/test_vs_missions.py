@@ -1,4 +1,4 @@
-"""Issue 28: teach-and-repeat missions nobody tuned the app for (scenarios/robustness/: eight
+"""Issue 28: teach-and-repeat missions nobody tuned the app for (scenarios/robustness/: nine
 missions in eight rooms, written as a new user would: a corridor with a bar on the path,
 columns either side of the path or just off it, a lateral path, a climbing path, an
 L-shaped path with and without feed-forward, a room with other textures and dimmer light).
