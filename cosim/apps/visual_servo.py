@@ -349,10 +349,12 @@ class VisualServoApp:
             pos, yaw = self.client.position, self.client.attitude[2]
             seen = self.memory.see(ob, self.K, p["obstacle_width_m"], pos, yaw,
                                    self.path.mount_B[0])
-            near = self.memory.nearest(pos, yaw, p["clearance_m"], p["obstacle_width_m"])
-            if seen is not None and near is not None and \
-                    near[0] < self.memory.body(seen, pos, yaw)[0] - self.memory.same_m:
-                return self._remembered(t, v_fwd)     # a nearer column, out of view, first
+            near = self.memory.task(pos, yaw, p["clearance_m"], p["obstacle_width_m"])
+            # a nearer column out of view comes first while the vehicle is in, or within half
+            # the clearance of, its corridor
+            if seen is not None and near is not None and near[0] > -0.5 * p["clearance_m"] \
+                    and near[2] < self.memory.body(seen, pos, yaw)[0] - self.memory.same_m:
+                return self._remembered(t, v_fwd)
             # only while the servo closes on it: a key that stands near a column (E2's second
             # key is 0.75 m in front of the bar) is reached, not held off by the corridor
             want = e_c > 0.0 and Z < p["avoid_range_m"] and v_fwd > 0.02
