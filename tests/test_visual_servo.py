@@ -269,7 +269,13 @@ def test_e2_follows_four_keys_past_two_obstacles():
     assert s["exit_reason"] == "mission_complete" and s["passed"], s["message"]
     assert m["keys_reached"] == 4 and m["outcome"] == "goal_reached"
     act = m["avoidance_active_s"]                   # the cylinder, then (after 10 s) the bar
-    assert act[0][1] < 9.0 and any(on > 10.0 for on, _ in act[1:])
+    # the cylinder's activation lasts until the vehicle has passed it, in its own estimate
+    # (issue 28: the obstacle memory; before, it ended at 8.1 s, paper ~5 s): by then the
+    # body is at least the corridor's half-width past the cylinder (N 0.75 m)
+    ts, xs = res.recorded.columns("t", "x")
+    n_off = float(xs[min(int(np.searchsorted(ts, act[0][1])), len(ts) - 1)])
+    assert n_off > 0.75 + 0.3 and act[0][1] < 12.0, (act, n_off)
+    assert any(on > 10.0 for on, _ in act[1:])
     assert m["final_pose_error_m"] < 0.15 and m["final_yaw_error_deg"] < 3.0
     assert m["min_clearance_m"] > 0.0
     # smoothing at target changes: the command right after a switch is a fraction h0 of it

@@ -1,5 +1,5 @@
-"""Issue 28: teach-and-repeat missions nobody tuned the app for (scenarios/robustness/: eight
-missions in seven rooms, written as a new user would: a corridor with a bar on the path,
+"""Issue 28: teach-and-repeat missions nobody tuned the app for (scenarios/robustness/: nine
+missions in eight rooms, written as a new user would: a corridor with a bar on the path,
 columns either side of the path or just off it, a lateral path, a climbing path, an
 L-shaped path with and without feed-forward, a room with other textures and dimmer light).
 Each must meet its own [criteria] (must_complete, final pose error, clearance >= 0.05 m,
@@ -66,4 +66,4 @@ def test_every_robustness_mission_meets_its_criteria(tmp_path):
         passed += bool(s["passed"])
         print(lines[-1], flush=True)
     print(f"{passed} of {len(MISSIONS)} missions pass")
-    assert passed >= 7, "\n".join(lines)
+    assert passed >= len(MISSIONS) - 1, "\n".join(lines)

@@ -120,23 +120,29 @@ def test_refresh_bounds_the_visibility_task_and_rematches_thinned_or_stalled_tra
 
 
 # ------------------------------------------------------------------ obstacle memory
-def test_obstacle_memory_places_the_column_in_the_local_frame_and_forgets_it_when_passed():
+def test_obstacle_memory_places_columns_in_the_local_frame_and_forgets_them_when_passed():
     K = np.array([[537.0, 0.0, 428.0], [0.0, 537.0, 240.0], [0.0, 0.0, 1.0]])
     mem = ObstacleMemory()
-    mem.see(Obstacle(0.0, 1.0, 240.0, 1), K, 0.1, (0.0, 0.0, -1.0), float("nan"), 0.09)
-    assert mem.ne is None                                     # no telemetry yet: nothing
+    assert mem.see(Obstacle(0.0, 1.0, 240.0, 1), K, 0.1, (0.0, 0.0, -1.0), float("nan"),
+                   0.09) is None and mem.columns == []         # no telemetry yet: nothing
     # a 0.1 m column 1.0 m ahead of the camera, 0.2 m right, seen heading east from (1, 2)
     w = 0.1 * 537.0 / 1.0
     xc = 428.0 + 0.2 * 537.0
-    mem.see(Obstacle(xc - w / 2, xc + w / 2, 240.0, 1), K, 0.1, (1.0, 2.0, -1.0),
-            np.pi / 2, 0.09)
-    assert np.allclose(mem.ne, (1.0 - 0.2, 2.0 + 1.09), atol=1e-9)
-    # beside it: 0.2 m to its left, level with it -> in the corridor, push left (vy < 0)
-    e, J = mem.task((0.8 + 0.2, 3.09, -1.0), np.pi / 2, 0.35, 0.1)
-    assert np.isclose(e, 0.4 - 0.2) and J.tolist() == [[0.0, 1.0, 0.0, 0.0]]
-    assert mem.task((0.8 + 0.2, 3.09 + 0.39, -1.0), np.pi / 2, 0.35, 0.1) is not None
-    assert mem.task((0.8 + 0.2, 3.09 + 0.41, -1.0), np.pi / 2, 0.35, 0.1) is None   # passed
-    assert mem.ne is None
+    ne = mem.see(Obstacle(xc - w / 2, xc + w / 2, 240.0, 1), K, 0.1, (1.0, 2.0, -1.0),
+                 np.pi / 2, 0.09)
+    assert np.allclose(ne, (1.0 - 0.2, 2.0 + 1.09), atol=1e-9)
+    # seen again from 0.3 m closer: the same column, updated; another one 1.5 m further on
+    mem.see(Obstacle(xc - w / 2, xc + w / 2, 240.0, 1), K, 0.1, (1.0, 2.3, -1.0), np.pi / 2,
+            0.09)
+    mem.see(Obstacle(xc - w / 2, xc + w / 2, 240.0, 1), K, 0.1, (1.0, 3.8, -1.0), np.pi / 2,
+            0.09)
+    assert len(mem.columns) == 2
+    # beside the first: 0.2 m to its left, level with it -> in the corridor, push left
+    e, J, x = mem.task((1.0, 3.39, -1.0), np.pi / 2, 0.35, 0.1)
+    assert np.isclose(e, 0.4 - 0.2) and J.tolist() == [[0.0, 1.0, 0.0, 0.0]] and abs(x) < 1e-9
+    # 0.41 m past it: forgotten; the second one is the nearest now
+    e, J, x = mem.task((1.0, 3.39 + 0.41, -1.0), np.pi / 2, 0.35, 0.1)
+    assert len(mem.columns) == 1 and np.isclose(x, 1.5 - 0.41)
 
 
 def test_decoupling_takes_the_heading_out_of_e_v_and_keeps_the_equilibrium():

@@ -115,9 +115,11 @@ def check_inputs(spec: AppSpec, camera, source: str | None, arena=None, scene=No
     """At load time: what the app reads (app_inputs) exists and fits the scenario (a visual
     path is a readable taught folder for the scenario's camera, with one `sigma` per key when
     a list), and every point it flies to is inside the arena and above the floor.
-    A taught pose of the visual servo (issue 28) must also be a pose the vehicle can hold in
-    the world (`scene`, a 3D world): its body sphere (`body_radius`) clear of every wall, the
-    ceiling, box and column (the collision query `Scene.clearance`) and of the floor.
+    A pose the visual servo is to be taught at (`app.params.keys`, issue 28) must also be a
+    pose the vehicle can hold in the world (`scene`, a 3D world): its body sphere
+    (`body_radius`) clear of every wall, the ceiling, box and column (the collision query
+    `Scene.clearance`) and of the floor. (A taught folder's poses are the ones it was taught
+    at, for metrics only: checked against the arena alone.)
     ScenarioError naming the field, with the file and field at fault."""
     points: list[tuple[str, tuple[float, ...]]] = []
     poses: list[tuple[str, tuple[float, ...]]] = []      # taught poses: held in the world
@@ -139,8 +141,8 @@ def check_inputs(spec: AppSpec, camera, source: str | None, arena=None, scene=No
                 raise ScenarioError(name, spec.params["visual_path"], "a taught folder for "
                                     f"the scenario's camera ({exc})") from None
             n_keys = len(meta["_poses"])
-            poses += [(f"{name} (path.json keys[{i}].pose)", pose[:3])
-                      for i, pose in enumerate(meta["_poses"])]
+            points += [(f"{name} (path.json keys[{i}].pose)", pose[:3])
+                       for i, pose in enumerate(meta["_poses"])]
         sigma = p["sigma"]
         if isinstance(sigma, list) and len(sigma) > 1 and len(sigma) != n_keys:
             raise ScenarioError("app.params.sigma", sigma, f"one number, or one per key "

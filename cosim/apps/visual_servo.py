@@ -348,8 +348,15 @@ class VisualServoApp:
                                      self.cam_from_body)
             edot_a = -p["lambda_c"] * e_c
             Z = p["obstacle_width_m"] * self.K[0, 0] / max(ob_w, 1.0)
-            self.memory.see(ob, self.K, p["obstacle_width_m"], self.client.position,
-                            self.client.attitude[2], self.path.mount_B[0])
+            pos, yaw = self.client.position, self.client.attitude[2]
+            seen = self.memory.see(ob, self.K, p["obstacle_width_m"], pos, yaw,
+                                   self.path.mount_B[0])
+            near = self.memory.task(pos, yaw, p["clearance_m"], p["obstacle_width_m"])
+            # a nearer column out of view comes first while the vehicle is in, or within half
+            # the clearance of, its corridor
+            if seen is not None and near is not None and near[0] > -0.5 * p["clearance_m"] \
+                    and near[2] < self.memory.body(seen, pos, yaw)[0] - self.memory.same_m:
+                return self._remembered(t, v_fwd)
             # only while the servo closes on it: a key that stands near a column (E2's second
             # key is 0.75 m in front of the bar) is reached, not held off by the corridor
             want = e_c > 0.0 and Z < p["avoid_range_m"] and v_fwd > 0.02
@@ -367,9 +374,8 @@ class VisualServoApp:
             self.h_a.set(t, 0.0)
             J = self._last_J_a
             return (lateral_hold(J), np.zeros(1), 0.0) if J is not None else (None, 0.0, 0.0)
-        e_c, J = r
-        ahead = self.memory.body(self.client.position, yaw)[0] < p["avoid_range_m"]
-        if e_c > 0.0 and ahead and (self.h_a.target > 0.0 or v_fwd > 0.02):
+        e_c, J, x = r
+        if e_c > 0.0 and x < p["avoid_range_m"] and (self.h_a.target > 0.0 or v_fwd > 0.02):
             self.h_a.set(t, 1.0)
             self._last_J_a = J
             return J, np.array([-p["lambda_c"] * e_c]), 0.0
