@@ -9,7 +9,7 @@ from cosim.apps.vs import calibrate as C
 
 
 def _run(lat, goal, rep, switches, passed=True, exit_reason="mission_complete"):
-    return {"overrides": {"camera.latency_s": lat}, "passed": passed, "exit_reason": exit_reason,
+    return {"overrides": {"app.params.low_level": "moveby", "camera.latency_s": lat}, "passed": passed, "exit_reason": exit_reason,
             "metrics": {"goal_reached": True, "goal_time_s": goal, "repeat_time_s": rep,
                         "switch_times_s": switches}}
 
@@ -31,8 +31,8 @@ def test_times_count_from_the_repeat_start_and_failures_cost_infinity():
 def test_fit_and_ratio_commands(tmp_path, capsys):
     for name, runs in (("e1", [_run(0.1, 20.0, 12.0, [20.0])]),
                        ("e2", [_run(0.1, 46.0, 36.0, [22.0, 25.0, 36.0, 46.0])]),
-                       ("e3", [_run(0.1, 110.0, 100.0, [])]),
-                       ("e4", [_run(0.1, 60.0, 40.0, [])])):
+                       ("e3", [_run(0.1, 110.0, 100.0, []), _run(0.2, 110.0, 100.0, [])]),
+                       ("e4", [_run(0.1, 60.0, 40.0, []), _run(0.2, 60.0, 50.0, [])])):
         (tmp_path / name).mkdir()
         (tmp_path / name / "sweep.json").write_text(json.dumps(runs))
     assert C.main(["fit", str(tmp_path / "e1"), str(tmp_path / "e2")]) == 0

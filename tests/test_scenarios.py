@@ -20,7 +20,7 @@ from cosim.sim.master import RunOptions, run_scenario
 ROOT = Path(__file__).resolve().parent.parent
 # paper 2's oval (E3, E4): minutes of flight with the front camera; E2 on relative moves
 # (~1 min); run with -m slow
-SLOW = {"bebop2_vs_oval", "bebop2_vs_oval_ff", "bebop2_vs_e2_moveby"}
+SLOW = {"bebop2_vs_oval", "bebop2_vs_oval_ff"}
 SCENARIOS = [pytest.param(p, marks=pytest.mark.slow) if p.stem in SLOW else p
              for p in sorted((ROOT / "scenarios").glob("*.toml"))]
 GOLDEN = Path(__file__).parent / "golden" / "mambo_seed_track_summary.json"

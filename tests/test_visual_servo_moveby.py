@@ -20,7 +20,7 @@ from cosim.sim.master import run_scenario
 from cosim.sim.options import RunOptions
 
 ROOT = Path(__file__).resolve().parents[1]
-E1M = ROOT / "scenarios" / "bebop2_vs_e1_moveby.toml"
+E1M = ROOT / "scenarios" / "bebop2_vs_e1.toml"
 
 
 def se3(vx, vy, vz, wz, dt):

@@ -130,7 +130,8 @@ def plot_ratio(rows: list[dict[str, Any]], out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    keys = list(rows[0]["grid"]) if rows else []
+    keys = [k for k in (rows[0]["grid"] if rows else {})
+            if len({str(r["grid"][k]) for r in rows}) > 1]          # the keys that vary
     if not keys:
         raise SystemExit("nothing to plot: no grid point in both sweeps")
     x_key, s_key = keys[0], (keys[1] if len(keys) > 1 else None)
@@ -140,14 +141,21 @@ def plot_ratio(rows: list[dict[str, Any]], out: Path) -> Path:
         series.setdefault(s, []).append((float(r["grid"][x_key]),
                                          math.nan if r["ratio"] is None else r["ratio"]))
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    for s, pts in sorted(series.items(), key=lambda kv: float(kv[0] or 0)):
+    for n, (s, pts) in enumerate(sorted(series.items(), key=lambda kv: float(kv[0] or 0))):
         pts.sort()
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-",
-                label=f"{s_key.split('.')[-1]} = {s}" if s_key else None)
+        line, = ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-",
+                        label=f"{s_key.split('.')[-1]} = {s}" if s_key else None)
+        bad = [p[0] for p in pts if math.isnan(p[1])]      # E3 or E4 did not reach its goal
+        ax.plot(bad, [0.04 + 0.04 * n] * len(bad), "x", color=line.get_color(), ms=9)
+    if any(math.isnan(p[1]) for pts in series.values() for p in pts):
+        ax.text(0.02, 0.08, "x: E3 or E4 did not reach its goal", transform=ax.transAxes,
+                fontsize=8)
     ax.axhline(PAPER_E4_OVER_E3, color="k", ls="--", lw=1, label="paper: 0.25")
     ax.axhline(0.5, color="grey", ls=":", lw=1, label="issue 28 target: 0.5")
     ax.set_xlabel(x_key)
     ax.set_ylabel("E4 / E3 repeat time")
+    ax.set_ylim(0.0, max(1.3, *(p[1] for pts in series.values() for p in pts
+                                if not math.isnan(p[1]))))
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
