@@ -52,6 +52,7 @@ from cosim.apps.vs.lowlevel import LowLevel
 from cosim.apps.vs.memory import ObstacleMemory
 from cosim.apps.vs.presets import resolve
 from cosim.apps.vs.tasks import (
+    active_intervals,
     avoidance_task,
     corridor_task,
     find_obstacle,
@@ -64,20 +65,6 @@ FRAME_COLUMNS = ("t", "target", "eps_px", "n_points", "homography", "e_vx", "e_v
                  "e_wx", "e_wy", "e_wz", "lambda", "h_a", "h_m", "h_t", "vx", "vy", "vz",
                  "wz", "ff_vx", "ff_vy", "ff_vz", "ff_wz", "obstacle_px")
 H_CODE = {"failed": -1.0, "dominant_plane": 0.0, "virtual_plane": 1.0, "held": 0.5}
-
-
-def _intervals(log: list[tuple[float, float]]) -> list[list[float]]:
-    """[[t_on, t_off], ...] where the value was > 0 (t_off NaN if still on at the end)."""
-    out: list[list[float]] = []
-    on = False
-    for t, h in log:
-        if h > 0.0 and not on:
-            out.append([t, NAN])
-            on = True
-        elif h <= 0.0 and on:
-            out[-1][1] = t
-            on = False
-    return out
 
 
 class VisualServoApp:
@@ -496,8 +483,8 @@ class VisualServoApp:
             "switch_times_s": switch_t,
             "switches_by_rising": sum(1 for s in self._switches if s[2] == "rising"),
             "rematches": self._rematches,
-            "avoidance_active_s": _intervals(self._ha_log),
-            "visibility_active_s": _intervals(self._hm_log),
+            "avoidance_active_s": active_intervals(self._ha_log),
+            "visibility_active_s": active_intervals(self._hm_log),
             "command_step_max": self._dnu_max,
             "vision_cycles": len(self.frame_log),
             "homography_changes": self.hchoice.changes if self.path else 0,

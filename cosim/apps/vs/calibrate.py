@@ -62,15 +62,17 @@ def repeat_times(run: dict[str, Any]) -> tuple[float, list[float]] | None:
     return rep, [t - t0 for t in m.get("switch_times_s") or []]
 
 
+def _pairs(first: list[dict], second: list[dict]):
+    """(run of the first sweep, run of the second) at each grid point both have."""
+    by = {_key(r): r for r in second}
+    return [(r, by[_key(r)]) for r in first if _key(r) in by]
+
+
 def fit_rows(e1: list[dict], e2: list[dict]) -> list[dict[str, Any]]:
     """One row per grid point found in both sweeps: the times, their relative errors against
     the paper's, the cost (sum of squared relative errors; inf when a run failed)."""
-    by = {_key(r): r for r in e2}
     rows = []
-    for r1 in e1:
-        r2 = by.get(_key(r1))
-        if r2 is None:
-            continue
+    for r1, r2 in _pairs(e1, e2):
         a, b = repeat_times(r1), repeat_times(r2)
         row: dict[str, Any] = {"grid": dict(r1["overrides"]), "e1_s": None, "e2_s": None,
                                "cost": math.inf, "max_rel_err": math.inf,
@@ -88,12 +90,8 @@ def fit_rows(e1: list[dict], e2: list[dict]) -> list[dict[str, Any]]:
 
 def ratio_rows(e3: list[dict], e4: list[dict]) -> list[dict[str, Any]]:
     """One row per grid point in both sweeps: E3's and E4's repeat times and E4/E3."""
-    by = {_key(r): r for r in e4}
     rows = []
-    for r3 in e3:
-        r4 = by.get(_key(r3))
-        if r4 is None:
-            continue
+    for r3, r4 in _pairs(e3, e4):
         a, b = repeat_times(r3), repeat_times(r4)
         t3 = a[0] if a else None
         t4 = b[0] if b else None

@@ -22,6 +22,7 @@ Both Jacobians are returned in the 4 controllable body velocities (J cTe S^T).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -161,3 +162,18 @@ def visibility_task(points_px: np.ndarray, K: np.ndarray, depth_m: float,
     my = float(np.mean((points_px[:, 1] - cy) / fy))
     e_m = np.array([mx, my])
     return e_m, interaction_point(mx, my, depth_m) @ cam_from_body
+
+
+def active_intervals(log: list[tuple[float, float]]) -> list[list[float]]:
+    """[[t_on, t_off], ...] where a task's activation (t, h) was > 0 (t_off NaN if still on
+    at the end)."""
+    out: list[list[float]] = []
+    on = False
+    for t, h in log:
+        if h > 0.0 and not on:
+            out.append([t, math.nan])
+            on = True
+        elif h <= 0.0 and on:
+            out[-1][1] = t
+            on = False
+    return out
