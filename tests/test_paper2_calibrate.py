@@ -9,7 +9,8 @@ from cosim.apps.vs import calibrate as C
 
 
 def _run(lat, goal, rep, switches, passed=True, exit_reason="mission_complete"):
-    return {"overrides": {"app.params.low_level": "moveby", "camera.latency_s": lat}, "passed": passed, "exit_reason": exit_reason,
+    return {"overrides": {"app.params.low_level": "moveby", "camera.latency_s": lat},
+            "passed": passed, "exit_reason": exit_reason,
             "metrics": {"goal_reached": True, "goal_time_s": goal, "repeat_time_s": rep,
                         "switch_times_s": switches}}
 
