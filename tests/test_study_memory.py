@@ -124,7 +124,7 @@ from cosim.studies.study import montecarlo_jobs
 if sys.argv[1] == "off":
     J.release_memory = lambda: None
 sc = load_scenario(Path(sys.argv[2]))
-js, _ = montecarlo_jobs(sc, parse_varies(["camera.brightness=uniform(0.8,1.2)"]), 4, 3,
+js, _ = montecarlo_jobs(sc, parse_varies(["camera.brightness=uniform(0.8,1.2)"]), 7, 3,
                         {"timing.t_final_s": 4.0}, Path(sys.argv[3]))
 print(json.dumps([J.run_job(j)["_rss_mb"] for j in js]))
 """
@@ -132,11 +132,12 @@ print(json.dumps([J.run_job(j)["_rss_mb"] for j in js]))
 
 @pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc (Linux)")
 def test_a_front_camera_worker_gives_freed_frames_back(tmp_path):
-    """Four E1 runs cut to 4 s in a worker process, with and without `release_memory` after
+    """Seven E1 runs cut to 4 s in a worker process, with and without `release_memory` after
     each run. glibc kept the freed frames of a front-camera run resident unless trimmed
     (measured on E2 before the camera stream's frame buffers: 265 MB growing ~0.1 MB a run,
     against 145 MB flat trimmed; since then both stay near 150 MB). The released worker must
-    hold no more than the other, and not grow from run 2 to run 4."""
+    hold no more than the other, and not grow from run 5 to run 7 (the per-process caches
+    keep the last 4 taught paths: E1's noisy camera makes one per run seed)."""
     import subprocess
     if jobs_module._TRIM is None:
         pytest.skip("not glibc: no malloc_trim")
@@ -149,4 +150,4 @@ def test_a_front_camera_worker_gives_freed_frames_back(tmp_path):
         got[mode] = json.loads(out.stdout.strip().splitlines()[-1])
     print("worker RSS (MB) after each run, released / not:", got["on"], got["off"])
     assert got["on"][-1] <= got["off"][-1] + 1.0, got
-    assert got["on"][-1] - got["on"][1] < 2.0, got
+    assert got["on"][-1] - got["on"][4] < 2.0, got
