@@ -133,11 +133,11 @@ print(json.dumps([J.run_job(j)["_rss_mb"] for j in js]))
 @pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc (Linux)")
 def test_a_front_camera_worker_gives_freed_frames_back(tmp_path):
     """Seven E1 runs cut to 4 s in a worker process, with and without `release_memory` after
-    each run. glibc kept the freed frames of a front-camera run resident unless trimmed
-    (measured on E2 before the camera stream's frame buffers: 265 MB growing ~0.1 MB a run,
-    against 145 MB flat trimmed; since then both stay near 150 MB). The released worker must
-    hold no more than the other, and not grow from run 5 to run 7 (the per-process caches
-    keep the last 4 taught paths: E1's noisy camera makes one per run seed)."""
+    each run. glibc keeps the freed frames of a front-camera run resident unless trimmed
+    (measured: E2 without the stream 265 MB growing ~0.1 MB a run, 145 MB flat trimmed; E1
+    with the Bebop 2 stream 198 -> 213 MB over these seven runs, 146 -> 152 MB trimmed). The
+    released worker must hold no more than the other, and not grow from run 5 to run 7 (the
+    per-process caches keep the last 4 taught paths: E1's noisy camera makes one per seed)."""
     import subprocess
     if jobs_module._TRIM is None:
         pytest.skip("not glibc: no malloc_trim")
