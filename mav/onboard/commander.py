@@ -30,6 +30,9 @@ from mav.onboard.defs import (
 from mav.onboard.links import Outbox
 from mav.onboard.status import VehicleStatus
 
+# the modes that need a local position (PX4's mode requirements): denied while it is lost
+NEEDS_POSITION = frozenset((POSCTL, TAKEOFF, LOITER, MISSION, RTL, OFFBOARD))
+
 
 class Commander:
     def __init__(self, vs: VehicleStatus, outbox: Outbox) -> None:
@@ -126,10 +129,22 @@ class Commander:
             return M.MAV_RESULT_DENIED
         return self.try_mode(mode)
 
+    def position_denied(self, mode: int) -> bool:
+        """Whether `mode` is refused because the position estimate is lost (PX4 refuses the
+        modes that need a local position: hold, position, take-off, mission, return,
+        offboard); says so."""
+        if self.vs.pos_lost_us < 0 or mode not in NEEDS_POSITION:
+            return False
+        self.out.statustext(f"{MODE_NAMES[mode]} denied: no local position",
+                            M.MAV_SEVERITY_CRITICAL)
+        return True
+
     def try_mode(self, mode: int) -> int:
         vs = self.vs
         if mode == vs.mode:
             return M.MAV_RESULT_ACCEPTED
+        if self.position_denied(mode):
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
         if mode == OFFBOARD and not self.offboard.stream_ok():
             self.out.statustext("Switching to OFFBOARD denied: no setpoint stream",
                                 M.MAV_SEVERITY_WARNING)

@@ -16,9 +16,11 @@ from mav.onboard.defs import (
     DATA_STREAM_GROUPS,
     FORCE_DISARM_MAGIC,
     LAND,
+    LOITER,
     ON_GROUND,
     RTL,
     STREAMS,
+    TAKEOFF,
     M,
     hz_to_us,
 )
@@ -89,12 +91,15 @@ class Commands:
             else:
                 res = M.MAV_RESULT_DENIED
         elif cmd == M.MAV_CMD_NAV_TAKEOFF:
-            res = self.nav.cmd_takeoff(p4, p7, frame)
+            res = (M.MAV_RESULT_TEMPORARILY_REJECTED if self.cmd.position_denied(TAKEOFF)
+                   else self.nav.cmd_takeoff(p4, p7, frame))
         elif cmd == M.MAV_CMD_NAV_LAND:
             self.cmd.set_mode(LAND)
             res = M.MAV_RESULT_ACCEPTED
         elif cmd == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             res = self.cmd.try_mode(RTL)
+        elif cmd == M.MAV_CMD_DO_REPOSITION and self.cmd.position_denied(LOITER):
+            res = M.MAV_RESULT_TEMPORARILY_REJECTED
         elif cmd == M.MAV_CMD_DO_REPOSITION:
             # ground speed: the cruise parameter's range; below it (1e-30), the default
             lo, hi = speed_range(0)

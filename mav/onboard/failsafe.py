@@ -5,8 +5,9 @@
   once one has been heard, while flying: NAV_DLL_ACT (0 off, 1 hold, 2 return, 3 land);
 - battery: warnings at BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR remaining; COM_LOW_BAT_ACT
   (0 warn only, 2 land at critical, 3 return at critical and land at emergency);
-- position estimate lost (ODOMETRY quality -1): held level at hover thrust; after
-  COM_POS_FS_DELAY while flying, land;
+- position estimate lost (ODOMETRY quality -1; the onboard estimator: no flow or GPS fused
+  for EKF2_NOAID_TOUT): held level, at its altitude on the estimator (sonar, baro), at hover
+  thrust on a lost ODOMETRY feed; after COM_POS_FS_DELAY while flying, land;
 - geofence: a cylinder about home, GF_MAX_HOR_DIST radius and GF_MAX_VER_DIST height (0: no
   limit), checked while flying: GF_ACTION (0 none, 1 warn, 2 hold, 3 return, 5 land).
 

@@ -157,6 +157,9 @@ class Onboard:
         self.estimator = tel.estimator = Estimator(vs.own, self.stats, self.geo)
         if self.estimator.enabled:
             self._hil = self.estimator.link(self._hil, self._hil_mav)
+        # what a lost position keeps: the estimator's `lost` is its horizontal aiding (flow,
+        # GPS), its altitude stays; an ODOMETRY feed's quality -1 (motion capture) loses all
+        self._vertical_kept = self.estimator.enabled
 
     # ------------------------------------------------------------------ public helpers
     @property
@@ -328,8 +331,11 @@ class Onboard:
                 s.vx, s.vy, s.vz = rotate_body_to_world(qw, qx, qy, qz, vx, vy, vz)
             if vs.pos_lost_us >= 0:
                 self.failsafe.position_regained()
-        elif vs.pos_lost_us < 0:
-            self.failsafe.position_lost(t_us)
+        else:
+            if vs.pos_lost_us < 0:
+                self.failsafe.position_lost(t_us)
+            if self._vertical_kept:   # the onboard estimator lost its horizontal aiding only:
+                s.z, s.vz = z, vz     # the altitude (sonar, baro) stays, as PX4's altitude mode
         if not vs.have_state:
             vs.have_state = True
             self.commander.set_home()
@@ -363,16 +369,21 @@ class Onboard:
 
     def _blind(self, s, sp):
         """Without a position estimate: the controller sees the attitude and rates (the IMU
-        still works) and no position or velocity error, so it holds level at hover thrust and
-        the heading; the vehicle drifts with its momentum, braked by drag."""
+        still works) and no horizontal position or velocity error, so it holds level and the
+        heading; the vehicle drifts with its momentum, braked by drag. The altitude is held on
+        the onboard estimator's (sonar, baro: PX4's altitude mode); on a lost ODOMETRY feed
+        it sees no vertical error either (hover thrust)."""
         b = self._blind_state
         b.t, b.qw, b.qx, b.qy, b.qz, b.p, b.q, b.r = s.t, s.qw, s.qx, s.qy, s.qz, s.p, s.q, s.r
         b.x = sp.x if sp.x == sp.x else s.x
         b.y = sp.y if sp.y == sp.y else s.y
-        b.z = sp.z if sp.z == sp.z else s.z
+        if self._vertical_kept:       # altitude still estimated: held to the setpoint
+            b.z, b.vz = s.z, s.vz
+        else:
+            b.z = sp.z if sp.z == sp.z else s.z
+            b.vz = sp.vz if sp.vz == sp.vz else 0.0
         b.vx = sp.vx if sp.vx == sp.vx else 0.0
         b.vy = sp.vy if sp.vy == sp.vy else 0.0
-        b.vz = sp.vz if sp.vz == sp.vz else 0.0
         return b
 
     @cython.locals(vs=VehicleStatus, t=cython.longlong, mode=cython.int, armed=cython.bint)
