@@ -14,9 +14,10 @@ cdef class TemplateEstimator:
     cdef public object t_us, aid_us, rng_us, gps_us, rng_rej_since, noaid_us
     cdef public double x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r
     cdef public double bg0, bg1, bg2, alp0, alp1, alp2
-    cdef public double p0_hpa, pzz, pzv, pvv, pvx, pvy
+    cdef public double p0_hpa, pzz, pzv, pvv, pzb, pvb, pbb, bz, pvx, pvy
     cdef public bint lost
-    cdef public double w_acc, acc_gate, w_mag, decl, q_acc, r_baro, baro_gate, r_rng
+    cdef public double w_acc, acc_gate, w_mag, decl, q_acc, q_ab, abl_lim, r_baro, baro_gate
+    cdef public double r_rng
     cdef public double rng_gate, of_q, of_r, of_qmin, of_gate, w_gps
     cpdef update(self, imu, flow, rng, gps, geo, t_us)
     cdef _imu(self, tuple m, double dt)

@@ -103,7 +103,10 @@ class TemplateEstimator:
         self.bg0 = self.bg1 = self.bg2 = 0.0              # gyro bias
         self.alp0, self.alp1, self.alp2 = 0.0, 0.0, -G     # low-passed specific force
         self.p0_hpa = math.nan
-        self.pzz, self.pzv, self.pvv = 1.0, 0.0, 1.0       # altitude covariance
+        self.bz = 0.0                                      # accelerometer bias, world down
+        self.pzz, self.pzv, self.pvv = 1.0, 0.0, 1.0       # altitude covariance (z, vz, bz)
+        self.pzb = self.pvb = 0.0
+        self.pbb = self.abl_lim * self.abl_lim
         self.pvx = self.pvy = 1.0                          # velocity variances
         self.aid_us = 0                                    # last flow / GPS fused
         self.rng_us = -(1 << 62)                           # last sonar fused
@@ -117,6 +120,8 @@ class TemplateEstimator:
         self.w_mag = own["EKF2_MAG_W"]
         self.decl = math.radians(own["EKF2_MAG_DECL"])
         self.q_acc = own["EKF2_ACC_NOISE"] ** 2
+        self.q_ab = own["EKF2_ACC_B_NOISE"] ** 2
+        self.abl_lim = own["EKF2_ABL_LIM"]
         self.r_baro = own["EKF2_BARO_NOISE"] ** 2
         self.baro_gate = own["EKF2_BARO_GATE"]
         self.r_rng = own["EKF2_RNG_NOISE"] ** 2
@@ -164,7 +169,8 @@ class TemplateEstimator:
                    q=f64, r=f64, ph=f64, th=f64, sph=f64, cph=f64, sth=f64, cth=f64, tth=f64,
                    fn=f64, w=f64, er=f64, ep=f64, mx=f64, my=f64, mz=f64, hx=f64, hy=f64,
                    yaw_m=f64, fx_w=f64, fy_w=f64, fz_w=f64, az_w=f64, qa=f64, pzz=f64,
-                   pzv=f64, pvv=f64, hpa=f64, z_b=f64)
+                   pzv=f64, pvv=f64, pzb=f64, pvb=f64, pbb=f64, h=f64, a0=f64, a1=f64, a2=f64,
+                   b1=f64, b2=f64, hpa=f64, z_b=f64)
     def _imu(self, m: tuple, dt: float) -> None:
         # m: time_usec, xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag, abs_pressure,
         #    diff_pressure, pressure_alt, temperature, fields_updated, id
@@ -227,16 +233,26 @@ class TemplateEstimator:
             st["est_rej_mag"] += 1
         # world acceleration from the specific force
         fx_w, fy_w, fz_w = to_world(self.roll, self.pitch, self.yaw, ax, ay, az)
-        az_w = fz_w + _G if n >= _CAL else 0.0
-        # altitude filter: predict
+        az_w = fz_w + _G - self.bz if n >= _CAL else 0.0
+        # altitude filter (z, vz and the accelerometer's bias bz, as EKF2 estimates it):
+        # predict with F = [[1, dt, -dt^2/2], [0, 1, -dt], [0, 0, 1]], P = F P F' + Q
         self.z += self.vz * dt + 0.5 * az_w * dt * dt
         self.vz += az_w * dt
         qa = self.q_acc
+        h = 0.5 * dt * dt
         pzz, pzv, pvv = self.pzz, self.pzv, self.pvv
-        pzz = pzz + 2.0 * dt * pzv + dt * dt * pvv + qa * dt ** 4 / 4.0
-        pzv = pzv + dt * pvv + qa * dt ** 3 / 2.0
-        pvv = pvv + qa * dt * dt
-        self.pzz, self.pzv, self.pvv = pzz, pzv, pvv
+        pzb, pvb, pbb = self.pzb, self.pvb, self.pbb
+        a0 = pzz + dt * pzv - h * pzb               # rows of F P
+        a1 = pzv + dt * pvv - h * pvb
+        a2 = pzb + dt * pvb - h * pbb
+        b1 = pvv - dt * pvb
+        b2 = pvb - dt * pbb
+        self.pzz = a0 + dt * a1 - h * a2 + qa * h * h
+        self.pzv = a1 - dt * a2 + qa * dt * h
+        self.pzb = a2
+        self.pvv = b1 - dt * b2 + qa * dt * dt
+        self.pvb = b2
+        self.pbb = pbb + self.q_ab * dt
         if n >= _CAL:
             self.vx += fx_w * dt
             self.vy += fy_w * dt
@@ -257,15 +273,20 @@ class TemplateEstimator:
         st["est_baro_fused"] += 1
         self._z_fuse(z_b, self.r_baro)
 
-    @cython.locals(pzz=f64, pzv=f64, pvv=f64, s=f64, kz=f64, kv=f64, e=f64)
+    @cython.locals(pzz=f64, pzv=f64, pvv=f64, pzb=f64, pvb=f64, s=f64, kz=f64, kv=f64,
+                   kb=f64, e=f64, lim=f64)
     def _z_fuse(self, zm: float, r: float) -> None:
-        pzz, pzv, pvv = self.pzz, self.pzv, self.pvv
+        pzz, pzv, pvv, pzb, pvb = self.pzz, self.pzv, self.pvv, self.pzb, self.pvb
         s = pzz + r
-        kz, kv = pzz / s, pzv / s
+        kz, kv, kb = pzz / s, pzv / s, pzb / s
         e = zm - self.z
         self.z += kz * e
         self.vz += kv * e
-        self.pzz, self.pzv, self.pvv = (1.0 - kz) * pzz, (1.0 - kz) * pzv, pvv - kv * pzv
+        lim = self.abl_lim                # EKF2_ABL_LIM: the bias learned stays within it
+        self.bz = min(lim, max(-lim, self.bz + kb * e))
+        self.pzz, self.pzv, self.pzb = (1.0 - kz) * pzz, (1.0 - kz) * pzv, (1.0 - kz) * pzb
+        self.pvv, self.pvb = pvv - kv * pzv, pvb - kv * pzb
+        self.pbb -= kb * pzb
 
     @cython.locals(lo=cython.long, hi=cython.long, cur=cython.long, quality=cython.long,
                    c=f64, zm=f64)
