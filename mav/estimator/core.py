@@ -39,6 +39,11 @@ class Estimator:
         stats.setdefault("est_lost", 0)
 
     @property
+    def aligned(self) -> bool:
+        """Its attitude is initialised (the first CAL_TICKS readings at rest)."""
+        return self.impl.n >= CAL_TICKS
+
+    @property
     def active(self) -> bool:
         """It has had sensor messages (the vehicle flies on it)."""
         return self.impl.n > 0

@@ -42,8 +42,10 @@ from cython.cimports.libc.math import tan as _tan
 # and C's libm, the functions Python's math module calls: the same results bit for bit)
 f64 = cython.typedef(cython.double)
 G = 9.81
-CAL_TICKS = 10               # gyro bias: the mean of the first 10 readings (50 ms at rest:
-                             # the apps arm at once and the vehicle lifts off within 0.1 s)
+CAL_TICKS = 100              # at rest: the gyro bias and the initial tilt, the mean of the
+                             # first 100 readings (0.5 s; the vehicle refuses to arm before,
+                             # as PX4 before its tilt alignment: 10 readings left ~1 deg of
+                             # tilt error, which a take-off into wind turned into drift)
 BIAS_KI = cython.declare(cython.double, 2e-6)   # rad/s per rad and tick: the gyro bias
                                                 # follows the accelerometer
 ACC_LP = cython.declare(cython.double, 0.1)     # accelerometer low-pass weight per tick (~50 ms)

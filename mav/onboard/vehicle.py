@@ -146,7 +146,7 @@ class Onboard:
         vs.battery = Battery(BATTERIES[cfg.vehicle], self.vehicle.u_hover)
         prm.build()
         prm.hover_fraction = self.vehicle.weight / (4.0 * self.vehicle.thrust_max)
-        cmd.preflight = prm.arming_problem
+        cmd.preflight = self._preflight
         vs.own["COM_OF_LOSS_T"] = cfg.offboard_loss_s
         vs.own["COM_FAIL_ACT_T"] = cfg.failsafe_land_s
         if cfg.param_file:
@@ -160,6 +160,15 @@ class Onboard:
         # what a lost position keeps: the estimator's `lost` is its horizontal aiding (flow,
         # GPS), its altitude stays; an ODOMETRY feed's quality -1 (motion capture) loses all
         self._vertical_kept = self.estimator.enabled
+
+    def _preflight(self) -> str | None:
+        """Why arming must wait: a parameter outside its envelope, or the onboard estimator's
+        attitude not aligned yet (its first CAL_TICKS readings at rest, as PX4 waits for
+        EKF2's tilt alignment)."""
+        why = self.parameters.arming_problem()
+        if why is None and self.estimator.enabled and not self.estimator.aligned:
+            why = "attitude not aligned yet (estimator)"
+        return why
 
     # ------------------------------------------------------------------ public helpers
     @property
