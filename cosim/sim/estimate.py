@@ -14,11 +14,14 @@ from __future__ import annotations
 
 import math
 import struct
+import tempfile
+from pathlib import Path
 
 import cython
 import numpy as np
 
 from cosim.sensors.suite import SensorSuite
+from cosim.sim.recorder import CHUNK, SeriesSpool
 from mav import wire
 
 ESTIMATE_COLUMNS = ("est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_roll",
@@ -27,14 +30,19 @@ _ROW = struct.Struct(f"<{len(ESTIMATE_COLUMNS)}d")
 
 
 def floor_textured(world) -> bool:
-    """`flow_floor = "auto"`: competition tiles or a room's textured floor give the flow
-    features; a plain floor (the flat worlds' default grey) does not."""
+    """`flow_floor = "auto"`: a room's floor by its texture (a plain one gives the flow
+    nothing); a flat world's floor is textured: it stands in for the Minidrone template's
+    aerial photograph (MWAerial.png) under the track, its one colour is for the camera's line
+    detection only. `flow_floor = "plain"` makes the flow fail."""
     room = world.scene.room
-    return world.floor_texture != "plain" or (room is not None and room.floor.kind != "plain")
+    return room is None or room.floor.kind != "plain"
 
 
 class SensorFeed:
-    def __init__(self, sc, h: float) -> None:
+    """`spool`: the file the estimate rows go to, a chunk at a time (memory does not grow with
+    the mission, as the series'); None: a temporary file, removed when the feed is."""
+
+    def __init__(self, sc, h: float, spool: Path | None = None) -> None:
         spec = sc.sensors
         floor = spec.flow_floor
         textured = floor_textured(sc.world) if floor == "auto" else floor == "textured"
@@ -43,11 +51,17 @@ class SensorFeed:
         self.suite = SensorSuite(spec, sc.seed, h, self.home, textured, faults)
         self.est = [math.nan, math.nan, math.nan]
         self._y = None
-        self.rows: list[bytes] = []
+        if spool is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="cosim-estimate-")
+            spool = Path(self._tmp.name) / "estimate.f64"
+        self.spool = SeriesSpool(spool, len(ESTIMATE_COLUMNS))
+        self.rows: list[bytes] = self.spool.rows
         self.bad_answers = 0
 
     def measure(self, y) -> list[float]:
         self._y = y
+        if len(self.rows) >= CHUNK:
+            self.spool.flush()
         return self.est
 
     def encode_odometry(self, t_us: int, meas) -> bytes:
@@ -78,8 +92,9 @@ class SensorFeed:
         return act
 
     def array(self) -> np.ndarray:
-        a = np.frombuffer(b"".join(self.rows), dtype="<f8")
-        return a.reshape(-1, len(ESTIMATE_COLUMNS))
+        """The estimate rows of the run so far, (ticks, ESTIMATE_COLUMNS): the spool closed
+        and read back (a read-only memory map)."""
+        return self.spool.finish().array()
 
     def fired(self) -> list[tuple[float, str]]:
         return list(self.suite.fired)

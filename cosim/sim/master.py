@@ -283,7 +283,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         if sc.sensors is not None and sc.sensors.hil:   # sensor messages, the vehicle estimates
             from cosim.sim.estimate import SensorFeed
 
-            sensor = codec = feed = SensorFeed(sc, h)
+            sensor = codec = feed = SensorFeed(sc, h, Path(spool_tmp.name) / "estimate.f64")
         tick = Tick(plant=plant, sensor=sensor, codec=codec,
                     exchange=vehicle.exchange, gcs_recv=vehicle.gcs.recv, tlog=tlog,
                     spool=spool, monitor=monitor, h_us=h_us, app=app, stream=stream, ctx=ctx,
