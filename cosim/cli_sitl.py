@@ -56,6 +56,9 @@ def sitl(args) -> int:
         "vehicle": {"preset": args.vehicle},
         "world": _world_table(args.world),
         "timing": {"t_final_s": args.duration},
+        # the ground-station vehicles fly on the truth ODOMETRY (motion capture): the fleet
+        # has no sensor feed yet (docs/sensors.md, Limitations)
+        "sensors": {"feed": "truth"},
         "criteria": {"must_complete": False},
     }, source=str(Path.cwd() / "sitl.toml"))
     out = args.out or Path("runs") / sc.name

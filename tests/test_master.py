@@ -61,7 +61,7 @@ def test_same_run_twice_is_identical(seed_runs):
 
 
 def test_seed_differs_with_noise_seed():
-    sc = with_set(load_scenario(SQUARE), {"sensors.odometry_noise.pos_std_m": 0.002,
+    sc = with_set(load_scenario(SQUARE), {"sensors.flow.flow_noise_rad_s": 0.03,
                                          "timing.t_final_s": 4.0})
     a = run_scenario(sc, RunOptions())
     b = run_scenario(sc, RunOptions())
@@ -301,7 +301,8 @@ def test_landing_is_detected_with_odometry_noise():
     """PX4's land detector decides on filtered velocities; ours low-passes vz, so velocity
     noise the scenarios allow does not keep the vehicle armed on the ground (issue 12:
     before, 0.1 m/s of noise ended the seed mission 'landed before the app finished')."""
-    sc = with_set(load_scenario(SEED), {"sensors.odometry_noise.vel_std_mps": 0.2,
+    sc = with_set(load_scenario(SEED), {"sensors.feed": "truth",
+                                        "sensors.odometry_noise.vel_std_mps": 0.2,
                                         "sensors.odometry_noise.pos_std_m": 0.01})
     res = run_scenario(sc, RunOptions(mode="mil"))
     assert res.exit_reason is ExitReason.MISSION_COMPLETE, res.message

@@ -35,6 +35,7 @@ TOLERANCES = {
     "line_in_view_s": 1.0,          # s
     "speed_mean_mps": 0.010,        # m/s
     "speed_max_mps": 0.020,         # m/s
+    "estimation_error_pos_rms_m": 0.010,   # m (the default feed: the sensors, the estimator)
 }
 
 

@@ -23,6 +23,7 @@ from mav.wire import FlatEarth
 ROOT = Path(__file__).resolve().parent.parent
 SEED = ROOT / "scenarios" / "mambo_seed_track.toml"
 SQUARE = ROOT / "scenarios" / "scripted_square.toml"
+HOVER = ROOT / "scenarios" / "mambo_hover.toml"
 HIL = {"sensors.feed": "hil", "sensors.flow_floor": "textured"}
 
 
@@ -64,10 +65,40 @@ def test_same_seed_same_flight_other_seed_other_noise():
     assert a.estimate.tobytes() != c.estimate.tobytes()
 
 
-def test_truth_feed_is_the_default_and_untouched():
+def test_the_sensors_are_the_default_feed_and_the_truth_an_option():
     sc = load_scenario(SQUARE)
-    assert not sc.sensors.hil and dict(sc.onboard_params).get("EKF2_TYPE") is None
-    assert run_scenario(with_set(sc, {"timing.t_final_s": 2.0}), RunOptions()).estimate is None
+    assert sc.sensors.hil and dict(sc.onboard_params)["EKF2_TYPE"] == 1.0
+    truth = with_set(sc, {"sensors.feed": "truth", "timing.t_final_s": 2.0})
+    assert not truth.sensors.hil and dict(truth.onboard_params).get("EKF2_TYPE") is None
+    assert run_scenario(truth, RunOptions()).estimate is None
+    # the ODOMETRY's noise belongs to the truth feed: on the sensors it is an error, named
+    with pytest.raises(ScenarioError, match="sensors.odometry_noise"):
+        with_set(sc, {"sensors.odometry_noise.pos_std_m": 0.01})
+
+
+def test_a_lost_position_keeps_the_altitude_and_refuses_the_position_modes():
+    """Over a plain floor the flow gives nothing: the position is lost once above 0.5 m
+    (EKF2_NOAID_TOUT). The vehicle holds level at its estimated altitude (sonar, baro), as
+    PX4 falls back to altitude mode; before, it saw no vertical error either and kept the
+    take-off's climb rate up to 5 m. It lands by COM_POS_FS_DELAY and meanwhile refuses
+    take-off and the modes that need a position."""
+    from test_faults import _statustexts
+
+    sc = with_set(load_scenario(HOVER), {"sensors.flow_floor": "plain", "timing.t_final_s": 6.0})
+    res = run_scenario(sc, RunOptions())
+    t, z = res.series[:, 0], res.series[:, 3]
+    lost = res.estimate[:, -1]
+    assert lost.any() and not lost[t < 0.5].any()
+    assert z.min() > -1.2                       # the take-off's 1 m, not a runaway climb
+    texts = _statustexts(res)
+    # the app's first arm came before the estimator's 0.5 s of tilt alignment: refused
+    assert texts[0] == "Arming denied: attitude not aligned yet (estimator)"
+    assert "Position estimate lost, holding level" in texts
+    fs = texts.index("Failsafe: no position estimate, landing")
+    assert "AUTO.TAKEOFF denied: no local position" in texts[fs:]   # the app's retry
+    t_lost = t[np.argmax(lost > 0)]
+    held, landing = z[t > t_lost + 1.0][0], z[t > t_lost + 2.5][0]
+    assert landing > held + 0.2                  # COM_POS_FS_DELAY after: descending
 
 
 def test_seed_mission_on_the_estimate_meets_the_landing_and_coverage_targets():
@@ -128,7 +159,8 @@ def test_sensor_faults_reach_the_estimate_and_are_counted():
         {"kind": "mag_interference", "start_s": 8.0, "end_s": 9.0, "value": [0.3, 0, 0]},
         {"kind": "imu_bias", "start_s": 9.0, "end_s": 10.0, "value": [0.3, 0, 0]},
         {"kind": "baro_drift", "start_s": 10.0, "end_s": 11.0, "value": [20, 0, 0]},
-        {"kind": "gyro_saturation", "start_s": 11.0, "end_s": 11.5, "value": [0.05, 0, 0]},
+        # (at 0.05 rad/s the rate loop goes blind and the vehicle flips within 0.3 s)
+        {"kind": "gyro_saturation", "start_s": 11.0, "end_s": 11.5, "value": [0.5, 0, 0]},
         {"kind": "flow_loss", "start_s": 11.5, "end_s": 12.0}]})
     res = run_scenario(sc, RunOptions())
     kinds = [w for _, w in res.faults]
@@ -229,3 +261,30 @@ def test_flow_lost_in_flight_is_a_lost_position_and_the_vehicle_lands():
     assert lost[t < 8.0].sum() == 0 and lost[(t > 9.5) & (t < 10.0)].all()
     assert st["odometry_lost"] > 0                   # the vehicle's failsafe saw it
     assert res.series[-1, 3] > -0.05                 # landed (z ~ 0), COM_POS_FS_DELAY later
+
+
+def test_the_altitude_filter_learns_the_accelerometer_bias():
+    """The altitude filter's third state (EKF2 learns the accelerometer's bias the same way):
+    without it the Mambo's vertical accelerometer error (bias 0.08 m/s^2 and a 0.55 % scale
+    factor, ~0.13 m/s^2 at 1 g) left the vertical speed estimate ~0.03 m/s off in hover while
+    the altitude was right, and paper 2's oval (E3) missed its last key by that drift."""
+    def vz_offset(lim: float) -> float:
+        res = run_scenario(with_set(load_scenario(HOVER), {
+            "timing.t_final_s": 12.0, "onboard.params.EKF2_ABL_LIM": lim}), RunOptions())
+        late = res.series[:, 0] > 6.0
+        return float(np.mean(res.estimate[late, 5] - res.series[late, 6]))    # est_vz - vz
+
+    assert abs(vz_offset(0.4)) < 0.005          # PX4's default limit: measured 0.002 m/s
+    assert vz_offset(0.0) > 0.02                # no bias learnt (limit 0): 0.034 m/s
+
+
+def test_the_estimate_is_spooled_chunk_by_chunk_in_order():
+    """The estimate rows go to disk a CHUNK at a time (memory flat over a long run, as the
+    series): over 5000 ticks, across the first chunk's boundary, the spooled estimate is the
+    one the series recorded tick by tick (its est_x/y/z columns), none lost or reordered."""
+    from cosim.sim.recorder import CHUNK, COL
+
+    res = run_scenario(with_set(load_scenario(HOVER), {"timing.t_final_s": 25.0}), RunOptions())
+    assert len(res.estimate) == res.ticks == 5000 > CHUNK
+    rec = np.asarray(res.series)[:, [COL["est_x"], COL["est_y"], COL["est_z"]]]
+    assert np.array_equal(np.asarray(res.estimate)[:, :3], rec)

@@ -28,7 +28,7 @@ SEED_TRACK = str(ROOT / "scenarios" / "mambo_seed_track.toml")
 SQUARE = str(ROOT / "scenarios" / "scripted_square.toml")
 COSIM = [sys.executable, "-m", "cosim.cli"]
 # a short seed-track study: 5 s of flight (take-off, the first metres of following)
-VARY = ["wind.n_mps=uniform(0,0.6)", "sensors.odometry_noise.pos_std_m=truncnormal(0,0.01,0,0.05)",
+VARY = ["wind.n_mps=uniform(0,0.6)", "sensors.flow.flow_noise_rad_s=truncnormal(0.02,0.01,0,0.05)",
         "vehicle.start.yaw_deg=normal(0,15)"]
 SHORT = {"timing.t_final_s": 5.0}
 
@@ -99,7 +99,7 @@ def test_same_study_seed_same_draws():
     assert [v["wind.n_mps"] for _, v in a] == [run_draws(7, i, only_wind)[1]["wind.n_mps"]
                                                for i in range(50)]
     w = np.array([v["wind.n_mps"] for _, v in a])
-    p = np.array([v["sensors.odometry_noise.pos_std_m"] for _, v in a])
+    p = np.array([v["sensors.flow.flow_noise_rad_s"] for _, v in a])
     assert w.min() >= 0 and w.max() < 0.6 and p.min() >= 0 and p.max() <= 0.05
     assert {v["app.preset"] for _, v in a} == {"released", "tuned"}
 
@@ -275,7 +275,7 @@ def test_sweep_through_the_study_engine(tmp_path):
     """`cosim sweep` with a study option: streamed table, one seed column, report, same bytes
     from the local pool and serially."""
     base = ["sweep", SEED_TRACK, "--set", "seed=0,1", "--set", "wind.n_mps=0,0.3",
-            "--set", "sensors.odometry_noise.pos_std_m=0.003", "--set", "timing.t_final_s=5"]
+            "--set", "sensors.flow.flow_noise_rad_s=0.03", "--set", "timing.t_final_s=5"]
     r = _cli(*base, "--executor", "local", "--workers", "2", "--resume",
              "--out", str(tmp_path / "pool"))
     assert r.returncode in (0, 1), r.stderr
@@ -296,12 +296,12 @@ def test_sweep_through_the_study_engine(tmp_path):
 
 @pytest.mark.slow
 def test_the_documented_200_run_monte_carlo_of_the_seed_mission(tmp_path):
-    """The README's command (cosim/studies/README.md) on a local Dask cluster, ~70-90 s on 2
+    """The README's command (cosim/studies/README.md) on a local Dask cluster, ~5 min on 2
     cores: every run has a row, none raised, and the report holds the statistics."""
     out = tmp_path / "mc-200"
     args = ["montecarlo", SEED_TRACK, "-n", "200", "--seed", "1", "--out", str(out),
             "--vary", "wind.n_mps=uniform(0,1.5)",
-            "--vary", "sensors.odometry_noise.pos_std_m=truncnormal(0,0.01,0,0.05)",
+            "--vary", "sensors.flow.flow_noise_rad_s=truncnormal(0.02,0.01,0,0.05)",
             "--vary", "vehicle.start.yaw_deg=normal(0,15)"]
     r = _cli(*args)
     assert r.returncode == 0, r.stderr

@@ -29,7 +29,7 @@ from cosim.studies.study import montecarlo_jobs
 from cosim.studies.table import ResultsTable
 
 SEED_TRACK = Path(__file__).resolve().parent.parent / "scenarios" / "mambo_seed_track.toml"
-VARY = ["wind.n_mps=uniform(0,0.3)", "sensors.odometry_noise.pos_std_m=uniform(0,0.005)"]
+VARY = ["wind.n_mps=uniform(0,0.3)", "sensors.flow.flow_noise_rad_s=uniform(0.01,0.04)"]
 
 
 def _jobs(tmp_path: Path, n: int, t_final: float) -> tuple[list[Job], ResultsTable]:

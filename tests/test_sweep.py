@@ -27,7 +27,7 @@ def _sweep(tmp: Path, scenario: str, sets: list[str], executor: str) -> list[dic
 
 def test_pool_and_serial_agree(tmp_path):
     # odometry noise makes the seed matter; each run's whole time series must agree bit for bit
-    sets = ["seed=0,1", "sensors.odometry_noise.pos_std_m=0.003", "timing.t_final_s=6.0"]
+    sets = ["seed=0,1", "sensors.flow.flow_noise_rad_s=0.03", "timing.t_final_s=6.0"]
     a = _sweep(tmp_path / "pool", "scripted_square.toml", sets, "local")
     b = _sweep(tmp_path / "serial", "scripted_square.toml", sets, "serial")
     assert len(a) == len(b) == 2
@@ -63,8 +63,8 @@ def test_monte_carlo_on_the_textured_floor(tmp_path):
     """8 seeds: odometry noise, camera pixel and lighting noise, distractors. Every run lands
     on the marker, and the seeds really differ."""
     rows = _sweep(tmp_path, "mambo_textured.toml",
-                  ["seed=0,1,2,3,4,5,6,7", "sensors.odometry_noise.pos_std_m=0.003",
-                   "sensors.odometry_noise.vel_std_mps=0.01"], "local")
+                  ["seed=0,1,2,3,4,5,6,7", "sensors.flow.flow_noise_rad_s=0.03",
+                   "sensors.baro.baro_noise_pa=3.0"], "local")
     assert len(rows) == 8
     assert all(r["exit_reason"] == "mission_complete" and r["passed"] == "True" for r in rows)
     assert max(float(r["landing_error_m"]) for r in rows) < 0.05

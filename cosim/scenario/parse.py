@@ -165,6 +165,15 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     no_unknown(ob, {"params"}, "onboard")
     onboard_params = _onboard_params(table(ob, "params", "onboard"), preset)
     sensors = parse_sensors(s, preset)
+    if sensors.hil and "odometry_noise" in s:
+        raise ScenarioError("sensors.odometry_noise", dict(n),
+                            "feed = 'truth' (it is the noise of the truth ODOMETRY; on the "
+                            "default feed 'hil' each sensor has its own noise: [sensors.imu] ...)")
+    if sensors.hil and faults.odometry:
+        raise ScenarioError("faults.odometry", len(faults.odometry),
+                            "feed = 'truth' in [sensors] (these are faults of the truth "
+                            "ODOMETRY; on the default feed 'hil' use [[faults.sensor]], e.g. "
+                            "kind = 'flow_loss')")
     if sensors.hil:             # the vehicle must run its estimator on the sensor messages
         ekf = dict(onboard_params).get("EKF2_TYPE")
         if ekf is None:

@@ -2,11 +2,12 @@
 scenario's `[sensors]` table (validated; a bad value names its field, exit 2).
 
     [sensors]
-    feed = "truth"             # truth: ODOMETRY (the plant's state, like PX4 on motion
-                               # capture) | hil: HIL_SENSOR, HIL_OPTICAL_FLOW, DISTANCE_SENSOR,
-                               # HIL_GPS and the vehicle's own estimator
-    flow_floor = "auto"        # auto (the world's floor_texture: competition tiles are
-                               # textured, a plain floor is not) | textured | plain
+    feed = "hil"               # hil (default): HIL_SENSOR, HIL_OPTICAL_FLOW, DISTANCE_SENSOR,
+                               # HIL_GPS and the vehicle's own estimator (EKF2_TYPE 1) |
+                               # truth: ODOMETRY (the plant's state, like PX4 on motion capture)
+    flow_floor = "auto"        # auto (a room's floor by its texture; a flat world's floor
+                               # stands in for the template's aerial photograph: textured)
+                               # | textured | plain (the flow fails)
     [sensors.imu]              # any field of SensorParams below, by sensor table
     acc_noise = [0.2, 0.2, 0.2]
     [sensors.gps]
@@ -100,7 +101,7 @@ assert {f for t in TABLES.values() for f in t} == {f.name for f in fields(Sensor
 
 @dataclass(frozen=True)
 class SensorsSpec:
-    feed: str = "truth"                 # "truth" (ODOMETRY) | "hil" (sensor messages)
+    feed: str = "hil"                   # "hil" (sensor messages) | "truth" (ODOMETRY)
     flow_floor: str = "auto"
     gps: bool = False
     params: SensorParams = SensorParams()
@@ -135,7 +136,7 @@ def parse_sensors(s: Mapping[str, Any], vehicle: str) -> SensorsSpec:
     if p.range_max_m <= p.range_min_m:
         raise ScenarioError("sensors.range.range_max_m", p.range_max_m,
                             f"more than range_min_m = {p.range_min_m:g}")
-    return SensorsSpec(feed=string(s, "feed", "sensors", "truth", ("truth", "hil")),
+    return SensorsSpec(feed=string(s, "feed", "sensors", "hil", ("hil", "truth")),
                        flow_floor=string(s, "flow_floor", "sensors", "auto",
                                          ("auto", "textured", "plain")),
                        gps=boolean(s.get("gps", {}), "enabled", "sensors.gps", False),

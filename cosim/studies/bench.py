@@ -17,7 +17,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cosim.studies.bench_common import ROOT, SEED, _per_call_us, _stat  # noqa: F401
+from cosim.studies.bench_common import (  # noqa: F401
+    ROOT,
+    SEED,
+    _per_call_us,
+    _stat,
+    seed_scenario,
+)
 from cosim.studies.bench_flood import bench_flood, format_flood
 from cosim.studies.bench_paper2 import bench_paper2, format_paper2
 from cosim.studies.bench_tick import bench_tick_breakdown, floor_estimate
@@ -220,12 +226,9 @@ def bench_front(n: int, repeats: int) -> dict[str, Any]:
 
 def bench_mission(mode: str, repeats: int, sets: dict[str, Any] | None = None,
                   **opts: Any) -> dict[str, Any]:
-    from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import RunOptions, run_scenario
 
-    sc = load_scenario(SEED)
-    if sets:
-        sc = with_set(sc, sets)
+    sc = seed_scenario(sets)
     rtf, loop_rtf, sim = [], [], []
     reason = ""
     for _ in range(repeats):

@@ -11,6 +11,16 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[2]
 SEED = ROOT / "scenarios" / "mambo_seed_track.toml"
+# the bench's seed-mission figures are truth-fed (ODOMETRY, the figures' history and targets)
+# unless a figure says otherwise: the default feed is the sensors (feed = "hil")
+TRUTH_FEED = {"sensors.feed": "truth"}
+
+
+def seed_scenario(sets: dict[str, Any] | None = None):
+    """The seed mission, truth-fed unless `sets` says otherwise (e.g. {"sensors.feed": "hil"})."""
+    from cosim.scenario.parse import load_scenario, with_set
+
+    return with_set(load_scenario(SEED), {**TRUTH_FEED, **(sets or {})})
 
 
 def _per_call_us(fn: Callable[[], Any], n: int, repeats: int) -> list[float]:

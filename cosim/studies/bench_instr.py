@@ -49,11 +49,12 @@ VARIANTS: dict[str, dict[str, str]] = {
 # the script each process runs: fly the seed mission `n` times (MIL), print the ticks
 _SCRIPT = """
 import sys
-from cosim.scenario.parse import load_scenario
+from cosim.scenario.parse import load_scenario, with_set
 from cosim.sim.master import RunOptions, run_scenario
 ticks = 0
+sc = with_set(load_scenario(sys.argv[1]), {"sensors.feed": sys.argv[3]})
 for _ in range(int(sys.argv[2])):
-    ticks = run_scenario(load_scenario(sys.argv[1]), RunOptions(mode="mil")).ticks
+    ticks = run_scenario(sc, RunOptions(mode="mil")).ticks
 print("ticks", ticks)
 """
 _IREFS = re.compile(r"I\s+refs:\s+([\d,]+)")
@@ -102,11 +103,11 @@ def parts_per_tick(incl: dict[str, int], ticks: int, total_per_tick: float) -> d
     return parts
 
 
-def _callgrind_parts(valgrind: str, annotate: str, scenario: Path, tmp: Path
-                     ) -> tuple[dict[str, int], int]:
+def _callgrind_parts(valgrind: str, annotate: str, scenario: Path, tmp: Path,
+                     feed: str = "truth") -> tuple[dict[str, int], int]:
     out = tmp / "callgrind.now"
     cmd = [valgrind, "--tool=callgrind", f"--callgrind-out-file={out}", sys.executable, "-c",
-           _SCRIPT, str(scenario), "1"]
+           _SCRIPT, str(scenario), "1", feed]
     p = subprocess.run(cmd, capture_output=True, text=True, check=False)
     m = re.search(r"^ticks (\d+)$", p.stdout, re.M)
     if p.returncode != 0 or m is None:
@@ -125,12 +126,12 @@ def parse_irefs(text: str) -> int:
 
 
 def _count(valgrind: str, env_extra: dict[str, str], runs: int, scenario: Path,
-           tmp: Path) -> tuple[int, int]:
+           tmp: Path, feed: str = "truth") -> tuple[int, int]:
     """(instructions, ticks of one mission) of a process flying the scenario `runs` times."""
     env = dict(os.environ, **env_extra)
     out = tmp / f"cachegrind.{'-'.join(env_extra) or 'now'}.{runs}"
     cmd = [valgrind, "--tool=cachegrind", "--cache-sim=no", f"--cachegrind-out-file={out}",
-           sys.executable, "-c", _SCRIPT, str(scenario), str(runs)]
+           sys.executable, "-c", _SCRIPT, str(scenario), str(runs), feed]
     p = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
     if p.returncode != 0:
         raise RuntimeError(f"cachegrind run failed ({p.returncode}): {p.stderr[-2000:]}")
@@ -141,9 +142,11 @@ def _count(valgrind: str, env_extra: dict[str, str], runs: int, scenario: Path,
 
 
 def bench_instructions(scenario: Path = SEED, valgrind: str | None = None,
-                       workers: int = 2, parts: bool = True) -> dict[str, Any]:
+                       workers: int = 2, parts: bool = True, feed: str = "truth"
+                       ) -> dict[str, Any]:
     """Instructions per MIL tick for each variant, and before / now; with `parts` (and
-    callgrind_annotate on PATH) where the compiled tick's go."""
+    callgrind_annotate on PATH) where the compiled tick's go. `feed`: the scenario's
+    `[sensors] feed` (truth-fed by default, the figure's history; "hil": on the sensors)."""
     valgrind = valgrind or shutil.which("valgrind")
     if valgrind is None:
         raise ToolMissing("--instructions counts instructions with Valgrind's cachegrind, and "
@@ -151,14 +154,14 @@ def bench_instructions(scenario: Path = SEED, valgrind: str | None = None,
     jobs = [(name, runs) for name in VARIANTS for runs in (1, 2)]
     with tempfile.TemporaryDirectory(prefix="cosim-instr-") as d, \
             ThreadPoolExecutor(max_workers=workers) as pool:
-        futs = {job: pool.submit(_count, valgrind, VARIANTS[job[0]], job[1], scenario, Path(d))
-                for job in jobs}
+        futs = {job: pool.submit(_count, valgrind, VARIANTS[job[0]], job[1], scenario, Path(d),
+                                 feed) for job in jobs}
         annotate = shutil.which("callgrind_annotate") if parts else None
-        cg = (pool.submit(_callgrind_parts, valgrind, annotate, scenario, Path(d))
+        cg = (pool.submit(_callgrind_parts, valgrind, annotate, scenario, Path(d), feed)
               if annotate else None)
         got = {job: f.result() for job, f in futs.items()}
         incl = cg.result() if cg is not None else None
-    res: dict[str, Any] = {"scenario": str(scenario)}
+    res: dict[str, Any] = {"scenario": str(scenario), "feed": feed}
     for name in VARIANTS:
         (i1, ticks), (i2, ticks2) = got[(name, 1)], got[(name, 2)]
         if ticks != ticks2 or ticks <= 0:

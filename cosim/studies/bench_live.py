@@ -18,8 +18,6 @@ from typing import Any
 
 import numpy as np
 
-SEED = Path(__file__).resolve().parents[2] / "scenarios" / "mambo_seed_track.toml"
-
 
 class _Watcher:
     """A Foxglove WebSocket client that subscribes to every channel and counts messages."""
@@ -87,10 +85,10 @@ class _WhenSubscribed:
 
 def bench_live(t_final_s: float = 30.0, repeats: int = 3) -> dict[str, Any]:
     from cosim.outputs.live import LiveView
-    from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import RunOptions, run_scenario
+    from cosim.studies.bench_common import seed_scenario
 
-    sc = with_set(load_scenario(SEED), {"timing.t_final_s": t_final_s})
+    sc = seed_scenario({"timing.t_final_s": t_final_s})      # truth-fed
     out: dict[str, Any] = {"scenario": sc.name, "t_final_s": t_final_s, "repeats": repeats}
     reference = None
     with TemporaryDirectory() as tmp:

@@ -8,7 +8,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from cosim.studies.bench_common import SEED
+from cosim.studies.bench_common import seed_scenario
 
 # (module, class, method, label, parent label or None, set-up method or None): the parts of a
 # MIL tick, timed by wrapping them (bench_tick_breakdown). With a set-up method: `method` is an
@@ -117,12 +117,9 @@ def bench_tick_breakdown(repeats: int = 3, sets: dict[str, Any] | None = None
     timers' Python frames called from the compiled tick cost far more than a timer measured
     alone, and that went into the master loop's and the onboard tick's figures.)
     """
-    from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import RunOptions, run_scenario
 
-    sc = load_scenario(SEED)
-    if sets:           # e.g. {"sensors.feed": "hil"}: the tick of the sensor-fed mission
-        sc = with_set(sc, sets)
+    sc = seed_scenario(sets)   # truth-fed; {"sensors.feed": "hil"}: the sensor-fed tick
     acc: dict[str, list[int]] = {}
     clock = time.perf_counter_ns
 

@@ -12,7 +12,7 @@ from cosim.errors import ScenarioError
 MONTECARLO_EXAMPLES = """examples:
   cosim montecarlo scenarios/mambo_seed_track.toml -n 200 --seed 1 \\
       --vary 'wind.n_mps=uniform(0,1.5)' \\
-      --vary 'sensors.odometry_noise.pos_std_m=truncnormal(0,0.01,0,0.05)' \\
+      --vary 'sensors.flow.flow_noise_rad_s=truncnormal(0.02,0.01,0,0.05)' \\
       --vary 'vehicle.start.yaw_deg=normal(0,15)'
   cosim montecarlo scenarios/scripted_square.toml -n 50 --vary 'wind.e_mps=choice(0,0.5,1)' \\
       --scheduler tcp://HOST:8786

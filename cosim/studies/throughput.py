@@ -30,7 +30,7 @@ from cosim.studies.study import montecarlo_jobs
 from cosim.studies.table import ResultsTable
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "mambo_seed_track.toml"
-VARY = ["wind.n_mps=uniform(0,0.3)", "sensors.odometry_noise.pos_std_m=uniform(0,0.005)"]
+VARY = ["wind.n_mps=uniform(0,0.3)", "sensors.flow.flow_noise_rad_s=uniform(0.01,0.04)"]
 
 
 def _study(executor: str, workers: int, runs: int, t_final: float):
