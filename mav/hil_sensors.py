@@ -134,7 +134,9 @@ def encode_truth(mav, t_us: int, q: tuple, pqr: tuple, lat_e7: int, lon_e7: int,
                bad=cython.long)
 def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
     """The sensor frames of one HIL datagram: ({msgid: payload tuple in wire order}, number
-    of frames that were not well-formed sensor messages). ({}, n) for anything else."""
+    of frames that were not well-formed sensor messages). ({}, n) for anything else.
+    HIL_STATE_QUATERNION (the truth, for the simulator's logs; the vehicle never reads it) is
+    checked like the others but not unpacked: it has no entry."""
     out: dict[int, tuple] = {}
     bad = 0
     i, n = 0, len(data)
@@ -143,11 +145,17 @@ def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
         if end < 0:
             return out, bad + 1
         m = SENSOR_MSGS.get(wire.msgid_of(data, i))
-        f = wire.decode_fast(m, data, i, end) if m is not None else None
-        if f is None:
+        if m is None:
             bad += 1
+        elif m is HIL_STATE_QUATERNION:
+            if not wire.frame_ok(m, data, i, end):
+                bad += 1
         else:
-            out[m.id] = f
+            f = wire.decode_fast(m, data, i, end)
+            if f is None:
+                bad += 1
+            else:
+                out[m.id] = f
         i = end
     return out, bad
 

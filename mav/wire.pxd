@@ -1,6 +1,9 @@
 # Types Cython reads beside mav/wire.py (which stays plain Python): a message layout's fields
 # as C fields, read directly by the compiled encoders and decoders.
 
+from mav cimport crc as _crc
+
+
 cdef class FastMsg:
     cdef public object cls, name, extra, st, id3, zeros
     cdef public long id, crc_extra
@@ -12,9 +15,14 @@ cdef class FastMsg:
 cpdef bytes frame(mav, FastMsg m, bytes payload)
 cpdef Py_ssize_t frame_end(bytes data, Py_ssize_t i=*) except? -2
 cpdef long msgid_of(bytes data, Py_ssize_t i=*) except? -1
+cpdef bint frame_ok(FastMsg m, bytes data, Py_ssize_t i, Py_ssize_t end) except -1
 cpdef decode_fast(FastMsg m, bytes data, Py_ssize_t i=*, Py_ssize_t end=*)
 
 
 cdef class FlatEarth:
     cdef public double lat0_deg, lon0_deg, alt0_m, _dlat_dn, _dlon_de
     cpdef tuple to_geodetic(self, double n_m, double e_m, double d_m)
+    cpdef tuple to_int(self, double n_m, double e_m, double d_m)
+
+
+cpdef double round_even(double x)

@@ -265,3 +265,45 @@ def test_decode_hil_actuator_controls_matches_decode_fast():
             assert wire.decode_hil_actuator_controls(bytes(bad)) is None
     assert wire.decode_hil_actuator_controls(d + d) is None      # exactly one frame
     assert wire.decode_hil_actuator_controls(b"") is None
+
+
+_BOTH_MODES = """
+import random, sys
+from fastcrc.crc16 import mcrf4xx
+from mav import crc, wire
+r = random.Random(7)
+for n in list(range(0, 300)) * 3:   # every length, at offsets, against fastcrc (pymavlink's)
+    d = bytes(r.randrange(256) for _ in range(n + 3))
+    i, extra = r.randrange(3), r.randrange(256)
+    assert crc.crc_of(d, i, i + n, extra) == mcrf4xx(d[i:i + n] + bytes((extra,))), n
+    assert crc._crc16_py(d[:n]) == mcrf4xx(d[:n])
+vals = [k / 2 for k in range(-20, 21)] + [k + 0.5 for k in (2**51, -2**51, 2**52 - 1)]
+vals += [0.5 + 2**-54 - 1, -0.5 + 2**-54, -2**-60, 0.49999999999999994, -0.0, 1e300, -1e300]
+vals += [r.uniform(-1e4, 1e4) for _ in range(20000)] + [r.uniform(-2, 2) for _ in range(20000)]
+for v in vals:
+    assert int(wire.round_even(v)) == round(v), v
+for v in (float("nan"), float("inf")):
+    for f in (lambda: round(v), lambda: int(wire.round_even(v))):
+        try:
+            f()
+        except (ValueError, OverflowError) as e:
+            print(type(e).__name__)
+print(sys.modules["mav.crc"].__file__.endswith(".py"))
+"""
+
+
+@pytest.mark.parametrize("compiled", ["1", "0"])
+def test_checksum_and_rounding_are_pythons_compiled_and_interpreted(compiled):
+    """crc_of (C over the frame's buffer when compiled) against fastcrc, and round_even (C
+    doubles when compiled) against Python's round, halves and NaN/inf included."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, COSIM_COMPILED=compiled)
+    p = subprocess.run([sys.executable, "-c", _BOTH_MODES], env=env, capture_output=True,
+                       text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.split()
+    assert lines[:4] == ["ValueError", "ValueError", "OverflowError", "OverflowError"]
+    assert lines[4] == ("True" if compiled == "0" else "False")   # the mode asked for
