@@ -5,6 +5,8 @@ from mav cimport wire
 from mav.wire cimport FastMsg
 
 cpdef bytes stamped(mav, FastMsg m, t_us, bytes rest)
+cpdef bytes stamp(FastMsg m, t_us, bytes rest)
+cpdef bytes frames(mav, list parts)
 cpdef bytes hil_sensor_rest(double ax, double ay, double az, double gx, double gy, double gz,
                             double mx, double my, double mz, double abs_hpa, double p_alt,
                             double temp_c, long fields)

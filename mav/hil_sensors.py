@@ -51,6 +51,7 @@ def _rest(m: wire.FastMsg) -> struct.Struct:
     return struct.Struct("<" + m.st.format[2:])
 
 
+_HDR2 = cython.declare(cython.Py_ssize_t, wire.HEADER_LEN_V2)
 _STAMP_US = struct.Struct("<Q")
 _STAMP_MS = struct.Struct("<I")
 _SENSOR_REST = _rest(HIL_SENSOR)
@@ -63,9 +64,43 @@ _TRUTH_REST = _rest(HIL_STATE_QUATERNION)
 def stamped(mav, m: wire.FastMsg, t_us: int, rest: bytes) -> bytes:
     """The frame of message m stamped t_us (us; ms for DISTANCE_SENSOR) with the payload's
     other fields `rest` (packed by the *_rest functions below)."""
+    return wire.frame(mav, m, stamp(m, t_us, rest))
+
+
+def stamp(m: wire.FastMsg, t_us: int, rest: bytes) -> bytes:
+    """The payload of message m: its stamp t_us (us; ms for DISTANCE_SENSOR), then `rest`."""
     if m is DISTANCE_SENSOR:
-        return wire.frame(mav, m, _STAMP_MS.pack(t_us // 1000) + rest)
-    return wire.frame(mav, m, _STAMP_US.pack(t_us) + rest)
+        return _STAMP_MS.pack(t_us // 1000) + rest
+    return _STAMP_US.pack(t_us) + rest
+
+
+@cython.locals(parts=list, k=cython.Py_ssize_t, i=cython.Py_ssize_t, n=cython.Py_ssize_t,
+               size=cython.Py_ssize_t, at=cython.Py_ssize_t, seq=cython.int,
+               sysid=cython.int, compid=cython.int, out=bytes)
+def frames(mav, parts: list) -> bytes:
+    """The frames of parts = [message, payload, message, payload, ...] back to back: the
+    same bytes as b"".join(wire.frame(mav, m, payload) for each pair), one seq each, built
+    in one buffer with mav's fields read once (the sensor datagram of a tick)."""
+    k = len(parts) // 2
+    if mav.signing.sign_outgoing:
+        return b"".join([wire.frame(mav, parts[2 * i], parts[2 * i + 1]) for i in range(k)])
+    seq = mav.seq
+    mav.seq = (seq + k) & 0xFF
+    sysid, compid = mav.srcSystem, mav.srcComponent
+    size = 0
+    for i in range(k):
+        size += wire.trimmed_len(parts[2 * i + 1]) + _HDR2 + 2
+    if cython.compiled:
+        out = bytes(size)
+    else:
+        out = bytearray(size)
+    at = 0
+    for i in range(k):
+        payload = parts[2 * i + 1]
+        n = wire.trimmed_len(payload)
+        wire.put_frame(out, at, (seq + i) & 0xFF, sysid, compid, parts[2 * i], payload, n)
+        at += _HDR2 + n + 2
+    return out if cython.compiled else bytes(out)
 
 
 def hil_sensor_rest(ax: float, ay: float, az: float, gx: float, gy: float, gz: float,

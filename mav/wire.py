@@ -134,9 +134,7 @@ assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
 
 
 # ----------------------------------------------------------------------------------- encoding
-@cython.locals(seq=cython.int, n=cython.Py_ssize_t, size=cython.Py_ssize_t, mid=cython.long,
-               crc=cython.long, k=cython.Py_ssize_t, out=bytes, p=cython.p_uchar,
-               q=cython.p_uchar)
+@cython.locals(seq=cython.int, n=cython.Py_ssize_t, out=bytes)
 def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     """Frame a packed payload as MAVLink 2, as `mav.send(msg)` would (and advance mav.seq).
 
@@ -157,34 +155,52 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
         signed += hashlib.sha256(signing.secret_key + signed).digest()[:6]
         signing.timestamp += 1
         return signed
-    # one buffer written in place: header, payload with its trailing zeros trimmed, checksum
-    # (compiled: a new bytes object's own C buffer; interpreted: a bytearray)
+    n = trimmed_len(payload)
+    if cython.compiled:
+        out = bytes(_HDR2 + n + 2)
+    else:
+        out = bytearray(_HDR2 + n + 2)
+    put_frame(out, 0, seq, mav.srcSystem, mav.srcComponent, m, payload, n)
+    return out if cython.compiled else bytes(out)
+
+
+@cython.locals(n=cython.Py_ssize_t)
+def trimmed_len(payload: bytes) -> int:
+    """The payload's length less its trailing zero bytes (at least one byte stays)."""
     n = len(payload)
     while n > 1 and payload[n - 1] == 0:
         n -= 1
-    size = _HDR2 + n + 2
+    return n
+
+
+@cython.locals(p=cython.p_uchar, q=cython.p_uchar, k=cython.Py_ssize_t, mid=cython.long,
+               crc=cython.long)
+def put_frame(out: bytes, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
+              payload: bytes, n: int) -> int:
+    """Write the unsigned MAVLink 2 frame of payload[:n] at out[at:at + n + 12]: header,
+    payload, checksum (compiled: into a new bytes object's own C buffer; interpreted: out is
+    a bytearray)."""
     if cython.compiled:
-        out = bytes(size)
-        p = cython.cast(cython.p_uchar, cython.cast(cython.p_char, out))
+        p = cython.cast(cython.p_uchar, cython.cast(cython.p_char, out)) + at
         q = cython.cast(cython.p_uchar, cython.cast(cython.p_char, payload))
         for k in range(n):
             p[_HDR2 + k] = q[k]
     else:
-        p = out = bytearray(size)
+        p = memoryview(out)[at:]
         p[_HDR2:_HDR2 + n] = payload[:n]
     p[0] = _MAGIC2
     p[1] = n
     p[4] = seq
-    p[5] = mav.srcSystem
-    p[6] = mav.srcComponent
+    p[5] = sysid
+    p[6] = compid
     mid = m.id
     p[7] = mid & 0xFF
     p[8] = (mid >> 8) & 0xFF
     p[9] = mid >> 16
-    crc = _crc.crc_of(out, 1, _HDR2 + n, m.crc_extra)
-    p[size - 2] = crc & 0xFF
-    p[size - 1] = crc >> 8
-    return out if cython.compiled else bytes(out)
+    crc = _crc.crc_of(out, at + 1, at + _HDR2 + n, m.crc_extra)
+    p[_HDR2 + n] = crc & 0xFF
+    p[_HDR2 + n + 1] = crc >> 8
+    return 0
 
 
 def pack(mav, m: FastMsg, *values) -> bytes:
@@ -457,18 +473,3 @@ def euler_from_quat(qw: float, qx: float, qy: float, qz: float) -> tuple[float, 
 def yaw_from_quat(qw: float, qx: float, qy: float, qz: float) -> float:
     """Heading (rad, ZYX yaw) of the body->world quaternion."""
     return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-
-
-# ------------------------------------------------------------------------------ benchmark
-def bench(n: int = 20000, repeat: int = 5) -> dict[str, tuple[float, float]]:
-    """us per message (pymavlink, fast) for encode and decode of the per-tick messages:
-    mav/wire_bench.py. `python -m mav.wire` prints the table."""
-    from mav.wire_bench import bench as run
-
-    return run(n, repeat)
-
-
-if __name__ == "__main__":
-    from mav.wire_bench import main
-
-    main()

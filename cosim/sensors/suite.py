@@ -121,13 +121,15 @@ class SensorSuite:
         q = self.queue
         q.append(self.read(t_us, y))
         parts = q.pop(0) if len(q) > self.delay else q[0]
-        mav = self.mav
         out = []
         n = len(parts)
         for i in range(0, n, 2):       # (message, payload less its stamp) pairs
-            out.append(hs.stamped(mav, parts[i], t_us, parts[i + 1]))
-        out.append(hs.stamped(mav, hs.HIL_STATE_QUATERNION, t_us, self.truth))
-        return b"".join(out)
+            m = parts[i]
+            out.append(m)
+            out.append(hs.stamp(m, t_us, parts[i + 1]))
+        out.append(hs.HIL_STATE_QUATERNION)
+        out.append(hs.stamp(hs.HIL_STATE_QUATERNION, t_us, self.truth))
+        return hs.frames(self.mav, out)
 
     @cython.locals(k=cython.longlong, t=cython.double, qw=cython.double, qx=cython.double,
                    qy=cython.double, qz=cython.double, pr=cython.double, qr=cython.double,
