@@ -2,10 +2,13 @@
 # parameters and state as C fields, its IMU filters and noise streams as compiled objects.
 from cosim.sensors.imu cimport Gauss, Imu3
 from mav cimport hil_sensors as hs
+from mav cimport wire
+from mav.wire cimport FlatEarth
 
 
 cdef class SensorSuite:
-    cdef public object p, spec, mav, home, geo, faults, range_cm
+    cdef public object p, spec, mav, home, faults, range_cm
+    cdef public FlatEarth geo
     cdef public list n, queue, active, fired
     cdef public set _seen
     cdef public dict counts

@@ -49,6 +49,7 @@ from cosim.plant.fmu import (
 from cosim.sensors.imu import Gauss, Imu3
 from cosim.sensors.spec import SensorsSpec
 from mav import hil_sensors as hs
+from mav import wire
 from mav.hil import SIM_COMPID, SIM_SYSID
 from mav.onboard.config import OnboardConfig
 from mav.wire import FlatEarth
@@ -288,11 +289,26 @@ class SensorSuite:
                 self.fired.append((t, f"sensor {f.kind}"))
 
 
-def _round(v: float) -> int:
-    """int(round(v)), as Python rounds (half to even; an untyped argument, so that compiled
-    code calls Python's round too)."""
-    return int(round(v))
+@cython.cfunc
+@cython.returns(cython.longlong)
+@cython.locals(v=cython.double, r=cython.double)
+def _round(v) -> int:
+    """int(round(v)), as Python rounds (half to even: wire.round_even, in C doubles when
+    compiled); a NaN or an infinity raises as round() does."""
+    r = wire.round_even(v)
+    if not -9.2e18 < r < 9.2e18:
+        return int(r)              # raises (a NaN, an infinity), or too large for the field
+    return cython.cast(cython.longlong, r)
 
 
-def _cms(v: float) -> int:
-    return max(-32767, min(32767, int(round(v * 100))))
+@cython.cfunc
+@cython.returns(cython.long)
+@cython.locals(v=cython.double, c=cython.double)
+def _cms(v) -> int:
+    """cm/s, rounded as Python rounds and saturated to +-32767 (a NaN raises)."""
+    c = v * 100.0
+    if c >= 32767.0:
+        return 32767
+    if c <= -32767.0:
+        return -32767
+    return _round(c)
