@@ -334,29 +334,33 @@ def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | N
 def one_frame_decoder(m: FastMsg, used: struct.Struct):
     """A decoder for a datagram holding exactly one frame of `m`: the leading fields that
     `used` unpacks (same offsets as m's payload), or None. Same checks and values as
-    `decode_fast(m, ...)` on those fields (`used = m.st`: all of them); for the per-tick paths."""
-    id3, zeros, used_len, crc_extra = m.id3, m.zeros, used.size, m.crc_extra
+    `decode_fast(m, ...)` on those fields (`used = m.st`: all of them); for the per-tick paths.
+    `decode(data, i, end)` reads the datagram data[i:end] in place (a part of a larger one)."""
+    mid, zeros, used_len, crc_extra = m.id, m.zeros, used.size, m.crc_extra
     unpack, unpack_from = used.unpack, used.unpack_from
 
-    @cython.locals(data=bytes, n=cython.Py_ssize_t, flags=cython.long, crc_at=cython.Py_ssize_t,
-                   plen=cython.Py_ssize_t)
-    def decode(data: bytes) -> tuple | None:
-        n = len(data)
-        if n < 12 or data[0] != _MAGIC2 or data[7:10] != id3:
+    @cython.locals(data=bytes, i=cython.Py_ssize_t, end=cython.Py_ssize_t,
+                   flags=cython.long, crc_at=cython.Py_ssize_t, plen=cython.Py_ssize_t)
+    def decode(data: bytes, i: int = 0, end: int = -1) -> tuple | None:
+        # data[i:end] (end < 0: to the end of data) is the datagram: one frame, nothing else
+        if end < 0:
+            end = len(data)
+        if i < 0 or end > len(data) or end - i < 12 or data[i] != _MAGIC2 or msgid_of(
+                data, i) != mid:
             return None
-        flags = data[2]
-        crc_at = _HDR2 + data[1]
+        flags = data[i + 2]
+        crc_at = i + _HDR2 + data[i + 1]
         if flags == 0:
-            if n != crc_at + 2:
+            if end != crc_at + 2:
                 return None
-        elif flags != _SIGNED or n != crc_at + 2 + _SIGLEN:
+        elif flags != _SIGNED or end != crc_at + 2 + _SIGLEN:
             return None
-        if _crc.crc_of(data, 1, crc_at, crc_extra) != (data[crc_at] | data[crc_at + 1] << 8):
+        if _crc.crc_of(data, i + 1, crc_at, crc_extra) != (data[crc_at] | data[crc_at + 1] << 8):
             return None
-        plen = data[1]
+        plen = data[i + 1]
         if plen >= used_len:
-            return unpack_from(data, _HDR2)
-        return unpack(data[_HDR2:crc_at] + zeros[plen:used_len])
+            return unpack_from(data, i + _HDR2)
+        return unpack(data[i + _HDR2:crc_at] + zeros[plen:used_len])
 
     return decode
 

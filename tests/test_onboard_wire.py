@@ -308,3 +308,21 @@ def test_checksum_and_rounding_are_pythons_compiled_and_interpreted(compiled):
     lines = p.stdout.split()
     assert lines[:4] == ["ValueError", "ValueError", "OverflowError", "OverflowError"]
     assert lines[4] == ("True" if compiled == "0" else "False")   # the mode asked for
+
+
+def test_one_frame_decoders_read_a_window_of_a_datagram_in_place():
+    """decode(data, i, end): the datagram data[i:end] in place, as the same bytes alone."""
+    a = M.MAVLink(None, 1, 1)
+    cov = [0.0] * 21
+    odo = M.MAVLink_odometry_message(5, 1, 1, 1, 2, 3, [1, 0, 0, 0], 0, 0, 0, 0, 0, 0, cov,
+                                     cov, 0, 0, 50).pack(a)
+    hac = wire.encode_hil_actuator_controls(a, 7, 0.1, 0.2, 0.3, 0.4, 129)
+    both = hac + odo
+    assert wire.decode_hil_actuator_controls(both, 0, len(hac)) == \
+        wire.decode_hil_actuator_controls(hac)
+    assert wire.decode_odometry(both, len(hac)) == wire.decode_odometry(odo) is not None
+    assert wire.decode_odometry(both, len(hac), len(both)) == wire.decode_odometry(odo)
+    for i, end in ((0, -1), (len(hac), len(both) - 1), (len(hac) + 1, -1), (-1, -1),
+                   (len(hac), len(both) + 1), (len(both), -1)):
+        assert wire.decode_odometry(both, i, end) is None
+    assert wire.decode_hil_actuator_controls(both) is None     # two frames: not one datagram

@@ -60,10 +60,10 @@ class SensorFeed:
         """(t_us, u1..u4) of the answer's HIL_ACTUATOR_CONTROLS (ValueError if it has none,
         as HilSimulatorCodec's); its estimate (if any) is logged."""
         end = wire.frame_end(ans, 0)
-        act = wire.decode_hil_actuator_controls(ans[:end]) if end > 0 else None
+        act = wire.decode_hil_actuator_controls(ans, 0, end) if end > 0 else None
         if act is None:
             raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(ans)} bytes)")
-        od = wire.decode_odometry(ans[end:]) if end < len(ans) else None
+        od = wire.decode_odometry(ans, end) if end < len(ans) else None
         est = self.est
         if od is None:
             self.bad_answers += 1
