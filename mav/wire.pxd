@@ -5,7 +5,7 @@ from mav cimport crc as _crc
 
 
 cdef class FastMsg:
-    cdef public object cls, name, extra, st, id3, zeros
+    cdef public object cls, name, extra, st, id3, zeros, unpack_from
     cdef public long id, crc_extra
     cdef public Py_ssize_t size
 
