@@ -58,7 +58,7 @@ _SENSOR_REST = _rest(HIL_SENSOR).pack      # the packers bound once, as the stam
 _FLOW_REST = _rest(HIL_OPTICAL_FLOW).pack
 _DIST_REST = _rest(DISTANCE_SENSOR).pack
 _GPS_REST = _rest(HIL_GPS).pack
-_TRUTH_REST = _rest(HIL_STATE_QUATERNION).pack
+_TRUTH = HIL_STATE_QUATERNION.st.pack
 
 
 def stamped(mav, m: wire.FastMsg, t_us: int, rest: bytes) -> bytes:
@@ -128,11 +128,13 @@ def gps_rest(lat_e7: int, lon_e7: int, alt_mm: int, eph_cm: int, vn_cms: int, ve
                           vd_cms, 65535, 3, 10, 0, 0)
 
 
-def truth_rest(qw: float, qx: float, qy: float, qz: float, p: float, q: float, r: float,
-               lat_e7: int, lon_e7: int, alt_mm: int, vn_cms: int, ve_cms: int,
-               vd_cms: int) -> bytes:
-    return _TRUTH_REST(qw, qx, qy, qz, p, q, r, lat_e7, lon_e7, alt_mm, vn_cms, ve_cms,
-                            vd_cms, 0, 0, 0, 0, 0)
+def truth_payload(t_us: int, qw: float, qx: float, qy: float, qz: float, p: float, q: float,
+                  r: float, lat_e7: int, lon_e7: int, alt_mm: int, vn_cms: int, ve_cms: int,
+                  vd_cms: int) -> bytes:
+    """HIL_STATE_QUATERNION's whole payload (stamped t_us: the truth is sent the tick it is
+    read, not delayed)."""
+    return _TRUTH(t_us, qw, qx, qy, qz, p, q, r, lat_e7, lon_e7, alt_mm, vn_cms, ve_cms, vd_cms,
+                  0, 0, 0, 0, 0)
 
 
 def encode_hil_sensor(mav, t_us: int, acc: tuple, gyro: tuple, mag: tuple, abs_hpa: float,
@@ -160,13 +162,13 @@ def encode_gps(mav, t_us: int, lat_e7: int, lon_e7: int, alt_mm: int, eph_cm: in
 
 def encode_truth(mav, t_us: int, q: tuple, pqr: tuple, lat_e7: int, lon_e7: int, alt_mm: int,
                  v_cms: tuple) -> bytes:
-    return stamped(mav, HIL_STATE_QUATERNION, t_us, truth_rest(
-        q[0], q[1], q[2], q[3], pqr[0], pqr[1], pqr[2], lat_e7, lon_e7, alt_mm, v_cms[0],
+    return wire.frame(mav, HIL_STATE_QUATERNION, truth_payload(
+        t_us, q[0], q[1], q[2], q[3], pqr[0], pqr[1], pqr[2], lat_e7, lon_e7, alt_mm, v_cms[0],
         v_cms[1], v_cms[2]))
 
 
 @cython.locals(i=cython.Py_ssize_t, n=cython.Py_ssize_t, end=cython.Py_ssize_t,
-               bad=cython.long)
+               bad=cython.long, m=wire.FastMsg)
 def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
     """The sensor frames of one HIL datagram: ({msgid: payload tuple in wire order}, number
     of frames that were not well-formed sensor messages). ({}, n) for anything else.

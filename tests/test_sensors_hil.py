@@ -249,10 +249,12 @@ def test_a_sensor_datagram_framed_at_once_is_its_frames_one_by_one(signed):
                                                 1013.2, 1.5, 25.0, 0x1FFF)),
              (hs.DISTANCE_SENSOR, hs.distance_rest(44, 400, 0, hs.NO_ECHO)),
              (hs.HIL_OPTICAL_FLOW, hs.flow_rest(20000, 0.0, 0.0, 0.0, 0.0, 0.0, 0)),
-             (hs.HIL_STATE_QUATERNION, hs.truth_rest(1.0, 0, 0, 0, 0, 0, 0, 1, 2, 3, 0, 0, 0))]
+             ]
     parts = []
     for m, rest in rests:
         parts += [m, hs.stamp(m, 123456789, rest)]
+    parts += [hs.HIL_STATE_QUATERNION,
+              hs.truth_payload(123456789, 1.0, 0, 0, 0, 0, 0, 0, 1, 2, 3, 0, 0, 0)]
     one_by_one = b"".join(wire.frame(a, parts[i], parts[i + 1]) for i in range(0, 8, 2))
     assert hs.frames(b, parts) == one_by_one
     assert a.seq == b.seq == 2 and a.signing.timestamp == b.signing.timestamp

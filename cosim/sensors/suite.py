@@ -129,7 +129,7 @@ class SensorSuite:
             out.append(m)
             out.append(hs.stamp(m, t_us, parts[i + 1]))
         out.append(hs.HIL_STATE_QUATERNION)
-        out.append(hs.stamp(hs.HIL_STATE_QUATERNION, t_us, self.truth))
+        out.append(self.truth)
         return hs.frames(self.mav, out)
 
     @cython.locals(k=cython.longlong, t=cython.double, qw=cython.double, qx=cython.double,
@@ -150,7 +150,7 @@ class SensorSuite:
     def read(self, t_us: int, y) -> list:
         """The readings of y(t_k) as (message, payload less its stamp) pairs, flat (the delay
         line sends them one tick later, stamped with the lockstep time then); the truth of
-        y(t_k) in `truth`."""
+        y(t_k) in `truth` (HIL_STATE_QUATERNION's payload, stamped t_k)."""
         k = self.k
         self.k = k + 1
         t = t_us * 1e-6
@@ -264,8 +264,8 @@ class SensorSuite:
         if self.gps and k % self.p.gps_every == 0:
             parts += self._gps(y)
         lat, lon, alt = self.geo.to_int(y[Y_X] - self.home_n, y[Y_Y] - self.home_e, y[Y_Z])
-        self.truth = hs.truth_rest(qw, qx, qy, qz, pr, qr, rr, lat, lon, alt, _cms(vx),
-                                   _cms(vy), _cms(vz))
+        self.truth = hs.truth_payload(t_us, qw, qx, qy, qz, pr, qr, rr, lat, lon, alt,
+                                      _cms(vx), _cms(vy), _cms(vz))
         return parts
 
     def _gps(self, y) -> list:
