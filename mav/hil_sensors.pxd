@@ -6,6 +6,7 @@ from mav.wire cimport FastMsg
 
 cpdef bytes stamped(mav, FastMsg m, t_us, bytes rest)
 cpdef bytes stamp(FastMsg m, t_us, bytes rest)
+cpdef list stamp_all(list parts, t_us, list out)
 cpdef bytes frames(mav, list parts)
 cpdef bytes hil_sensor_rest(double ax, double ay, double az, double gx, double gy, double gz,
                             double mx, double my, double mz, double abs_hpa, double p_alt,

@@ -69,9 +69,26 @@ def stamped(mav, m: wire.FastMsg, t_us: int, rest: bytes) -> bytes:
 
 def stamp(m: wire.FastMsg, t_us: int, rest: bytes) -> bytes:
     """The payload of message m: its stamp t_us (us; ms for DISTANCE_SENSOR), then `rest`."""
-    if m is DISTANCE_SENSOR:
-        return _STAMP_MS(t_us // 1000) + rest
-    return _STAMP_US(t_us) + rest
+    return stamp_all([m, rest], t_us, [])[1]
+
+
+@cython.locals(parts=list, out=list, i=cython.Py_ssize_t)
+def stamp_all(parts: list, t_us: int, out: list) -> list:
+    """`out` with the pairs of parts = [message, rest, message, rest, ...] appended as
+    [message, payload, ...], each payload `stamp`ed t_us (each stamp packed once a call)."""
+    us = _STAMP_US(t_us)
+    ms = None
+    for i in range(0, len(parts), 2):
+        m = parts[i]
+        if m is DISTANCE_SENSOR:
+            if ms is None:
+                ms = _STAMP_MS(t_us // 1000)
+            out.append(m)
+            out.append(ms + parts[i + 1])
+        else:
+            out.append(m)
+            out.append(us + parts[i + 1])
+    return out
 
 
 @cython.locals(parts=list, k=cython.Py_ssize_t, i=cython.Py_ssize_t, n=cython.Py_ssize_t,

@@ -57,6 +57,23 @@ from mav.wire import FlatEarth
 NAN = math.nan
 INF = cython.declare(cython.double, math.inf)
 SENSOR_FIELDS = hs.FIELDS_IMU | hs.FIELDS_MAG | hs.FIELDS_BARO
+# the plant outputs' indices as C constants (read() indexes y 16 times a tick)
+_YAX = cython.declare(cython.Py_ssize_t, Y_AX)
+_YAY = cython.declare(cython.Py_ssize_t, Y_AY)
+_YAZ = cython.declare(cython.Py_ssize_t, Y_AZ)
+_YP = cython.declare(cython.Py_ssize_t, Y_P)
+_YQ = cython.declare(cython.Py_ssize_t, Y_Q)
+_YQW = cython.declare(cython.Py_ssize_t, Y_QW)
+_YQX = cython.declare(cython.Py_ssize_t, Y_QX)
+_YQY = cython.declare(cython.Py_ssize_t, Y_QY)
+_YQZ = cython.declare(cython.Py_ssize_t, Y_QZ)
+_YR = cython.declare(cython.Py_ssize_t, Y_R)
+_YVX = cython.declare(cython.Py_ssize_t, Y_VX)
+_YVY = cython.declare(cython.Py_ssize_t, Y_VY)
+_YVZ = cython.declare(cython.Py_ssize_t, Y_VZ)
+_YX = cython.declare(cython.Py_ssize_t, Y_X)
+_YY = cython.declare(cython.Py_ssize_t, Y_Y)
+_YZ = cython.declare(cython.Py_ssize_t, Y_Z)
 
 
 class SensorSuite:
@@ -106,15 +123,20 @@ class SensorSuite:
         self.active: list = []
         self.fired: list[tuple[float, str]] = []
         self._seen: set[int] = set()
-        self.counts = {"flow_msgs": 0, "range_echoes": 0, "range_none": 0, "gps_msgs": 0}
+        self.n_flow = self.n_echo = self.n_none = self.n_gps = 0    # messages sent (`counts`)
         self.k = 0
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return {"flow_msgs": self.n_flow, "range_echoes": self.n_echo,
+                "range_none": self.n_none, "gps_msgs": self.n_gps}
 
     @staticmethod
     def measure(y) -> tuple[float, ...]:
         return (y[Y_X], y[Y_Y], y[Y_Z])
 
     # ------------------------------------------------------------------ one tick
-    @cython.locals(q=list, parts=list, i=cython.Py_ssize_t, n=cython.Py_ssize_t)
+    @cython.locals(q=list, parts=list, out=list)
     def encode(self, t_us: int, y) -> bytes:
         """The datagram sent at t_us: this tick's readings are queued and the one
         `delay_ticks` old is sent (the first tick's repeated until the queue fills), then the
@@ -122,12 +144,7 @@ class SensorSuite:
         q = self.queue
         q.append(self.read(t_us, y))
         parts = q.pop(0) if len(q) > self.delay else q[0]
-        out = []
-        n = len(parts)
-        for i in range(0, n, 2):       # (message, payload less its stamp) pairs
-            m = parts[i]
-            out.append(m)
-            out.append(hs.stamp(m, t_us, parts[i + 1]))
+        out = hs.stamp_all(parts, t_us, [])     # (message, payload less its stamp) pairs
         out.append(hs.HIL_STATE_QUATERNION)
         out.append(self.truth)
         return hs.frames(self.mav, out)
@@ -157,8 +174,8 @@ class SensorSuite:
         if self.faults:
             self._update_faults(t)
         act = self.active
-        qw, qx, qy, qz = y[Y_QW], y[Y_QX], y[Y_QY], y[Y_QZ]
-        pr, qr, rr = y[Y_P], y[Y_Q], y[Y_R]
+        qw, qx, qy, qz = y[_YQW], y[_YQX], y[_YQY], y[_YQZ]
+        pr, qr, rr = y[_YP], y[_YQ], y[_YR]
         # rotation body -> world (rows); R^T v is world -> body
         r00 = 1 - 2 * (qy * qy + qz * qz)
         r01 = 2 * (qx * qy - qw * qz)
@@ -179,10 +196,10 @@ class SensorSuite:
             elif f.kind == "gyro_saturation" and f.value[0] < gsat:
                 gsat = f.value[0]
         acc, gyr = self.acc, self.gyro
-        acc.read(y[Y_AX], y[Y_AY], y[Y_AZ], ba0, ba1, ba2, self.acc_max)
+        acc.read(y[_YAX], y[_YAY], y[_YAZ], ba0, ba1, ba2, self.acc_max)
         gyr.read(pr, qr, rr, bg0, bg1, bg2, gsat)
         # barometer
-        height = -y[Y_Z]
+        height = -y[_YZ]
         g = self.g_baro
         i = g.at(1)
         pa = self.baro_p0 - self.baro_gain * height + self.baro_noise * g.buf[i]
@@ -216,12 +233,15 @@ class SensorSuite:
             for f in act:
                 if f.kind == "sonar_dropout":
                     echo = False
-            self.counts["range_echoes" if echo else "range_none"] += 1
+            if echo:
+                self.n_echo += 1
+            else:
+                self.n_none += 1
             lo, hi = self.range_cm
             parts += [hs.DISTANCE_SENSOR, hs.distance_rest(
                 lo, hi, _round(rng * 100) if echo else 0, 100 if echo else hs.NO_ECHO)]
         # optical flow: body velocity over the slant distance, plus the body rates
-        vx, vy, vz = y[Y_VX], y[Y_VY], y[Y_VZ]
+        vx, vy, vz = y[_YVX], y[_YVY], y[_YVZ]
         vbx = r00 * vx + r10 * vy + r20 * vz
         vby = r01 * vx + r11 * vy + r21 * vz
         d = 0.05 if 0.05 > slant else slant        # max(slant, 0.05)
@@ -255,7 +275,7 @@ class SensorSuite:
                         ix, iy = f.value[1] * n0, f.value[1] * n1
                     qual = 255
             if send:
-                self.counts["flow_msgs"] += 1
+                self.n_flow += 1
                 parts += [hs.HIL_OPTICAL_FLOW, hs.flow_rest(
                     _round(self.flow_n * h * 1e6), ix, iy, self.fa2, self.fa3, self.fa4, qual)]
             self.flow_n = 0
@@ -263,7 +283,7 @@ class SensorSuite:
         # GPS and the truth, in the vehicle's geodetic frame (origin = the start point)
         if self.gps and k % self.p.gps_every == 0:
             parts += self._gps(y)
-        lat, lon, alt = self.geo.to_int(y[Y_X] - self.home_n, y[Y_Y] - self.home_e, y[Y_Z])
+        lat, lon, alt = self.geo.to_int(y[_YX] - self.home_n, y[_YY] - self.home_e, y[_YZ])
         self.truth = hs.truth_payload(t_us, qw, qx, qy, qz, pr, qr, rr, lat, lon, alt,
                                       _cms(vx), _cms(vy), _cms(vz))
         return parts
@@ -275,7 +295,7 @@ class SensorSuite:
         sp, sv = p.gps_noise_m, p.gps_vel_noise_mps
         lat, lon, alt = self.geo.to_int(y[Y_X] - self.home_n + sp * g[0],
                                         y[Y_Y] - self.home_e + sp * g[1], y[Y_Z] + sp * g[2])
-        self.counts["gps_msgs"] += 1
+        self.n_gps += 1
         return [hs.HIL_GPS, hs.gps_rest(lat, lon, alt, _round(sp * 100),
                                         _round((y[Y_VX] + sv * g[3]) * 100),
                                         _round((y[Y_VY] + sv * g[4]) * 100),
