@@ -12,7 +12,7 @@ __version__ = "0.1.0"
 
 # the per-tick path: what runs compiled when built
 COMPILED = [
-    "mav.wire", "mav.types", "mav.cascade", "mav.control", "mav.mixer", "mav.battery",
+    "mav.crc", "mav.wire", "mav.types", "mav.cascade", "mav.control", "mav.mixer", "mav.battery",
     "mav.hil", "mav.links", "mav.client",
     "mav.onboard.vehicle", "mav.onboard.links", "mav.onboard.telemetry", "mav.onboard.status",
     "mav.onboard.commander", "mav.onboard.navigator", "mav.onboard.offboard",

@@ -43,7 +43,9 @@ class CompiledError(ImportError):
     """COSIM_COMPILED=1 and a listed module is not built from its current source."""
 
 
-_CIMPORT = re.compile(r"^\s*(?:from\s+([\w.]+)\s+cimport|cimport\s+([\w.]+))", re.M)
+# `from pkg.mod cimport Name`, `from pkg cimport mod [as m], ...`, `cimport pkg.mod`
+_CIMPORT = re.compile(r"^\s*(?:from\s+([\w.]+)\s+cimport\s+([\w, ]+)|cimport\s+([\w.]+))",
+                      re.M)
 
 
 def _pxd_closure(pxd: Path) -> list[Path]:
@@ -60,10 +62,14 @@ def _pxd_closure(pxd: Path) -> list[Path]:
         root = f.parent
         while (root / "__init__.py").is_file():
             root = root.parent
-        for a, b in _CIMPORT.findall(f.read_text(encoding="utf-8")):
-            dep = root.joinpath(*(a or b).split(".")).with_suffix(".pxd")
-            if dep.is_file():
-                todo.append(dep)
+        for frm, names, mod in _CIMPORT.findall(f.read_text(encoding="utf-8")):
+            # the module cimported from, or the modules a package's cimport names
+            mods = [mod] if mod else [frm] + [f"{frm}.{n.split()[0]}" for n in names.split(",")
+                                              if n.strip()]
+            for m in mods:
+                dep = root.joinpath(*m.split(".")).with_suffix(".pxd")
+                if dep.is_file():
+                    todo.append(dep)
     return sorted(seen)
 
 

@@ -5,12 +5,17 @@ from mav cimport wire
 from mav.wire cimport FastMsg
 
 cpdef bytes stamped(mav, FastMsg m, t_us, bytes rest)
+cpdef bytes stamp(FastMsg m, t_us, bytes rest)
+cpdef list stamp_all(list parts, t_us, list out)
+cpdef bytes frames(mav, list parts)
 cpdef bytes hil_sensor_rest(double ax, double ay, double az, double gx, double gy, double gz,
                             double mx, double my, double mz, double abs_hpa, double p_alt,
                             double temp_c, long fields)
 cpdef bytes flow_rest(long long dt_us, double ix, double iy, double gx, double gy, double gz,
                       long quality)
 cpdef bytes distance_rest(long min_cm, long max_cm, long cur_cm, long quality)
-cpdef bytes truth_rest(double qw, double qx, double qy, double qz, double p, double q,
-                       double r, long long lat_e7, long long lon_e7, long long alt_mm,
-                       long vn_cms, long ve_cms, long vd_cms)
+cpdef bytes truth_payload(t_us, double qw, double qx, double qy, double qz, double p,
+                          double q, double r, long long lat_e7, long long lon_e7,
+                          long long alt_mm, long vn_cms, long ve_cms, long vd_cms)
+cpdef tuple decode_bundle(bytes data)
+cpdef bint is_sensor_bundle(bytes data) except -1

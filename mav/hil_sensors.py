@@ -51,53 +51,107 @@ def _rest(m: wire.FastMsg) -> struct.Struct:
     return struct.Struct("<" + m.st.format[2:])
 
 
-_STAMP_US = struct.Struct("<Q")
-_STAMP_MS = struct.Struct("<I")
-_SENSOR_REST = _rest(HIL_SENSOR)
-_FLOW_REST = _rest(HIL_OPTICAL_FLOW)
-_DIST_REST = _rest(DISTANCE_SENSOR)
-_GPS_REST = _rest(HIL_GPS)
-_TRUTH_REST = _rest(HIL_STATE_QUATERNION)
+_HDR2 = cython.declare(cython.Py_ssize_t, wire.HEADER_LEN_V2)
+_STAMP_US = struct.Struct("<Q").pack      # bound once (a Struct's method lookup per call
+_STAMP_MS = struct.Struct("<I").pack      # costs as much as the packing)
+_SENSOR_REST = _rest(HIL_SENSOR).pack      # the packers bound once, as the stamps
+_FLOW_REST = _rest(HIL_OPTICAL_FLOW).pack
+_DIST_REST = _rest(DISTANCE_SENSOR).pack
+_GPS_REST = _rest(HIL_GPS).pack
+_TRUTH = HIL_STATE_QUATERNION.st.pack
 
 
 def stamped(mav, m: wire.FastMsg, t_us: int, rest: bytes) -> bytes:
     """The frame of message m stamped t_us (us; ms for DISTANCE_SENSOR) with the payload's
     other fields `rest` (packed by the *_rest functions below)."""
-    if m is DISTANCE_SENSOR:
-        return wire.frame(mav, m, _STAMP_MS.pack(t_us // 1000) + rest)
-    return wire.frame(mav, m, _STAMP_US.pack(t_us) + rest)
+    return wire.frame(mav, m, stamp(m, t_us, rest))
+
+
+def stamp(m: wire.FastMsg, t_us: int, rest: bytes) -> bytes:
+    """The payload of message m: its stamp t_us (us; ms for DISTANCE_SENSOR), then `rest`."""
+    return stamp_all([m, rest], t_us, [])[1]
+
+
+@cython.locals(parts=list, out=list, i=cython.Py_ssize_t)
+def stamp_all(parts: list, t_us: int, out: list) -> list:
+    """`out` with the pairs of parts = [message, rest, message, rest, ...] appended as
+    [message, payload, ...], each payload `stamp`ed t_us (each stamp packed once a call)."""
+    us = _STAMP_US(t_us)
+    ms = None
+    for i in range(0, len(parts), 2):
+        m = parts[i]
+        if m is DISTANCE_SENSOR:
+            if ms is None:
+                ms = _STAMP_MS(t_us // 1000)
+            out.append(m)
+            out.append(ms + parts[i + 1])
+        else:
+            out.append(m)
+            out.append(us + parts[i + 1])
+    return out
+
+
+@cython.locals(parts=list, k=cython.Py_ssize_t, i=cython.Py_ssize_t, n=cython.Py_ssize_t,
+               size=cython.Py_ssize_t, at=cython.Py_ssize_t, seq=cython.int,
+               sysid=cython.int, compid=cython.int, out=bytes)
+def frames(mav, parts: list) -> bytes:
+    """The frames of parts = [message, payload, message, payload, ...] back to back: the
+    same bytes as b"".join(wire.frame(mav, m, payload) for each pair), one seq each, built
+    in one buffer with mav's fields read once (the sensor datagram of a tick)."""
+    k = len(parts) // 2
+    if mav.signing.sign_outgoing:
+        return b"".join([wire.frame(mav, parts[2 * i], parts[2 * i + 1]) for i in range(k)])
+    seq = mav.seq
+    mav.seq = (seq + k) & 0xFF
+    sysid, compid = mav.srcSystem, mav.srcComponent
+    size = 0
+    for i in range(k):
+        size += wire.trimmed_len(parts[2 * i + 1]) + _HDR2 + 2
+    if cython.compiled:
+        out = bytes(size)
+    else:
+        out = bytearray(size)
+    at = 0
+    for i in range(k):
+        payload = parts[2 * i + 1]
+        n = wire.trimmed_len(payload)
+        wire.put_frame(out, at, (seq + i) & 0xFF, sysid, compid, parts[2 * i], payload, n)
+        at += _HDR2 + n + 2
+    return out if cython.compiled else bytes(out)
 
 
 def hil_sensor_rest(ax: float, ay: float, az: float, gx: float, gy: float, gz: float,
                     mx: float, my: float, mz: float, abs_hpa: float, p_alt: float,
                     temp_c: float, fields: int) -> bytes:
-    return _SENSOR_REST.pack(ax, ay, az, gx, gy, gz, mx, my, mz, abs_hpa, 0.0, p_alt, temp_c,
+    return _SENSOR_REST(ax, ay, az, gx, gy, gz, mx, my, mz, abs_hpa, 0.0, p_alt, temp_c,
                              fields, 0)
 
 
 def flow_rest(dt_us: int, ix: float, iy: float, gx: float, gy: float, gz: float,
               quality: int) -> bytes:
     """distance -1: the sensor has none of its own (the vehicle uses its altitude)."""
-    return _FLOW_REST.pack(dt_us, ix, iy, gx, gy, gz, 0, -1.0, 0, 0, quality)
+    return _FLOW_REST(dt_us, ix, iy, gx, gy, gz, 0, -1.0, 0, 0, quality)
 
 
 def distance_rest(min_cm: int, max_cm: int, cur_cm: int, quality: int) -> bytes:
-    return _DIST_REST.pack(min_cm, max_cm, cur_cm, RANGE_ULTRASOUND, 0, ORIENT_DOWN, 0, 0.0,
+    return _DIST_REST(min_cm, max_cm, cur_cm, RANGE_ULTRASOUND, 0, ORIENT_DOWN, 0, 0.0,
                            0.0, 0.0, 0.0, 0.0, 0.0, quality)
 
 
 def gps_rest(lat_e7: int, lon_e7: int, alt_mm: int, eph_cm: int, vn_cms: int, ve_cms: int,
              vd_cms: int) -> bytes:
     vel = int(min(65534, (vn_cms * vn_cms + ve_cms * ve_cms) ** 0.5))
-    return _GPS_REST.pack(lat_e7, lon_e7, alt_mm, eph_cm, eph_cm * 2, vel, vn_cms, ve_cms,
+    return _GPS_REST(lat_e7, lon_e7, alt_mm, eph_cm, eph_cm * 2, vel, vn_cms, ve_cms,
                           vd_cms, 65535, 3, 10, 0, 0)
 
 
-def truth_rest(qw: float, qx: float, qy: float, qz: float, p: float, q: float, r: float,
-               lat_e7: int, lon_e7: int, alt_mm: int, vn_cms: int, ve_cms: int,
-               vd_cms: int) -> bytes:
-    return _TRUTH_REST.pack(qw, qx, qy, qz, p, q, r, lat_e7, lon_e7, alt_mm, vn_cms, ve_cms,
-                            vd_cms, 0, 0, 0, 0, 0)
+def truth_payload(t_us: int, qw: float, qx: float, qy: float, qz: float, p: float, q: float,
+                  r: float, lat_e7: int, lon_e7: int, alt_mm: int, vn_cms: int, ve_cms: int,
+                  vd_cms: int) -> bytes:
+    """HIL_STATE_QUATERNION's whole payload (stamped t_us: the truth is sent the tick it is
+    read, not delayed)."""
+    return _TRUTH(t_us, qw, qx, qy, qz, p, q, r, lat_e7, lon_e7, alt_mm, vn_cms, ve_cms, vd_cms,
+                  0, 0, 0, 0, 0)
 
 
 def encode_hil_sensor(mav, t_us: int, acc: tuple, gyro: tuple, mag: tuple, abs_hpa: float,
@@ -125,16 +179,18 @@ def encode_gps(mav, t_us: int, lat_e7: int, lon_e7: int, alt_mm: int, eph_cm: in
 
 def encode_truth(mav, t_us: int, q: tuple, pqr: tuple, lat_e7: int, lon_e7: int, alt_mm: int,
                  v_cms: tuple) -> bytes:
-    return stamped(mav, HIL_STATE_QUATERNION, t_us, truth_rest(
-        q[0], q[1], q[2], q[3], pqr[0], pqr[1], pqr[2], lat_e7, lon_e7, alt_mm, v_cms[0],
+    return wire.frame(mav, HIL_STATE_QUATERNION, truth_payload(
+        t_us, q[0], q[1], q[2], q[3], pqr[0], pqr[1], pqr[2], lat_e7, lon_e7, alt_mm, v_cms[0],
         v_cms[1], v_cms[2]))
 
 
 @cython.locals(i=cython.Py_ssize_t, n=cython.Py_ssize_t, end=cython.Py_ssize_t,
-               bad=cython.long)
+               bad=cython.long, m=wire.FastMsg)
 def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
     """The sensor frames of one HIL datagram: ({msgid: payload tuple in wire order}, number
-    of frames that were not well-formed sensor messages). ({}, n) for anything else."""
+    of frames that were not well-formed sensor messages). ({}, n) for anything else.
+    HIL_STATE_QUATERNION (the truth, for the simulator's logs; the vehicle never reads it) is
+    checked like the others but not unpacked: it has no entry."""
     out: dict[int, tuple] = {}
     bad = 0
     i, n = 0, len(data)
@@ -143,11 +199,17 @@ def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
         if end < 0:
             return out, bad + 1
         m = SENSOR_MSGS.get(wire.msgid_of(data, i))
-        f = wire.decode_fast(m, data, i, end) if m is not None else None
-        if f is None:
+        if m is None:
             bad += 1
+        elif m is HIL_STATE_QUATERNION:
+            if not wire.frame_ok(m, data, i, end):
+                bad += 1
         else:
-            out[m.id] = f
+            f = wire.decode_fast(m, data, i, end)
+            if f is None:
+                bad += 1
+            else:
+                out[m.id] = f
         i = end
     return out, bad
 

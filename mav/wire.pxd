@@ -1,8 +1,11 @@
 # Types Cython reads beside mav/wire.py (which stays plain Python): a message layout's fields
 # as C fields, read directly by the compiled encoders and decoders.
 
+from mav cimport crc as _crc
+
+
 cdef class FastMsg:
-    cdef public object cls, name, extra, st, id3, zeros
+    cdef public object cls, name, extra, st, id3, zeros, unpack_from
     cdef public long id, crc_extra
     cdef public Py_ssize_t size
 
@@ -10,11 +13,19 @@ cdef class FastMsg:
 # the framing and the frame walkers, called directly by the compiled modules that cimport them
 # (the sensor bundle, mav/hil_sensors.pxd); a payload and a datagram are bytes
 cpdef bytes frame(mav, FastMsg m, bytes payload)
+cdef Py_ssize_t trimmed_len(bytes payload) except -1
+cdef int put_frame(bytes out, Py_ssize_t at, int seq, int sysid, int compid, FastMsg m,
+                   bytes payload, Py_ssize_t n) except -1
 cpdef Py_ssize_t frame_end(bytes data, Py_ssize_t i=*) except? -2
 cpdef long msgid_of(bytes data, Py_ssize_t i=*) except? -1
+cpdef bint frame_ok(FastMsg m, bytes data, Py_ssize_t i, Py_ssize_t end) except -1
 cpdef decode_fast(FastMsg m, bytes data, Py_ssize_t i=*, Py_ssize_t end=*)
 
 
 cdef class FlatEarth:
     cdef public double lat0_deg, lon0_deg, alt0_m, _dlat_dn, _dlon_de
     cpdef tuple to_geodetic(self, double n_m, double e_m, double d_m)
+    cpdef tuple to_int(self, double n_m, double e_m, double d_m)
+
+
+cpdef double round_even(double x)

@@ -27,12 +27,12 @@ import struct
 import cython
 from cython.cimports.libc.math import asin as _asin
 from cython.cimports.libc.math import atan2 as _atan2
+from cython.cimports.libc.math import floor as _floor
+from cython.cimports.libc.math import fmod as _fmod
 from pymavlink.dialects.v20 import common as mavlink2
 
-try:  # pymavlink itself uses fastcrc when it is installed; so do we
-    from fastcrc.crc16 import mcrf4xx as _mcrf4xx
-except ImportError:  # pragma: no cover - the project pins fastcrc
-    _mcrf4xx = None
+from mav import crc as _crc
+from mav.crc import crc16
 
 MAGIC_V2 = 0xFD
 MAGIC_V1 = 0xFE
@@ -49,22 +49,11 @@ _SIGLEN = cython.declare(cython.Py_ssize_t, SIGNATURE_LEN)
 _SIGNED = cython.declare(cython.long, IFLAG_SIGNED)
 
 
-def _crc16_py(data: bytes, crc: int = 0xFFFF) -> int:
-    """CRC-16/MCRF4XX (X.25) as MAVLink uses it (pure Python fallback)."""
-    for b in data:  # pragma: no cover - fallback, same algorithm as pymavlink's
-        tmp = b ^ (crc & 0xFF)
-        tmp = (tmp ^ (tmp << 4)) & 0xFF
-        crc = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
-    return crc
-
-
-crc16 = _mcrf4xx if _mcrf4xx is not None else _crc16_py
-
-
 class FastMsg:
     """Layout of one message type, derived from pymavlink's generated class."""
 
-    __slots__ = ("cls", "id", "name", "crc_extra", "extra", "st", "size", "id3", "zeros")
+    __slots__ = ("cls", "id", "name", "crc_extra", "extra", "st", "size", "id3", "zeros",
+                 "unpack_from")
 
     def __init__(self, cls: type) -> None:
         self.cls = cls
@@ -76,6 +65,7 @@ class FastMsg:
         self.size = cls.unpacker.size
         self.id3 = struct.pack("<I", cls.id)[:3]
         self.zeros = bytes(self.size)
+        self.unpack_from = cls.unpacker.unpack_from    # bound once, for the decoders
 
 
 ODOMETRY = FastMsg(mavlink2.MAVLink_odometry_message)
@@ -146,7 +136,7 @@ assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
 
 
 # ----------------------------------------------------------------------------------- encoding
-@cython.locals(seq=cython.int, n=cython.Py_ssize_t, body=bytes)
+@cython.locals(seq=cython.int, n=cython.Py_ssize_t, out=bytes)
 def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     """Frame a packed payload as MAVLink 2, as `mav.send(msg)` would (and advance mav.seq).
 
@@ -158,23 +148,61 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     mav.seq = (seq + 1) & 0xFF
     signing = mav.signing
     if signing.sign_outgoing:
-        p = payload.rstrip(b"\x00") or payload[:1]
-        signed = _HDR.pack(MAGIC_V2, len(p), IFLAG_SIGNED, 0, seq, mav.srcSystem,
+        trimmed = payload.rstrip(b"\x00") or payload[:1]
+        signed = _HDR.pack(MAGIC_V2, len(trimmed), IFLAG_SIGNED, 0, seq, mav.srcSystem,
                            mav.srcComponent)
-        signed += m.id3 + p
+        signed += m.id3 + trimmed
         signed += _CRC.pack(crc16(signed[1:] + m.extra))
         signed += _SIGN_TS.pack(signing.link_id, signing.timestamp)[:7]
         signed += hashlib.sha256(signing.secret_key + signed).digest()[:6]
         signing.timestamp += 1
         return signed
-    # the header after the magic byte (length, flags, seq, ids) and the payload with its
-    # trailing zeros trimmed; the checksum over them and CRC_EXTRA
+    n = trimmed_len(payload)
+    if cython.compiled:
+        out = bytes(_HDR2 + n + 2)
+    else:
+        out = bytearray(_HDR2 + n + 2)
+    put_frame(out, 0, seq, mav.srcSystem, mav.srcComponent, m, payload, n)
+    return out if cython.compiled else bytes(out)
+
+
+@cython.locals(n=cython.Py_ssize_t)
+def trimmed_len(payload: bytes) -> int:
+    """The payload's length less its trailing zero bytes (at least one byte stays)."""
     n = len(payload)
     while n > 1 and payload[n - 1] == 0:
         n -= 1
-    body = _HDR6.pack(n, 0, 0, seq, mav.srcSystem, mav.srcComponent) + m.id3 + (
-        payload if n == len(payload) else payload[:n])
-    return _MAGIC2_B + body + _CRC.pack(crc16(body + m.extra))
+    return n
+
+
+@cython.locals(p=cython.p_uchar, q=cython.p_uchar, k=cython.Py_ssize_t, mid=cython.long,
+               crc=cython.long)
+def put_frame(out: bytes, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
+              payload: bytes, n: int) -> int:
+    """Write the unsigned MAVLink 2 frame of payload[:n] at out[at:at + n + 12]: header,
+    payload, checksum (compiled: into a new bytes object's own C buffer; interpreted: out is
+    a bytearray)."""
+    if cython.compiled:
+        p = cython.cast(cython.p_uchar, cython.cast(cython.p_char, out)) + at
+        q = cython.cast(cython.p_uchar, cython.cast(cython.p_char, payload))
+        for k in range(n):
+            p[_HDR2 + k] = q[k]
+    else:
+        p = memoryview(out)[at:]
+        p[_HDR2:_HDR2 + n] = payload[:n]
+    p[0] = _MAGIC2
+    p[1] = n
+    p[4] = seq
+    p[5] = sysid
+    p[6] = compid
+    mid = m.id
+    p[7] = mid & 0xFF
+    p[8] = (mid >> 8) & 0xFF
+    p[9] = mid >> 16
+    crc = _crc.crc_of(out, at + 1, at + _HDR2 + n, m.crc_extra)
+    p[_HDR2 + n] = crc & 0xFF
+    p[_HDR2 + n + 1] = crc >> 8
+    return 0
 
 
 def pack(mav, m: FastMsg, *values) -> bytes:
@@ -267,6 +295,24 @@ def msgid_of(data: bytes, i: int = 0) -> int:
 
 
 @cython.locals(flags=cython.long, plen=cython.Py_ssize_t, crc_at=cython.Py_ssize_t)
+def frame_ok(m: FastMsg, data: bytes, i: int, end: int) -> bool:
+    """Whether data[i:end] is one well-formed, CRC-correct MAVLink 2 frame of type `m` (the
+    signature block, if any, is not checked: see `decode_fast`)."""
+    if i < 0 or end > len(data) or end - i < _HDR2 + 2 or data[i] != _MAGIC2 or msgid_of(
+            data, i) != m.id:
+        return False
+    flags = data[i + 2]
+    if flags & ~_SIGNED:
+        return False
+    plen = data[i + 1]
+    crc_at = i + _HDR2 + plen
+    if crc_at + 2 + (_SIGLEN if flags else 0) != end:
+        return False
+    return _crc.crc_of(data, i + 1, crc_at, m.crc_extra) == (
+        data[crc_at] | data[crc_at + 1] << 8)
+
+
+@cython.locals(plen=cython.Py_ssize_t)
 def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | None:
     """Decode one MAVLink 2 frame data[i:end] of type `m`; None unless it is well formed,
     of that type and CRC-correct. The signature block (if any) is NOT checked: use this only
@@ -279,48 +325,44 @@ def decode_fast(m: FastMsg, data: bytes, i: int = 0, end: int = -1) -> tuple | N
         end = frame_end(data, i)
         if end < 0:
             return None
-    if data[i] != _MAGIC2 or data[i + 7:i + 10] != m.id3:
-        return None
-    flags = data[i + 2]
-    if flags & ~_SIGNED:
+    if not frame_ok(m, data, i, end):
         return None
     plen = data[i + 1]
-    crc_at = i + _HDR2 + plen
-    if crc_at + 2 + (_SIGLEN if flags else 0) != end:
-        return None
-    if crc16(data[i + 1:crc_at] + m.extra) != (data[crc_at] | data[crc_at + 1] << 8):
-        return None
     if plen >= m.size:
-        return m.st.unpack_from(data, i + _HDR2)
-    return m.st.unpack(data[i + _HDR2:crc_at] + m.zeros[plen:])
+        return m.unpack_from(data, i + _HDR2)
+    return m.st.unpack(data[i + _HDR2:i + _HDR2 + plen] + m.zeros[plen:])
 
 
 def one_frame_decoder(m: FastMsg, used: struct.Struct):
     """A decoder for a datagram holding exactly one frame of `m`: the leading fields that
     `used` unpacks (same offsets as m's payload), or None. Same checks and values as
-    `decode_fast(m, ...)` on those fields (`used = m.st`: all of them); for the per-tick paths."""
-    id3, extra, zeros, used_len = m.id3, m.extra, m.zeros, used.size
+    `decode_fast(m, ...)` on those fields (`used = m.st`: all of them); for the per-tick paths.
+    `decode(data, i, end)` reads the datagram data[i:end] in place (a part of a larger one)."""
+    mid, zeros, used_len, crc_extra = m.id, m.zeros, used.size, m.crc_extra
     unpack, unpack_from = used.unpack, used.unpack_from
 
-    @cython.locals(data=bytes, n=cython.Py_ssize_t, flags=cython.long, crc_at=cython.Py_ssize_t,
-                   plen=cython.Py_ssize_t)
-    def decode(data: bytes) -> tuple | None:
-        n = len(data)
-        if n < 12 or data[0] != _MAGIC2 or data[7:10] != id3:
+    @cython.locals(data=bytes, i=cython.Py_ssize_t, end=cython.Py_ssize_t,
+                   flags=cython.long, crc_at=cython.Py_ssize_t, plen=cython.Py_ssize_t)
+    def decode(data: bytes, i: int = 0, end: int = -1) -> tuple | None:
+        # data[i:end] (end < 0: to the end of data) is the datagram: one frame, nothing else
+        if end < 0:
+            end = len(data)
+        if i < 0 or end > len(data) or end - i < 12 or data[i] != _MAGIC2 or msgid_of(
+                data, i) != mid:
             return None
-        flags = data[2]
-        crc_at = _HDR2 + data[1]
+        flags = data[i + 2]
+        crc_at = i + _HDR2 + data[i + 1]
         if flags == 0:
-            if n != crc_at + 2:
+            if end != crc_at + 2:
                 return None
-        elif flags != _SIGNED or n != crc_at + 2 + _SIGLEN:
+        elif flags != _SIGNED or end != crc_at + 2 + _SIGLEN:
             return None
-        if crc16(data[1:crc_at] + extra) != (data[crc_at] | data[crc_at + 1] << 8):
+        if _crc.crc_of(data, i + 1, crc_at, crc_extra) != (data[crc_at] | data[crc_at + 1] << 8):
             return None
-        plen = data[1]
+        plen = data[i + 1]
         if plen >= used_len:
-            return unpack_from(data, _HDR2)
-        return unpack(data[_HDR2:crc_at] + zeros[plen:used_len])
+            return unpack_from(data, i + _HDR2)
+        return unpack(data[i + _HDR2:crc_at] + zeros[plen:used_len])
 
     return decode
 
@@ -385,11 +427,30 @@ class FlatEarth:
         return ((lat_deg - self.lat0_deg) / self._dlat_dn, dlon / self._dlon_de,
                 self.alt0_m - alt_m)
 
+    @cython.locals(lat=cython.double, lon=cython.double, alt=cython.double)
     def to_int(self, n_m: float, e_m: float, d_m: float) -> tuple[int, int, int]:
         """(lat_e7, lon_e7, alt_mm) as GLOBAL_POSITION_INT and HOME_POSITION carry them
-        (rounded as Python rounds: Cython calls the builtin round)."""
+        (rounded as Python's round: `round_even`)."""
         lat, lon, alt = self.to_geodetic(n_m, e_m, d_m)
-        return round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0)
+        return (int(round_even(lat * 1e7)), int(round_even(lon * 1e7)),
+                int(round_even(alt * 1000.0)))
+
+
+@cython.locals(x=cython.double, f=cython.double, d=cython.double)
+def round_even(x: float) -> float:
+    """x rounded as Python's round(x) rounds a float (to the nearest integer, halves to even),
+    as a float: int(round_even(x)) == round(x), and a NaN or an infinity comes back as it is
+    (int() of it raises as round() does). Compiled: C doubles and libm's floor, no call into
+    Python. x - floor(x) is exact for x >= 0 and for x <= -1; in between, where the difference
+    may round, it is > 0.5 or rounds to 0.5 from above with floor(x) = -1 odd: both give 0,
+    the nearest integer (tests/test_onboard_wire.py compares it with round)."""
+    if x - x != 0.0:
+        return x
+    f = _floor(x)
+    d = x - f
+    if d > 0.5 or (d == 0.5 and _fmod(f, 2.0) != 0.0):
+        f += 1.0
+    return float(f)
 
 
 def clamp_int(v: float, lo: int, hi: int) -> int:
@@ -418,66 +479,3 @@ def euler_from_quat(qw: float, qx: float, qy: float, qz: float) -> tuple[float, 
 def yaw_from_quat(qw: float, qx: float, qy: float, qz: float) -> float:
     """Heading (rad, ZYX yaw) of the body->world quaternion."""
     return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-
-
-# ------------------------------------------------------------------------------ benchmark
-def bench(n: int = 20000, repeat: int = 5) -> dict[str, tuple[float, float]]:
-    """us per message (pymavlink, fast) for encode and decode of the per-tick messages
-    (best of `repeat` runs of `n`). pymavlink encode = message construction + pack, decode =
-    `MAVLink.decode`; fast = this module. `python -m mav.wire` prints the table."""
-    import timeit
-
-    mav_a = mavlink2.MAVLink(None, 1, 1)
-    mav_b = mavlink2.MAVLink(None, 1, 1)
-    cov = [math.nan] + [0.0] * 20
-    odo_args = (123456789, 0.1, -0.2, -1.0, 0.99, 0.01, -0.02, 0.1, 0.3, -0.1, 0.05, 0.01,
-                0.02, -0.03)
-    objs = {
-        "ODOMETRY": (mavlink2.MAVLink_odometry_message(
-            odo_args[0], 1, 1, *odo_args[1:4], list(odo_args[4:8]), *odo_args[8:14], cov, cov,
-            0, 0, 100),
-            lambda: encode_odometry(mav_b, *odo_args, quality=100), ODOMETRY),
-        "HIL_ACTUATOR_CONTROLS": (mavlink2.MAVLink_hil_actuator_controls_message(
-            123456789, [0.61, 0.62, 0.63, 0.64] + [0.0] * 12, 129, 1),
-            lambda: encode_hil_actuator_controls(mav_b, 123456789, 0.61, 0.62, 0.63, 0.64, 129),
-            HIL_ACTUATOR_CONTROLS),
-        "SET_POSITION_TARGET_LOCAL_NED": (mavlink2.MAVLink_set_position_target_local_ned_message(
-            1234, 1, 1, 1, 0x0DF8, 1.0, 2.0, -1.0, 0, 0, 0, 0, 0, 0, 0, 0),
-            lambda: encode_set_position_target_local_ned(mav_b, 1234, 1, 1, 1, 0x0DF8, 1.0, 2.0,
-                                                         -1.0, 0, 0, 0, 0, 0, 0, 0, 0),
-            SET_POSITION_TARGET_LOCAL_NED),
-        "LOCAL_POSITION_NED": (mavlink2.MAVLink_local_position_ned_message(
-            1234, 1.0, 2.0, -1.0, 0.1, 0.2, 0.3),
-            lambda: encode_local_position_ned(mav_b, 1234, 1.0, 2.0, -1.0, 0.1, 0.2, 0.3),
-            LOCAL_POSITION_NED),
-        "ATTITUDE": (mavlink2.MAVLink_attitude_message(1234, 0.1, 0.2, 0.3, 0.01, 0.02, 0.03),
-                     lambda: encode_attitude(mav_b, 1234, 0.1, 0.2, 0.3, 0.01, 0.02, 0.03),
-                     ATTITUDE),
-    }
-    out = {}
-    for name, (msg, fast_enc, fm) in objs.items():
-        data = msg.pack(mav_a)
-        cls = type(msg)
-        args = [getattr(msg, f) for f in cls.fieldnames]
-
-        def py_enc(cls=cls, args=args):      # construct + pack, as mav.<msg>_send does
-            return cls(*args).pack(mav_a)
-
-        assert py_enc() == data
-        t_pe = min(timeit.repeat(py_enc, number=n, repeat=repeat))
-        t_fe = min(timeit.repeat(fast_enc, number=n, repeat=repeat))
-        t_pd = min(timeit.repeat(lambda data=data: mav_a.decode(bytearray(data)), number=n,
-                                 repeat=repeat))
-        def fast_dec(data=data, fm=fm):
-            return decode_odometry(data) if fm is ODOMETRY else decode_fast(fm, data)
-
-        t_fd = min(timeit.repeat(fast_dec, number=n, repeat=repeat))
-        out[name + " encode"] = (t_pe / n * 1e6, t_fe / n * 1e6)
-        out[name + " decode"] = (t_pd / n * 1e6, t_fd / n * 1e6)
-    return out
-
-
-if __name__ == "__main__":
-    print(f"{'message':<40}{'pymavlink us':>14}{'fast us':>10}{'speed-up':>10}")
-    for k, (a, b) in bench().items():
-        print(f"{k:<40}{a:>14.2f}{b:>10.2f}{a / b:>9.1f}x")

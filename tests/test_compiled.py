@@ -171,3 +171,8 @@ def test_a_changed_record_layout_makes_every_module_that_cimports_it_stale(tmp_p
     (pkg / "rec.pxd").write_text("cdef class R:\n    cdef public double x, y\n")
     assert compiled.source_hash(user) != before[0]        # cimports rec: changed
     assert compiled.source_hash(other) == before[1]       # does not: unchanged
+    # the module cimported by name from its package (`from pkgy cimport rec as r`) counts too
+    (pkg / "sub" / "user.pxd").write_text("from pkgy cimport other, rec as r\n")
+    before = compiled.source_hash(user)
+    (pkg / "rec.pxd").write_text("cdef class R:\n    cdef public double x, y, z\n")
+    assert compiled.source_hash(user) != before

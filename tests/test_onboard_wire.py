@@ -10,6 +10,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
+from mav.wire_bench import bench
 
 M = mavlink2
 FAST = sorted(wire.FAST_BY_ID.values(), key=lambda m: m.id)
@@ -218,7 +219,7 @@ def test_euler_and_clamp():
 
 
 def test_fast_codec_is_faster_than_pymavlink():
-    """The point of the fast path (numbers: `python -m mav.wire`). Timing on a shared
+    """The point of the fast path (numbers: `python -m mav.wire_bench`). Timing on a shared
     machine: best of 5 runs per number, and one re-measurement before failing."""
     def ok(res) -> bool:
         enc = res["HIL_ACTUATOR_CONTROLS encode"]
@@ -226,9 +227,9 @@ def test_fast_codec_is_faster_than_pymavlink():
         return (all(fast < py for py, fast in res.values())
                 and enc[1] * 2 < enc[0] and dec[1] * 4 < dec[0])
 
-    res = wire.bench(n=2000, repeat=5)
+    res = bench(n=2000, repeat=5)
     if not ok(res):
-        res = wire.bench(n=2000, repeat=5)
+        res = bench(n=2000, repeat=5)
     assert ok(res), res
 
 
@@ -265,3 +266,63 @@ def test_decode_hil_actuator_controls_matches_decode_fast():
             assert wire.decode_hil_actuator_controls(bytes(bad)) is None
     assert wire.decode_hil_actuator_controls(d + d) is None      # exactly one frame
     assert wire.decode_hil_actuator_controls(b"") is None
+
+
+_BOTH_MODES = """
+import random, sys
+from fastcrc.crc16 import mcrf4xx
+from mav import crc, wire
+r = random.Random(7)
+for n in list(range(0, 300)) * 3:   # every length, at offsets, against fastcrc (pymavlink's)
+    d = bytes(r.randrange(256) for _ in range(n + 3))
+    i, extra = r.randrange(3), r.randrange(256)
+    assert crc.crc_of(d, i, i + n, extra) == mcrf4xx(d[i:i + n] + bytes((extra,))), n
+    assert crc._crc16_py(d[:n]) == mcrf4xx(d[:n])
+vals = [k / 2 for k in range(-20, 21)] + [k + 0.5 for k in (2**51, -2**51, 2**52 - 1)]
+vals += [0.5 + 2**-54 - 1, -0.5 + 2**-54, -2**-60, 0.49999999999999994, -0.0, 1e300, -1e300]
+vals += [r.uniform(-1e4, 1e4) for _ in range(20000)] + [r.uniform(-2, 2) for _ in range(20000)]
+for v in vals:
+    assert int(wire.round_even(v)) == round(v), v
+for v in (float("nan"), float("inf")):
+    for f in (lambda: round(v), lambda: int(wire.round_even(v))):
+        try:
+            f()
+        except (ValueError, OverflowError) as e:
+            print(type(e).__name__)
+print(sys.modules["mav.crc"].__file__.endswith(".py"))
+"""
+
+
+@pytest.mark.parametrize("compiled", ["1", "0"])
+def test_checksum_and_rounding_are_pythons_compiled_and_interpreted(compiled):
+    """crc_of (C over the frame's buffer when compiled) against fastcrc, and round_even (C
+    doubles when compiled) against Python's round, halves and NaN/inf included."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, COSIM_COMPILED=compiled)
+    p = subprocess.run([sys.executable, "-c", _BOTH_MODES], env=env, capture_output=True,
+                       text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.split()
+    assert lines[:4] == ["ValueError", "ValueError", "OverflowError", "OverflowError"]
+    assert lines[4] == ("True" if compiled == "0" else "False")   # the mode asked for
+
+
+def test_one_frame_decoders_read_a_window_of_a_datagram_in_place():
+    """decode(data, i, end): the datagram data[i:end] in place, as the same bytes alone."""
+    a = M.MAVLink(None, 1, 1)
+    cov = [0.0] * 21
+    odo = M.MAVLink_odometry_message(5, 1, 1, 1, 2, 3, [1, 0, 0, 0], 0, 0, 0, 0, 0, 0, cov,
+                                     cov, 0, 0, 50).pack(a)
+    hac = wire.encode_hil_actuator_controls(a, 7, 0.1, 0.2, 0.3, 0.4, 129)
+    both = hac + odo
+    assert wire.decode_hil_actuator_controls(both, 0, len(hac)) == \
+        wire.decode_hil_actuator_controls(hac)
+    assert wire.decode_odometry(both, len(hac)) == wire.decode_odometry(odo) is not None
+    assert wire.decode_odometry(both, len(hac), len(both)) == wire.decode_odometry(odo)
+    for i, end in ((0, -1), (len(hac), len(both) - 1), (len(hac) + 1, -1), (-1, -1),
+                   (len(hac), len(both) + 1), (len(both), -1)):
+        assert wire.decode_odometry(both, i, end) is None
+    assert wire.decode_hil_actuator_controls(both) is None     # two frames: not one datagram

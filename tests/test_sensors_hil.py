@@ -288,3 +288,39 @@ def test_the_estimate_is_spooled_chunk_by_chunk_in_order():
     assert len(res.estimate) == res.ticks == 5000 > CHUNK
     rec = np.asarray(res.series)[:, [COL["est_x"], COL["est_y"], COL["est_z"]]]
     assert np.array_equal(np.asarray(res.estimate)[:, :3], rec)
+
+
+@pytest.mark.parametrize("signed", [False, True])
+def test_a_sensor_datagram_framed_at_once_is_its_frames_one_by_one(signed):
+    """hs.frames (one buffer, the sensor datagram of a tick) == frame() per message, across a
+    seq wrap, signed or not; pymavlink reads every frame back."""
+    from pymavlink.dialects.v20 import common as M
+
+    from mav import wire
+
+    a, b = (M.MAVLink(None, 250, 190) for _ in range(2))
+    for m in (a, b):
+        m.seq = 254
+        if signed:
+            sg = m.signing
+            sg.secret_key, sg.sign_outgoing, sg.link_id, sg.timestamp = bytes(32), True, 1, 7
+    rests = [(hs.HIL_SENSOR, hs.hil_sensor_rest(0.1, -0.2, -9.8, 0.01, 0.0, 0.0, 0.2, 0.0, 0.4,
+                                                1013.2, 1.5, 25.0, 0x1FFF)),
+             (hs.DISTANCE_SENSOR, hs.distance_rest(44, 400, 0, hs.NO_ECHO)),
+             (hs.HIL_OPTICAL_FLOW, hs.flow_rest(20000, 0.0, 0.0, 0.0, 0.0, 0.0, 0)),
+             ]
+    parts = []
+    for m, rest in rests:
+        parts += [m, hs.stamp(m, 123456789, rest)]
+    parts += [hs.HIL_STATE_QUATERNION,
+              hs.truth_payload(123456789, 1.0, 0, 0, 0, 0, 0, 0, 1, 2, 3, 0, 0, 0)]
+    one_by_one = b"".join(wire.frame(a, parts[i], parts[i + 1]) for i in range(0, 8, 2))
+    assert hs.frames(b, parts) == one_by_one
+    assert a.seq == b.seq == 2 and a.signing.timestamp == b.signing.timestamp
+    reader = M.MAVLink(None, 1, 1)
+    reader.signing.secret_key = bytes(32) if signed else None
+    got = reader.parse_buffer(bytearray(one_by_one))
+    assert [g.get_type() for g in got] == ["HIL_SENSOR", "DISTANCE_SENSOR", "HIL_OPTICAL_FLOW",
+                                           "HIL_STATE_QUATERNION"]
+    assert [g.get_seq() for g in got] == [254, 255, 0, 1]
+    assert hs.decode_bundle(one_by_one)[1] == 0

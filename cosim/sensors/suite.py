@@ -49,6 +49,7 @@ from cosim.plant.fmu import (
 from cosim.sensors.imu import Gauss, Imu3
 from cosim.sensors.spec import SensorsSpec
 from mav import hil_sensors as hs
+from mav import wire
 from mav.hil import SIM_COMPID, SIM_SYSID
 from mav.onboard.config import OnboardConfig
 from mav.wire import FlatEarth
@@ -56,6 +57,23 @@ from mav.wire import FlatEarth
 NAN = math.nan
 INF = cython.declare(cython.double, math.inf)
 SENSOR_FIELDS = hs.FIELDS_IMU | hs.FIELDS_MAG | hs.FIELDS_BARO
+# the plant outputs' indices as C constants (read() indexes y 16 times a tick)
+_YAX = cython.declare(cython.Py_ssize_t, Y_AX)
+_YAY = cython.declare(cython.Py_ssize_t, Y_AY)
+_YAZ = cython.declare(cython.Py_ssize_t, Y_AZ)
+_YP = cython.declare(cython.Py_ssize_t, Y_P)
+_YQ = cython.declare(cython.Py_ssize_t, Y_Q)
+_YQW = cython.declare(cython.Py_ssize_t, Y_QW)
+_YQX = cython.declare(cython.Py_ssize_t, Y_QX)
+_YQY = cython.declare(cython.Py_ssize_t, Y_QY)
+_YQZ = cython.declare(cython.Py_ssize_t, Y_QZ)
+_YR = cython.declare(cython.Py_ssize_t, Y_R)
+_YVX = cython.declare(cython.Py_ssize_t, Y_VX)
+_YVY = cython.declare(cython.Py_ssize_t, Y_VY)
+_YVZ = cython.declare(cython.Py_ssize_t, Y_VZ)
+_YX = cython.declare(cython.Py_ssize_t, Y_X)
+_YY = cython.declare(cython.Py_ssize_t, Y_Y)
+_YZ = cython.declare(cython.Py_ssize_t, Y_Z)
 
 
 class SensorSuite:
@@ -105,15 +123,20 @@ class SensorSuite:
         self.active: list = []
         self.fired: list[tuple[float, str]] = []
         self._seen: set[int] = set()
-        self.counts = {"flow_msgs": 0, "range_echoes": 0, "range_none": 0, "gps_msgs": 0}
+        self.n_flow = self.n_echo = self.n_none = self.n_gps = 0    # messages sent (`counts`)
         self.k = 0
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return {"flow_msgs": self.n_flow, "range_echoes": self.n_echo,
+                "range_none": self.n_none, "gps_msgs": self.n_gps}
 
     @staticmethod
     def measure(y) -> tuple[float, ...]:
         return (y[Y_X], y[Y_Y], y[Y_Z])
 
     # ------------------------------------------------------------------ one tick
-    @cython.locals(q=list, parts=list, i=cython.Py_ssize_t, n=cython.Py_ssize_t)
+    @cython.locals(q=list, parts=list, out=list)
     def encode(self, t_us: int, y) -> bytes:
         """The datagram sent at t_us: this tick's readings are queued and the one
         `delay_ticks` old is sent (the first tick's repeated until the queue fills), then the
@@ -121,13 +144,10 @@ class SensorSuite:
         q = self.queue
         q.append(self.read(t_us, y))
         parts = q.pop(0) if len(q) > self.delay else q[0]
-        mav = self.mav
-        out = []
-        n = len(parts)
-        for i in range(0, n, 2):       # (message, payload less its stamp) pairs
-            out.append(hs.stamped(mav, parts[i], t_us, parts[i + 1]))
-        out.append(hs.stamped(mav, hs.HIL_STATE_QUATERNION, t_us, self.truth))
-        return b"".join(out)
+        out = hs.stamp_all(parts, t_us, [])     # (message, payload less its stamp) pairs
+        out.append(hs.HIL_STATE_QUATERNION)
+        out.append(self.truth)
+        return hs.frames(self.mav, out)
 
     @cython.locals(k=cython.longlong, t=cython.double, qw=cython.double, qx=cython.double,
                    qy=cython.double, qz=cython.double, pr=cython.double, qr=cython.double,
@@ -147,15 +167,15 @@ class SensorSuite:
     def read(self, t_us: int, y) -> list:
         """The readings of y(t_k) as (message, payload less its stamp) pairs, flat (the delay
         line sends them one tick later, stamped with the lockstep time then); the truth of
-        y(t_k) in `truth`."""
+        y(t_k) in `truth` (HIL_STATE_QUATERNION's payload, stamped t_k)."""
         k = self.k
         self.k = k + 1
         t = t_us * 1e-6
         if self.faults:
             self._update_faults(t)
         act = self.active
-        qw, qx, qy, qz = y[Y_QW], y[Y_QX], y[Y_QY], y[Y_QZ]
-        pr, qr, rr = y[Y_P], y[Y_Q], y[Y_R]
+        qw, qx, qy, qz = y[_YQW], y[_YQX], y[_YQY], y[_YQZ]
+        pr, qr, rr = y[_YP], y[_YQ], y[_YR]
         # rotation body -> world (rows); R^T v is world -> body
         r00 = 1 - 2 * (qy * qy + qz * qz)
         r01 = 2 * (qx * qy - qw * qz)
@@ -176,10 +196,10 @@ class SensorSuite:
             elif f.kind == "gyro_saturation" and f.value[0] < gsat:
                 gsat = f.value[0]
         acc, gyr = self.acc, self.gyro
-        acc.read(y[Y_AX], y[Y_AY], y[Y_AZ], ba0, ba1, ba2, self.acc_max)
+        acc.read(y[_YAX], y[_YAY], y[_YAZ], ba0, ba1, ba2, self.acc_max)
         gyr.read(pr, qr, rr, bg0, bg1, bg2, gsat)
         # barometer
-        height = -y[Y_Z]
+        height = -y[_YZ]
         g = self.g_baro
         i = g.at(1)
         pa = self.baro_p0 - self.baro_gain * height + self.baro_noise * g.buf[i]
@@ -213,12 +233,15 @@ class SensorSuite:
             for f in act:
                 if f.kind == "sonar_dropout":
                     echo = False
-            self.counts["range_echoes" if echo else "range_none"] += 1
+            if echo:
+                self.n_echo += 1
+            else:
+                self.n_none += 1
             lo, hi = self.range_cm
             parts += [hs.DISTANCE_SENSOR, hs.distance_rest(
                 lo, hi, _round(rng * 100) if echo else 0, 100 if echo else hs.NO_ECHO)]
         # optical flow: body velocity over the slant distance, plus the body rates
-        vx, vy, vz = y[Y_VX], y[Y_VY], y[Y_VZ]
+        vx, vy, vz = y[_YVX], y[_YVY], y[_YVZ]
         vbx = r00 * vx + r10 * vy + r20 * vz
         vby = r01 * vx + r11 * vy + r21 * vz
         d = 0.05 if 0.05 > slant else slant        # max(slant, 0.05)
@@ -252,7 +275,7 @@ class SensorSuite:
                         ix, iy = f.value[1] * n0, f.value[1] * n1
                     qual = 255
             if send:
-                self.counts["flow_msgs"] += 1
+                self.n_flow += 1
                 parts += [hs.HIL_OPTICAL_FLOW, hs.flow_rest(
                     _round(self.flow_n * h * 1e6), ix, iy, self.fa2, self.fa3, self.fa4, qual)]
             self.flow_n = 0
@@ -260,9 +283,9 @@ class SensorSuite:
         # GPS and the truth, in the vehicle's geodetic frame (origin = the start point)
         if self.gps and k % self.p.gps_every == 0:
             parts += self._gps(y)
-        lat, lon, alt = self.geo.to_int(y[Y_X] - self.home_n, y[Y_Y] - self.home_e, y[Y_Z])
-        self.truth = hs.truth_rest(qw, qx, qy, qz, pr, qr, rr, lat, lon, alt, _cms(vx),
-                                   _cms(vy), _cms(vz))
+        lat, lon, alt = self.geo.to_int(y[_YX] - self.home_n, y[_YY] - self.home_e, y[_YZ])
+        self.truth = hs.truth_payload(t_us, qw, qx, qy, qz, pr, qr, rr, lat, lon, alt,
+                                      _cms(vx), _cms(vy), _cms(vz))
         return parts
 
     def _gps(self, y) -> list:
@@ -272,7 +295,7 @@ class SensorSuite:
         sp, sv = p.gps_noise_m, p.gps_vel_noise_mps
         lat, lon, alt = self.geo.to_int(y[Y_X] - self.home_n + sp * g[0],
                                         y[Y_Y] - self.home_e + sp * g[1], y[Y_Z] + sp * g[2])
-        self.counts["gps_msgs"] += 1
+        self.n_gps += 1
         return [hs.HIL_GPS, hs.gps_rest(lat, lon, alt, _round(sp * 100),
                                         _round((y[Y_VX] + sv * g[3]) * 100),
                                         _round((y[Y_VY] + sv * g[4]) * 100),
@@ -286,11 +309,26 @@ class SensorSuite:
                 self.fired.append((t, f"sensor {f.kind}"))
 
 
-def _round(v: float) -> int:
-    """int(round(v)), as Python rounds (half to even; an untyped argument, so that compiled
-    code calls Python's round too)."""
-    return int(round(v))
+@cython.cfunc
+@cython.returns(cython.longlong)
+@cython.locals(v=cython.double, r=cython.double)
+def _round(v) -> int:
+    """int(round(v)), as Python rounds (half to even: wire.round_even, in C doubles when
+    compiled); a NaN or an infinity raises as round() does."""
+    r = wire.round_even(v)
+    if not -9.2e18 < r < 9.2e18:
+        return int(r)              # raises (a NaN, an infinity), or too large for the field
+    return cython.cast(cython.longlong, r)
 
 
-def _cms(v: float) -> int:
-    return max(-32767, min(32767, int(round(v * 100))))
+@cython.cfunc
+@cython.returns(cython.long)
+@cython.locals(v=cython.double, c=cython.double)
+def _cms(v) -> int:
+    """cm/s, rounded as Python rounds and saturated to +-32767 (a NaN raises)."""
+    c = v * 100.0
+    if c >= 32767.0:
+        return 32767
+    if c <= -32767.0:
+        return -32767
+    return _round(c)

@@ -26,7 +26,7 @@ from mav import wire
 
 ESTIMATE_COLUMNS = ("est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_roll",
                     "est_pitch", "est_yaw", "est_lost")
-_ROW = struct.Struct(f"<{len(ESTIMATE_COLUMNS)}d")
+_ROW = struct.Struct(f"<{len(ESTIMATE_COLUMNS)}d").pack     # bound once (per tick)
 
 
 def floor_textured(world) -> bool:
@@ -74,20 +74,20 @@ class SensorFeed:
         """(t_us, u1..u4) of the answer's HIL_ACTUATOR_CONTROLS (ValueError if it has none,
         as HilSimulatorCodec's); its estimate (if any) is logged."""
         end = wire.frame_end(ans, 0)
-        act = wire.decode_hil_actuator_controls(ans[:end]) if end > 0 else None
+        act = wire.decode_hil_actuator_controls(ans, 0, end) if end > 0 else None
         if act is None:
             raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(ans)} bytes)")
-        od = wire.decode_odometry(ans[end:]) if end < len(ans) else None
+        od = wire.decode_odometry(ans, end) if end < len(ans) else None
         est = self.est
         if od is None:
             self.bad_answers += 1
             est[0] = est[1] = est[2] = math.nan
-            self.rows.append(_ROW.pack(*(math.nan,) * len(ESTIMATE_COLUMNS)))
+            self.rows.append(_ROW(*(math.nan,) * len(ESTIMATE_COLUMNS)))
             return act
         x, y, z, qw, qx, qy, qz = od[1:8]
         est[0], est[1], est[2] = x + self.home[0], y + self.home[1], z
         roll, pitch, yaw = wire.euler_from_quat(qw, qx, qy, qz)
-        self.rows.append(_ROW.pack(est[0], est[1], z, od[8], od[9], od[10], roll, pitch, yaw,
+        self.rows.append(_ROW(est[0], est[1], z, od[8], od[9], od[10], roll, pitch, yaw,
                                    1.0 if od[16] < 0 else 0.0))
         return act
 

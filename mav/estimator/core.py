@@ -74,6 +74,7 @@ class Estimator:
                  self.geo, t_us)
         return e
 
+    @cython.locals(e=TemplateEstimator)
     def on_hil(self, data: bytes) -> tuple | None:
         if not self.enabled or not hs.is_sensor_bundle(data):
             return None
@@ -84,7 +85,8 @@ class Estimator:
         if imu is None:
             return None
         t_us = imu[0]
-        e = self.update(msgs, t_us)
+        e = self.impl
+        e.update(imu, msgs.get(_ID_FLOW), msgs.get(_ID_RNG), msgs.get(_ID_GPS), self.geo, t_us)
         if e.lost:
             self.stats["est_lost"] += 1
         qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)

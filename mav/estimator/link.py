@@ -8,14 +8,20 @@ reads, so the tick (`Onboard.poll`) is unchanged:
   an ODOMETRY of the estimate stamped with the HIL_SENSOR's time_usec (quality -1 when the
   position estimate is lost); anything else passes through untouched;
 - `send(data)`: the tick's HIL answer, followed (after a sensor tick) by that ODOMETRY, so the
-  simulator logs the estimate beside the truth.
+  simulator logs the estimate beside the truth;
+- `decoded(data)`: the tick's decoder of what `recv` returned (`wire.decode_odometry`'s
+  fields): of the frame it has just made, read from it without checking it again.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from mav import wire
 from mav.hil import odometry
+
+_ODO_LEN = wire.HEADER_LEN_V2 + wire.ODOMETRY_USED.size + 2   # the frame untrimmed, unsigned
+_ODO_READ = wire.ODOMETRY_USED.unpack_from
 
 
 class EstimatorLink:
@@ -38,6 +44,11 @@ class EstimatorLink:
         # ODOMETRY (frame ids LOCAL_NED, estimator type 1), quality -1 when lost
         self._frame = fr = odometry(self.mav, od[0], od[1:14], od[16] < 0)
         return fr
+
+    def decoded(self, data: bytes) -> tuple | None:
+        if data is self._frame and len(data) == _ODO_LEN:
+            return _ODO_READ(data, wire.HEADER_LEN_V2)
+        return wire.decode_odometry(data)
 
     def send(self, data: bytes) -> None:
         fr = self._frame

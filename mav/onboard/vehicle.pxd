@@ -12,3 +12,4 @@ cdef class Onboard:
     cdef public VehicleState _blind_state
     cdef public object _hil, _api, _gcs, _hil_mav, input, telemetry, failsafe, commander
     cdef public object navigator, manual, mission, vehicle, origin, stats
+    cdef public object _decode_hil

@@ -155,8 +155,10 @@ class Onboard:
         # the estimator (EKF2_TYPE 1: the vehicle flies on HIL_SENSOR & co., mav/estimator/):
         # between the HIL link and the tick, it turns sensor datagrams into ODOMETRY
         self.estimator = tel.estimator = Estimator(vs.own, self.stats, self.geo)
+        self._decode_hil = wire.decode_odometry    # the tick's reader of a HIL datagram
         if self.estimator.enabled:
             self._hil = self.estimator.link(self._hil, self._hil_mav)
+            self._decode_hil = self._hil.decoded   # its estimate, not decoded again
         # what a lost position keeps: the estimator's `lost` is its horizontal aiding (flow,
         # GPS), its altitude stays; an ODOMETRY feed's quality -1 (motion capture) loses all
         self._vertical_kept = self.estimator.enabled
@@ -293,7 +295,7 @@ class Onboard:
         st = vs.stats
         st["rx_hil"] += 1
         try:
-            od = wire.decode_odometry(data)
+            od = self._decode_hil(data)
         except Exception:   # defensive: the decoder is total on bytes, but never crash here
             od = None
         if od is None:

@@ -1,0 +1,3 @@
+# Types Cython reads beside cosim/sim/estimate.py (plain Python): the frame walker as a C call
+# into mav/wire.py's compiled module (the answer split, per tick).
+from mav cimport wire
