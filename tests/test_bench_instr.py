@@ -19,7 +19,8 @@ args = sys.argv[1:]
 assert args[0] == "--tool=cachegrind" and args[1] == "--cache-sim=no", args
 assert args[2].startswith("--cachegrind-out-file="), args
 assert args[3] == {python!r} and args[4] == "-c", args
-runs = int(args[-1])
+runs, feed = int(args[-2]), args[-1]
+assert feed == "truth", args           # the figure's history: the seed mission truth-fed
 before = os.environ["COSIM_COMPILED"] == "0"
 assert os.environ["COSIM_COMPILED"] in ("0", "1")
 per_tick = 600 if before else 250
