@@ -61,6 +61,10 @@ def test_interpreted_and_compiled_fly_bit_for_bit(tmp_path, scenario, extra):
         a, b = (i["dir"] / name).read_bytes(), (c["dir"] / name).read_bytes()
         assert len(a) > 1000 and a == b, name
     si, sc = ({k: v for k, v in r["summary"].items() if k not in WALL} for r in (i, c))
+    for s in (si, sc):   # whether the render worker ran depends on the host's load, not the
+        if s.get("camera_stream"):          # flight (the same bytes either way, above)
+            s["camera_stream"] = {k: v for k, v in s["camera_stream"].items()
+                                  if k != "pipelined"}
     assert si == sc
     assert si["ticks"] > 100
 

@@ -251,8 +251,8 @@ def test_fmu_error_is_named_and_outputs_kept(tmp_path, monkeypatch):
 
     orig = wire.decode_hil_actuator_controls     # the master's decoder of the HIL answer
 
-    def poisoned(data):
-        t, u1, u2, u3, u4 = orig(data)
+    def poisoned(*args):           # (data) or, on the sensor feed, (data, start, end)
+        t, u1, u2, u3, u4 = orig(*args)
         return (t, float("nan"), u2, u3, u4) if t >= 1_500_000 else (t, u1, u2, u3, u4)
 
     monkeypatch.setattr(wire, "decode_hil_actuator_controls", poisoned)

@@ -141,8 +141,11 @@ def test_sitl_signing_key_file_reaches_the_vehicle(tmp_path):
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "--signing-key" in r.stderr
 
-    sc = load_scenario(__import__("pathlib").Path(__file__).resolve().parents[1]
-                       / "scenarios" / "scripted_square.toml")
+    from cosim.scenario.parse import with_set
+
+    sc = with_set(load_scenario(__import__("pathlib").Path(__file__).resolve().parents[1]
+                                / "scenarios" / "scripted_square.toml"),
+                  {"sensors.feed": "truth"})     # this test sends the vehicle ODOMETRY
     h = OnboardHandle(sc, RunOptions(signing_key=KEY), Tlog(tmp_path / "t.tlog"), tmp_path)
     codec = HilSimulatorCodec()
     meas = (sc.start.n, sc.start.e, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)

@@ -27,10 +27,10 @@ ROOT = Path(__file__).resolve().parent.parent
 SEED_TRACK = str(ROOT / "scenarios" / "mambo_seed_track.toml")
 SQUARE = str(ROOT / "scenarios" / "scripted_square.toml")
 COSIM = [sys.executable, "-m", "cosim.cli"]
-# a short seed-track study: 5 s of flight (take-off, the first metres of following)
+# a short seed-track study: 7 s (arming, take-off, the first metres of following)
 VARY = ["wind.n_mps=uniform(0,0.6)", "sensors.flow.flow_noise_rad_s=truncnormal(0.02,0.01,0,0.05)",
         "vehicle.start.yaw_deg=normal(0,15)"]
-SHORT = {"timing.t_final_s": 5.0}
+SHORT = {"timing.t_final_s": 7.0}     # the vehicle arms after its 0.5 s tilt alignment, 1 s in
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
@@ -40,7 +40,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
 
 def _mc_args(out: Path, n: int, *extra: str) -> list[str]:
     args = ["montecarlo", SEED_TRACK, "-n", str(n), "--seed", "7", "--set",
-            "timing.t_final_s=5.0", "--out", str(out), *extra]
+            "timing.t_final_s=7.0", "--out", str(out), *extra]
     for v in VARY:
         args += ["--vary", v]
     return args
