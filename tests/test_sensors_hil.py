@@ -74,6 +74,14 @@ def test_the_sensors_are_the_default_feed_and_the_truth_an_option():
     # the ODOMETRY's noise belongs to the truth feed: on the sensors it is an error, named
     with pytest.raises(ScenarioError, match="sensors.odometry_noise"):
         with_set(sc, {"sensors.odometry_noise.pos_std_m": 0.01})
+    # so are the ODOMETRY's faults, named, and both are fine on the truth feed
+    drop = [{"kind": "dropout", "start_s": 1.0, "end_s": 2.0}]
+    with pytest.raises(ScenarioError) as ei:
+        with_set(sc, {"faults.odometry": drop})
+    assert ei.value.field == "faults.odometry" and "flow_loss" in str(ei.value)
+    ok = with_set(sc, {"sensors.feed": "truth", "faults.odometry": drop,
+                       "sensors.odometry_noise.pos_std_m": 0.01})
+    assert not ok.sensors.hil and len(ok.faults.odometry) == 1
 
 
 def test_a_lost_position_keeps_the_altitude_and_refuses_the_position_modes():
