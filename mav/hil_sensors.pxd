@@ -3,6 +3,7 @@
 # messages' packers as C functions for the simulator's sensor models (cosim/sensors/suite.pxd).
 from mav cimport wire
 from mav.wire cimport FastMsg
+from mav.fields cimport Layout, done, new_payload, put_f, put_i
 
 cpdef bytes stamped(mav, FastMsg m, t_us, bytes rest)
 cpdef bytes stamp(FastMsg m, t_us, bytes rest)
@@ -10,7 +11,7 @@ cpdef list stamp_all(list parts, t_us, list out)
 cpdef bytes frames(mav, list parts)
 cpdef bytes hil_sensor_rest(double ax, double ay, double az, double gx, double gy, double gz,
                             double mx, double my, double mz, double abs_hpa, double p_alt,
-                            double temp_c, long fields)
+                            double temp_c, long fields_updated)
 cpdef bytes flow_rest(long long dt_us, double ix, double iy, double gx, double gy, double gz,
                       long quality)
 cpdef bytes distance_rest(long min_cm, long max_cm, long cur_cm, long quality)

@@ -27,6 +27,7 @@ import cython
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
+from mav.fields import Layout, done, new_payload, put_f, put_i
 
 HIL_SENSOR = wire.FastMsg(mavlink2.MAVLink_hil_sensor_message)
 HIL_OPTICAL_FLOW = wire.FastMsg(mavlink2.MAVLink_hil_optical_flow_message)
@@ -54,11 +55,13 @@ def _rest(m: wire.FastMsg) -> struct.Struct:
 _HDR2 = cython.declare(cython.Py_ssize_t, wire.HEADER_LEN_V2)
 _STAMP_US = struct.Struct("<Q").pack      # bound once (a Struct's method lookup per call
 _STAMP_MS = struct.Struct("<I").pack      # costs as much as the packing)
-_SENSOR_REST = _rest(HIL_SENSOR).pack      # the packers bound once, as the stamps
-_FLOW_REST = _rest(HIL_OPTICAL_FLOW).pack
-_DIST_REST = _rest(DISTANCE_SENSOR).pack
+# the payloads' layouts (less the stamp but HIL_STATE_QUATERNION's), written field by field
+# from C values (mav/fields.py: struct's bytes, no Python float per field)
+_SENSOR_L = cython.declare(Layout, Layout(_rest(HIL_SENSOR).format))
+_FLOW_L = cython.declare(Layout, Layout(_rest(HIL_OPTICAL_FLOW).format))
+_DIST_L = cython.declare(Layout, Layout(_rest(DISTANCE_SENSOR).format))
 _GPS_REST = _rest(HIL_GPS).pack
-_TRUTH = HIL_STATE_QUATERNION.st.pack
+_TRUTH_L = cython.declare(Layout, Layout(HIL_STATE_QUATERNION.st.format))
 
 
 def stamped(mav, m: wire.FastMsg, t_us: int, rest: bytes) -> bytes:
@@ -107,10 +110,7 @@ def frames(mav, parts: list) -> bytes:
     size = 0
     for i in range(k):
         size += wire.trimmed_len(parts[2 * i + 1]) + _HDR2 + 2
-    if cython.compiled:
-        out = bytes(size)
-    else:
-        out = bytearray(size)
+    out = new_payload(size)
     at = 0
     for i in range(k):
         payload = parts[2 * i + 1]
@@ -120,22 +120,57 @@ def frames(mav, parts: list) -> bytes:
     return out if cython.compiled else bytes(out)
 
 
+# (fields left zero are written as struct writes 0 / 0.0: diff_pressure, the sensor ids, ...)
 def hil_sensor_rest(ax: float, ay: float, az: float, gx: float, gy: float, gz: float,
                     mx: float, my: float, mz: float, abs_hpa: float, p_alt: float,
-                    temp_c: float, fields: int) -> bytes:
-    return _SENSOR_REST(ax, ay, az, gx, gy, gz, mx, my, mz, abs_hpa, 0.0, p_alt, temp_c,
-                             fields, 0)
+                    temp_c: float, fields_updated: int) -> bytes:
+    """HIL_SENSOR less time_usec: xacc..zmag, abs_pressure, diff_pressure 0, pressure_alt,
+    temperature, fields_updated, id 0."""
+    b = new_payload(_SENSOR_L.size)
+    put_f(b, _SENSOR_L, 0, ax)
+    put_f(b, _SENSOR_L, 1, ay)
+    put_f(b, _SENSOR_L, 2, az)
+    put_f(b, _SENSOR_L, 3, gx)
+    put_f(b, _SENSOR_L, 4, gy)
+    put_f(b, _SENSOR_L, 5, gz)
+    put_f(b, _SENSOR_L, 6, mx)
+    put_f(b, _SENSOR_L, 7, my)
+    put_f(b, _SENSOR_L, 8, mz)
+    put_f(b, _SENSOR_L, 9, abs_hpa)
+    put_f(b, _SENSOR_L, 11, p_alt)
+    put_f(b, _SENSOR_L, 12, temp_c)
+    put_i(b, _SENSOR_L, 13, fields_updated)
+    return done(b)
 
 
 def flow_rest(dt_us: int, ix: float, iy: float, gx: float, gy: float, gz: float,
               quality: int) -> bytes:
-    """distance -1: the sensor has none of its own (the vehicle uses its altitude)."""
-    return _FLOW_REST(dt_us, ix, iy, gx, gy, gz, 0, -1.0, 0, 0, quality)
+    """HIL_OPTICAL_FLOW less time_usec: integration_time_us, integrated x, y, gyro x, y, z,
+    time_delta_distance_us 0, distance -1 (the sensor has none of its own: the vehicle uses
+    its altitude), temperature 0, sensor_id 0, quality."""
+    b = new_payload(_FLOW_L.size)
+    put_i(b, _FLOW_L, 0, dt_us)
+    put_f(b, _FLOW_L, 1, ix)
+    put_f(b, _FLOW_L, 2, iy)
+    put_f(b, _FLOW_L, 3, gx)
+    put_f(b, _FLOW_L, 4, gy)
+    put_f(b, _FLOW_L, 5, gz)
+    put_f(b, _FLOW_L, 7, -1.0)
+    put_i(b, _FLOW_L, 10, quality)
+    return done(b)
 
 
 def distance_rest(min_cm: int, max_cm: int, cur_cm: int, quality: int) -> bytes:
-    return _DIST_REST(min_cm, max_cm, cur_cm, RANGE_ULTRASOUND, 0, ORIENT_DOWN, 0, 0.0,
-                           0.0, 0.0, 0.0, 0.0, 0.0, quality)
+    """DISTANCE_SENSOR less time_boot_ms: min, max, current (cm), type ultrasound, id 0,
+    orientation down, covariance 0, fovs and quaternion 0, signal_quality."""
+    b = new_payload(_DIST_L.size)
+    put_i(b, _DIST_L, 0, min_cm)
+    put_i(b, _DIST_L, 1, max_cm)
+    put_i(b, _DIST_L, 2, cur_cm)
+    put_i(b, _DIST_L, 3, RANGE_ULTRASOUND)
+    put_i(b, _DIST_L, 5, ORIENT_DOWN)
+    put_i(b, _DIST_L, 13, quality)
+    return done(b)
 
 
 def gps_rest(lat_e7: int, lon_e7: int, alt_mm: int, eph_cm: int, vn_cms: int, ve_cms: int,
@@ -149,9 +184,23 @@ def truth_payload(t_us: int, qw: float, qx: float, qy: float, qz: float, p: floa
                   r: float, lat_e7: int, lon_e7: int, alt_mm: int, vn_cms: int, ve_cms: int,
                   vd_cms: int) -> bytes:
     """HIL_STATE_QUATERNION's whole payload (stamped t_us: the truth is sent the tick it is
-    read, not delayed)."""
-    return _TRUTH(t_us, qw, qx, qy, qz, p, q, r, lat_e7, lon_e7, alt_mm, vn_cms, ve_cms, vd_cms,
-                  0, 0, 0, 0, 0)
+    read, not delayed); airspeeds and accelerations 0."""
+    b = new_payload(_TRUTH_L.size)
+    put_i(b, _TRUTH_L, 0, t_us)
+    put_f(b, _TRUTH_L, 1, qw)
+    put_f(b, _TRUTH_L, 2, qx)
+    put_f(b, _TRUTH_L, 3, qy)
+    put_f(b, _TRUTH_L, 4, qz)
+    put_f(b, _TRUTH_L, 5, p)
+    put_f(b, _TRUTH_L, 6, q)
+    put_f(b, _TRUTH_L, 7, r)
+    put_i(b, _TRUTH_L, 8, lat_e7)
+    put_i(b, _TRUTH_L, 9, lon_e7)
+    put_i(b, _TRUTH_L, 10, alt_mm)
+    put_i(b, _TRUTH_L, 11, vn_cms)
+    put_i(b, _TRUTH_L, 12, ve_cms)
+    put_i(b, _TRUTH_L, 13, vd_cms)
+    return done(b)
 
 
 def encode_hil_sensor(mav, t_us: int, acc: tuple, gyro: tuple, mag: tuple, abs_hpa: float,

@@ -2,6 +2,7 @@
 # as C fields, read directly by the compiled encoders and decoders.
 
 from mav cimport crc as _crc
+from mav.fields cimport new_payload
 
 
 cdef class FastMsg:

@@ -33,6 +33,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import crc as _crc
 from mav.crc import crc16
+from mav.fields import new_payload
 
 MAGIC_V2 = 0xFD
 MAGIC_V1 = 0xFE
@@ -158,10 +159,7 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
         signing.timestamp += 1
         return signed
     n = trimmed_len(payload)
-    if cython.compiled:
-        out = bytes(_HDR2 + n + 2)
-    else:
-        out = bytearray(_HDR2 + n + 2)
+    out = new_payload(_HDR2 + n + 2)
     put_frame(out, 0, seq, mav.srcSystem, mav.srcComponent, m, payload, n)
     return out if cython.compiled else bytes(out)
 

@@ -1,0 +1,30 @@
+# Types Cython reads beside mav/fields.py (plain Python): a payload's layout as C arrays and
+# its fields written and read as C calls (struct's own float packers from Python.h).
+
+cdef extern from "Python.h":
+    int PyFloat_Pack4(double x, char *p, int le) except -1
+    int PyFloat_Pack8(double x, char *p, int le) except -1
+    double PyFloat_Unpack4(const char *p, int le) except? -1.0
+    double PyFloat_Unpack8(const char *p, int le) except? -1.0
+    bytes PyBytes_FromStringAndSize(const char *v, Py_ssize_t n)
+    char *PyBytes_AS_STRING(object b)
+
+cdef extern from "string.h":
+    void *memset(void *s, int c, size_t n)
+
+
+cdef class Layout:
+    cdef public object fmt
+    cdef public Py_ssize_t n, size
+    cdef Py_ssize_t off[96]
+    cdef int code[96]
+
+
+cpdef object new_payload(Py_ssize_t n)
+cpdef bytes done(buf)
+cpdef int put_f(bytes out, Layout lay, Py_ssize_t k, double v) except -1
+cpdef int put_i(bytes out, Layout lay, Py_ssize_t k, long long v) except -1
+cpdef double get_f(bytes data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
+                   Py_ssize_t k) except? -1.0
+cpdef long long get_i(bytes data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
+                      Py_ssize_t k) except? -1
