@@ -21,6 +21,7 @@ cdef class Layout:
 
 
 cpdef object new_payload(Py_ssize_t n)
+cpdef object copy_of(bytes template)
 cpdef bytes done(buf)
 cpdef int put_f(bytes out, Layout lay, Py_ssize_t k, double v) except -1
 cpdef int put_i(bytes out, Layout lay, Py_ssize_t k, long long v) except -1

@@ -29,16 +29,17 @@ _ST = {c: struct.Struct("<" + c) for c in _SIZES}
 
 
 class Layout:
-    """Offsets and type codes of a payload's fields (C arrays when compiled: fields.pxd)."""
+    """Offsets and type codes of a payload's fields (C arrays when compiled: fields.pxd);
+    `base`: where the payload starts in the buffer written (10: in a MAVLink 2 frame)."""
 
-    def __init__(self, fmt: str) -> None:
+    def __init__(self, fmt: str, base: int = 0) -> None:
         if not fmt.startswith("<"):
             raise ValueError(f"not a little-endian struct format: {fmt!r}")
         if not cython.compiled:
             self.off = [0] * MAXF
             self.code = [0] * MAXF
         self.fmt = fmt
-        at = n = 0
+        at, n = base, 0
         for count, c in re.findall(r"(\d*)([A-Za-z])", fmt[1:]):
             if c not in _SIZES:
                 raise ValueError(f"field type {c!r} of {fmt!r} has no typed access")
@@ -49,9 +50,10 @@ class Layout:
                 self.code[n] = ord(c)
                 at += _SIZES[c]
                 n += 1
-        if at != struct.calcsize(fmt):
-            raise ValueError(f"{fmt!r}: {at} bytes laid out, struct says {struct.calcsize(fmt)}")
-        self.n, self.size = n, at
+        if at - base != struct.calcsize(fmt):
+            raise ValueError(f"{fmt!r}: {at - base} bytes laid out, struct says "
+                             f"{struct.calcsize(fmt)}")
+        self.n, self.size = n, at - base
 
 
 @cython.locals(b=bytes)
@@ -64,6 +66,16 @@ def new_payload(n: int):
         return b
     else:
         return bytearray(n)
+
+
+@cython.locals(b=bytes)
+def copy_of(template: bytes):
+    """A new buffer holding template's bytes, to write in place (then `done`)."""
+    if cython.compiled:
+        b = PyBytes_FromStringAndSize(PyBytes_AS_STRING(template), len(template))  # noqa: F821
+        return b
+    else:
+        return bytearray(template)
 
 
 def done(buf) -> bytes:

@@ -12,9 +12,11 @@ from __future__ import annotations
 import math
 import struct
 
+import cython
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
+from mav.fields import Layout, copy_of, done, put_f, put_i
 
 SIM_SYSID = 250
 SIM_COMPID = mavlink2.MAV_COMP_ID_SYSTEM_CONTROL
@@ -23,21 +25,55 @@ MAX_R_SCALE = 1000.0       # battery sag: the largest resistance factor the vehi
 MAX_V_DROP = 100.0         # V, battery sag: the largest fixed drop
 
 # ODOMETRY payload = time_usec and the 13 measured values, then a tail that is the same every
-# tick (covariances [NaN, 0, ...], frame ids, reset counter, estimator type, quality)
-_ODO_HEAD = struct.Struct("<Q13f")
-_ODO_TAIL = wire.ODOMETRY.st.pack(0, *(0.0,) * 13, math.nan, *(0.0,) * 20, math.nan,
-                                  *(0.0,) * 20, mavlink2.MAV_FRAME_LOCAL_NED,
-                                  mavlink2.MAV_FRAME_LOCAL_NED, 0, 1, 100)[_ODO_HEAD.size:]
-_ODO_TAIL_LOST = _ODO_TAIL[:-1] + struct.pack("<b", -1)     # quality -1: the estimate failed
+# tick (covariances [NaN, 0, ...], frame ids, reset counter, estimator type, quality): the
+# frame of a tick is a copy of a template frame holding that tail, written in place (the head
+# with mav/fields.py, the header and checksum with wire.seal_at)
+_ODO_PAYLOAD = wire.ODOMETRY.st.pack(0, *(0.0,) * 13, math.nan, *(0.0,) * 20, math.nan,
+                                     *(0.0,) * 20, mavlink2.MAV_FRAME_LOCAL_NED,
+                                     mavlink2.MAV_FRAME_LOCAL_NED, 0, 1, 100)
+_ODO_N = cython.declare(cython.Py_ssize_t, len(_ODO_PAYLOAD))   # never trimmed: quality != 0
+_HDR = cython.declare(cython.Py_ssize_t, wire.HEADER_LEN_V2)
+_ODO_T = cython.declare(bytes, bytes(_HDR) + _ODO_PAYLOAD + bytes(2))
+_ODO_T_LOST = cython.declare(bytes, _ODO_T[:_HDR + _ODO_N - 1] + struct.pack("<b", -1)
+                             + bytes(2))                      # quality -1: the estimate failed
+_ODO_L = cython.declare(Layout, Layout(wire.ODOMETRY.st.format, _HDR))
+_ODO_MSG = cython.declare(wire.FastMsg, wire.ODOMETRY)
 
 
 def odometry(mav, t_us: int, m: tuple[float, ...], lost: bool) -> bytes:
     """ODOMETRY of m = (x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r) on mav: the same bytes as
     `wire.encode_odometry(mav, t_us, *m, estimator_type=1, quality=100)` (quality -1 if
-    `lost`), with the constant tail of the payload packed once. The simulator's truth, and
-    the onboard estimator's estimate (mav/estimator/link.py)."""
-    return wire.frame(mav, wire.ODOMETRY, _ODO_HEAD.pack(t_us, *m) + (
-        _ODO_TAIL_LOST if lost else _ODO_TAIL))
+    `lost`). The simulator's truth (`odometry_of` the tuple)."""
+    return odometry_of(mav, t_us, m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9],
+                       m[10], m[11], m[12], lost)
+
+
+@cython.locals(seq=cython.int)
+def odometry_of(mav, t_us: int, x: float, y: float, z: float, qw: float, qx: float,
+                qy: float, qz: float, vx: float, vy: float, vz: float, p: float, q: float,
+                r: float, lost: bool) -> bytes:
+    """`odometry` of C values: the onboard estimator's estimate (mav/estimator/core.py)."""
+    out = copy_of(_ODO_T_LOST if lost else _ODO_T)
+    put_i(out, _ODO_L, 0, t_us)
+    put_f(out, _ODO_L, 1, x)
+    put_f(out, _ODO_L, 2, y)
+    put_f(out, _ODO_L, 3, z)
+    put_f(out, _ODO_L, 4, qw)
+    put_f(out, _ODO_L, 5, qx)
+    put_f(out, _ODO_L, 6, qy)
+    put_f(out, _ODO_L, 7, qz)
+    put_f(out, _ODO_L, 8, vx)
+    put_f(out, _ODO_L, 9, vy)
+    put_f(out, _ODO_L, 10, vz)
+    put_f(out, _ODO_L, 11, p)
+    put_f(out, _ODO_L, 12, q)
+    put_f(out, _ODO_L, 13, r)
+    if mav.signing.sign_outgoing:
+        return wire.frame(mav, _ODO_MSG, bytes(out[_HDR:_HDR + _ODO_N]))
+    seq = mav.seq
+    mav.seq = (seq + 1) & 0xFF
+    wire.seal_at(out, 0, seq, mav.srcSystem, mav.srcComponent, _ODO_MSG, _ODO_N)
+    return done(out)
 
 
 class HilSimulatorCodec:

@@ -3,7 +3,7 @@
 # messages' packers as C functions for the simulator's sensor models (cosim/sensors/suite.pxd).
 from mav cimport wire
 from mav.wire cimport FastMsg
-from mav.fields cimport Layout, done, new_payload, put_f, put_i
+from mav.fields cimport Layout, done, get_f, get_i, new_payload, put_f, put_i
 
 cpdef bytes stamped(mav, FastMsg m, t_us, bytes rest)
 cpdef bytes stamp(FastMsg m, t_us, bytes rest)
@@ -18,5 +18,21 @@ cpdef bytes distance_rest(long min_cm, long max_cm, long cur_cm, long quality)
 cpdef bytes truth_payload(t_us, double qw, double qx, double qy, double qz, double p,
                           double q, double r, long long lat_e7, long long lon_e7,
                           long long alt_mm, long vn_cms, long ve_cms, long vd_cms)
+
+
+cdef class Payload:
+    cdef public Layout lay
+    cdef public bytes data
+    cdef public Py_ssize_t p0, plen, at, end
+    cpdef double f(self, Py_ssize_t k) except? -1.0
+    cpdef long long i(self, Py_ssize_t k) except? -1
+
+
+cdef class Bundle:
+    cdef public Payload imu, flow, rng, gps
+    cdef public long bad
+    cpdef read(self, bytes data)
+
+
 cpdef tuple decode_bundle(bytes data)
 cpdef bint is_sensor_bundle(bytes data) except -1

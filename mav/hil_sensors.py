@@ -27,7 +27,7 @@ import cython
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
-from mav.fields import Layout, done, new_payload, put_f, put_i
+from mav.fields import Layout, done, get_f, get_i, new_payload, put_f, put_i
 
 HIL_SENSOR = wire.FastMsg(mavlink2.MAVLink_hil_sensor_message)
 HIL_OPTICAL_FLOW = wire.FastMsg(mavlink2.MAVLink_hil_optical_flow_message)
@@ -233,34 +233,102 @@ def encode_truth(mav, t_us: int, q: tuple, pqr: tuple, lat_e7: int, lon_e7: int,
         v_cms[1], v_cms[2]))
 
 
-@cython.locals(i=cython.Py_ssize_t, n=cython.Py_ssize_t, end=cython.Py_ssize_t,
-               bad=cython.long, m=wire.FastMsg)
-def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
-    """The sensor frames of one HIL datagram: ({msgid: payload tuple in wire order}, number
-    of frames that were not well-formed sensor messages). ({}, n) for anything else.
-    HIL_STATE_QUATERNION (the truth, for the simulator's logs; the vehicle never reads it) is
-    checked like the others but not unpacked: it has no entry."""
-    out: dict[int, tuple] = {}
-    bad = 0
-    i, n = 0, len(data)
-    while i < n:
-        end = wire.frame_end(data, i)
-        if end < 0:
-            return out, bad + 1
-        m = SENSOR_MSGS.get(wire.msgid_of(data, i))
-        if m is None:
-            bad += 1
-        elif m is HIL_STATE_QUATERNION:
+class Payload:
+    """One received message's payload read in place: field k of its wire order (arrays
+    flattened, as pymavlink's tuple) as a float, `f(k)`, or an integer, `i(k)` (zero past a
+    trimmed payload's end, as pymavlink). `data` is None while the message is absent."""
+
+    __slots__ = ("lay", "data", "p0", "plen", "at", "end")
+
+    def __init__(self, m: wire.FastMsg) -> None:
+        self.lay = Layout(m.st.format)
+        self.data = None
+        self.p0 = self.plen = self.at = self.end = 0
+
+    def f(self, k: int) -> float:
+        return get_f(self.data, self.p0, self.plen, self.lay, k)
+
+    def i(self, k: int) -> int:
+        return get_i(self.data, self.p0, self.plen, self.lay, k)
+
+
+class Bundle:
+    """The sensor messages of one HIL datagram (`read`), kept and reused by the vehicle's
+    estimator: a Payload each for HIL_SENSOR, HIL_OPTICAL_FLOW, DISTANCE_SENSOR and HIL_GPS
+    (the last of each type if repeated), and `bad`, the number of frames that were not
+    well-formed sensor messages (a datagram that is not all frames stops at the first thing
+    that is not one, which counts). HIL_STATE_QUATERNION (the truth, for the simulator's logs;
+    the vehicle never reads it) is checked like the others but not kept."""
+
+    __slots__ = ("imu", "flow", "rng", "gps", "bad")
+
+    def __init__(self) -> None:
+        self.imu = Payload(HIL_SENSOR)
+        self.flow = Payload(HIL_OPTICAL_FLOW)
+        self.rng = Payload(DISTANCE_SENSOR)
+        self.gps = Payload(HIL_GPS)
+        self.bad = 0
+
+    @cython.locals(i=cython.Py_ssize_t, n=cython.Py_ssize_t, end=cython.Py_ssize_t,
+                   bad=cython.long, mid=cython.long, m=wire.FastMsg, v=Payload)
+    def read(self, data: bytes) -> None:
+        self.imu.data = self.flow.data = self.rng.data = self.gps.data = None
+        bad = 0
+        i, n = 0, len(data)
+        while i < n:
+            end = wire.frame_end(data, i)
+            if end < 0:
+                bad += 1
+                break
+            mid = wire.msgid_of(data, i)
+            v = None
+            if mid == _ID_SENSOR:
+                m, v = _M_SENSOR, self.imu
+            elif mid == _ID_FLOW:
+                m, v = _M_FLOW, self.flow
+            elif mid == _ID_DIST:
+                m, v = _M_DIST, self.rng
+            elif mid == _ID_GPS:
+                m, v = _M_GPS, self.gps
+            elif mid == _ID_TRUTH:
+                m = _M_TRUTH
+            else:
+                bad += 1
+                i = end
+                continue
             if not wire.frame_ok(m, data, i, end):
                 bad += 1
-        else:
-            f = wire.decode_fast(m, data, i, end)
-            if f is None:
-                bad += 1
-            else:
-                out[m.id] = f
-        i = end
-    return out, bad
+            elif v is not None:
+                v.data, v.p0, v.plen, v.at, v.end = data, i + _HDR2, data[i + 1], i, end
+            i = end
+        self.bad = bad
+
+
+_M_SENSOR = cython.declare(wire.FastMsg, HIL_SENSOR)
+_M_FLOW = cython.declare(wire.FastMsg, HIL_OPTICAL_FLOW)
+_M_DIST = cython.declare(wire.FastMsg, DISTANCE_SENSOR)
+_M_GPS = cython.declare(wire.FastMsg, HIL_GPS)
+_M_TRUTH = cython.declare(wire.FastMsg, HIL_STATE_QUATERNION)
+_ID_SENSOR = cython.declare(cython.long, HIL_SENSOR.id)
+_ID_FLOW = cython.declare(cython.long, HIL_OPTICAL_FLOW.id)
+_ID_DIST = cython.declare(cython.long, DISTANCE_SENSOR.id)
+_ID_GPS = cython.declare(cython.long, HIL_GPS.id)
+_ID_TRUTH = cython.declare(cython.long, HIL_STATE_QUATERNION.id)
+
+
+@cython.locals(b=Bundle, v=Payload)
+def decode_bundle(data: bytes) -> tuple[dict[int, tuple], int]:
+    """The sensor frames of one HIL datagram as tuples: ({msgid: payload tuple in wire
+    order}, number of frames that were not well-formed sensor messages), as `Bundle.read`
+    finds them (HIL_STATE_QUATERNION checked, no entry); ({}, n) for anything else."""
+    b = Bundle()
+    b.read(data)
+    out: dict[int, tuple] = {}
+    for m, v in ((HIL_SENSOR, b.imu), (HIL_OPTICAL_FLOW, b.flow), (DISTANCE_SENSOR, b.rng),
+                 (HIL_GPS, b.gps)):
+        if v.data is not None:
+            out[m.id] = wire.decode_fast(m, data, v.at, v.end)
+    return out, b.bad
 
 
 def is_sensor_bundle(data: bytes) -> bool:

@@ -14,5 +14,5 @@ cdef class Imu3:
     cdef public double x10, x20, y10, y20, x11, x21, y11, y21, x12, x22, y12, y22
     cdef public double sc0, sc1, sc2, ns0, ns1, ns2, o0, o1, o2
     cdef public Gauss gauss
-    cpdef tuple read(self, double u0, double u1, double u2, double bias0, double bias1,
+    cpdef read(self, double u0, double u1, double u2, double bias0, double bias1,
                      double bias2, double lim)

@@ -67,12 +67,15 @@ class Imu3:
 
     @cython.locals(i=cython.Py_ssize_t, buf=list, b0=cython.double, b1=cython.double,
                    b2=cython.double, a1=cython.double, a2=cython.double, y0=cython.double,
-                   y1=cython.double, y2=cython.double, v=cython.double)
+                   y1=cython.double, y2=cython.double, v=cython.double, n0=cython.double,
+                   n1=cython.double, n2=cython.double)
     def read(self, u0: float, u1: float, u2: float, bias0: float, bias1: float, bias2: float,
-             lim: float) -> tuple[float, float, float]:
+             lim: float) -> None:
+        """The reading in o0, o1, o2."""
         g = self.gauss
         i = g.at(3)
         buf = g.buf
+        n0, n1, n2 = buf[i], buf[i + 1], buf[i + 2]      # C doubles when compiled
         b0, b1, b2, a1, a2 = self.b0, self.b1, self.b2, self.a1, self.a2
         y0 = b0 * u0 + b1 * self.x10 + b2 * self.x20 - a1 * self.y10 - a2 * self.y20
         self.x20, self.x10, self.y20, self.y10 = self.x10, u0, self.y10, y0
@@ -80,13 +83,12 @@ class Imu3:
         self.x21, self.x11, self.y21, self.y11 = self.x11, u1, self.y11, y1
         y2 = b0 * u2 + b1 * self.x12 + b2 * self.x22 - a1 * self.y12 - a2 * self.y22
         self.x22, self.x12, self.y22, self.y12 = self.x12, u2, self.y12, y2
-        v = y0 * self.sc0 + bias0 + self.ns0 * buf[i]
+        v = y0 * self.sc0 + bias0 + self.ns0 * n0
         self.o0 = lim if v > lim else -lim if v < -lim else v
-        v = y1 * self.sc1 + bias1 + self.ns1 * buf[i + 1]
+        v = y1 * self.sc1 + bias1 + self.ns1 * n1
         self.o1 = lim if v > lim else -lim if v < -lim else v
-        v = y2 * self.sc2 + bias2 + self.ns2 * buf[i + 2]
+        v = y2 * self.sc2 + bias2 + self.ns2 * n2
         self.o2 = lim if v > lim else -lim if v < -lim else v
-        return self.o0, self.o1, self.o2
 
 
 class SecondOrder:

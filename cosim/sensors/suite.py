@@ -57,6 +57,13 @@ from mav.wire import FlatEarth
 NAN = math.nan
 INF = cython.declare(cython.double, math.inf)
 SENSOR_FIELDS = hs.FIELDS_IMU | hs.FIELDS_MAG | hs.FIELDS_BARO
+# the messages and constants read every tick as C globals (a module attribute is a lookup)
+_SENSOR_FIELDS = cython.declare(cython.long, SENSOR_FIELDS)
+_NO_ECHO = cython.declare(cython.long, hs.NO_ECHO)
+_M_SENSOR = cython.declare(wire.FastMsg, hs.HIL_SENSOR)
+_M_DIST = cython.declare(wire.FastMsg, hs.DISTANCE_SENSOR)
+_M_FLOW = cython.declare(wire.FastMsg, hs.HIL_OPTICAL_FLOW)
+_M_TRUTH = cython.declare(wire.FastMsg, hs.HIL_STATE_QUATERNION)
 # the plant outputs' indices as C constants (read() indexes y 16 times a tick)
 _YAX = cython.declare(cython.Py_ssize_t, Y_AX)
 _YAY = cython.declare(cython.Py_ssize_t, Y_AY)
@@ -145,7 +152,7 @@ class SensorSuite:
         q.append(self.read(t_us, y))
         parts = q.pop(0) if len(q) > self.delay else q[0]
         out = hs.stamp_all(parts, t_us, [])     # (message, payload less its stamp) pairs
-        out.append(hs.HIL_STATE_QUATERNION)
+        out.append(_M_TRUTH)
         out.append(self.truth)
         return hs.frames(self.mav, out)
 
@@ -163,15 +170,17 @@ class SensorSuite:
                    vbx=cython.double, vby=cython.double, d=cython.double, h=cython.double,
                    fn=cython.double, c=cython.double, tilt=cython.double, ok=cython.bint,
                    ix=cython.double, iy=cython.double, send=cython.bint, i=cython.Py_ssize_t,
-                   buf=list, acc=Imu3, gyr=Imu3, parts=list)
+                   buf=list, acc=Imu3, gyr=Imu3, parts=list, n0=cython.double,
+                   n1=cython.double, n2=cython.double, lo=cython.long, hi=cython.long)
     def read(self, t_us: int, y) -> list:
         """The readings of y(t_k) as (message, payload less its stamp) pairs, flat (the delay
         line sends them one tick later, stamped with the lockstep time then); the truth of
         y(t_k) in `truth` (HIL_STATE_QUATERNION's payload, stamped t_k)."""
         k = self.k
         self.k = k + 1
-        t = t_us * 1e-6
+        t = 0.0
         if self.faults:
+            t = t_us * 1e-6
             self._update_faults(t)
         act = self.active
         qw, qx, qy, qz = y[_YQW], y[_YQX], y[_YQY], y[_YQZ]
@@ -202,7 +211,8 @@ class SensorSuite:
         height = -y[_YZ]
         g = self.g_baro
         i = g.at(1)
-        pa = self.baro_p0 - self.baro_gain * height + self.baro_noise * g.buf[i]
+        n0 = g.buf[i]                              # (noise as C doubles when compiled)
+        pa = self.baro_p0 - self.baro_gain * height + self.baro_noise * n0
         for f in act:
             if f.kind == "baro_drift":
                 pa += f.value[0] * (t - f.start_s)
@@ -213,22 +223,24 @@ class SensorSuite:
         g = self.g_mag
         i = g.at(3)
         buf = g.buf
-        m0 = r00 * mx + r10 * my + r20 * mz + sm * buf[i]
-        m1 = r01 * mx + r11 * my + r21 * mz + sm * buf[i + 1]
-        m2 = r02 * mx + r12 * my + r22 * mz + sm * buf[i + 2]
+        n0, n1, n2 = buf[i], buf[i + 1], buf[i + 2]
+        m0 = r00 * mx + r10 * my + r20 * mz + sm * n0
+        m1 = r01 * mx + r11 * my + r21 * mz + sm * n1
+        m2 = r02 * mx + r12 * my + r22 * mz + sm * n2
         for f in act:
             if f.kind == "mag_interference":
                 m0, m1, m2 = m0 + f.value[0], m1 + f.value[1], m2 + f.value[2]
-        parts = [hs.HIL_SENSOR, hs.hil_sensor_rest(
+        parts = [_M_SENSOR, hs.hil_sensor_rest(
             acc.o0, acc.o1, acc.o2, gyr.o0, gyr.o1, gyr.o2, m0, m1, m2, pa * 0.01, p_alt, 25.0,
-            SENSOR_FIELDS)]
+            _SENSOR_FIELDS)]
         # range finder (down) and flow share the slant distance along body z
         tilt_c = r22                               # cos(roll) cos(pitch)
         slant = height / tilt_c if tilt_c > 0.05 else INF
         if k % self.range_every == 0:
             g = self.g_range
             i = g.at(1)
-            rng = slant + self.range_noise * g.buf[i]
+            n0 = g.buf[i]
+            rng = slant + self.range_noise * n0
             echo = self.range_min <= rng <= self.range_max
             for f in act:
                 if f.kind == "sonar_dropout":
@@ -238,8 +250,9 @@ class SensorSuite:
             else:
                 self.n_none += 1
             lo, hi = self.range_cm
-            parts += [hs.DISTANCE_SENSOR, hs.distance_rest(
-                lo, hi, _round(rng * 100) if echo else 0, 100 if echo else hs.NO_ECHO)]
+            parts.append(_M_DIST)
+            parts.append(hs.distance_rest(lo, hi, _round(rng * 100) if echo else 0,
+                                          100 if echo else _NO_ECHO))
         # optical flow: body velocity over the slant distance, plus the body rates
         vx, vy, vz = y[_YVX], y[_YVY], y[_YVZ]
         vbx = r00 * vx + r10 * vy + r20 * vz
@@ -249,8 +262,9 @@ class SensorSuite:
         g = self.g_flow
         i = g.at(2)
         fn = self.flow_noise
-        self.fa0 += (pr - vby / d + fn * g.buf[i]) * h
-        self.fa1 += (qr + vbx / d + fn * g.buf[i + 1]) * h
+        n0, n1 = g.buf[i], g.buf[i + 1]
+        self.fa0 += (pr - vby / d + fn * n0) * h
+        self.fa1 += (qr + vbx / d + fn * n1) * h
         self.fa2 += gyr.o0 * h
         self.fa3 += gyr.o1 * h
         self.fa4 += gyr.o2 * h
@@ -276,8 +290,9 @@ class SensorSuite:
                     qual = 255
             if send:
                 self.n_flow += 1
-                parts += [hs.HIL_OPTICAL_FLOW, hs.flow_rest(
-                    _round(self.flow_n * h * 1e6), ix, iy, self.fa2, self.fa3, self.fa4, qual)]
+                parts.append(_M_FLOW)
+                parts.append(hs.flow_rest(_round(self.flow_n * h * 1e6), ix, iy, self.fa2,
+                                          self.fa3, self.fa4, qual))
             self.flow_n = 0
             self.fa0 = self.fa1 = self.fa2 = self.fa3 = self.fa4 = 0.0
         # GPS and the truth, in the vehicle's geodetic frame (origin = the start point)

@@ -1,3 +1,4 @@
 # Types Cython reads beside cosim/sim/estimate.py (plain Python): the frame walker as a C call
 # into mav/wire.py's compiled module (the answer split, per tick).
 from mav cimport wire
+from mav.fields cimport Layout, done, get_f, get_i, new_payload, put_f

@@ -13,7 +13,6 @@ same: a sensor-fed vehicle loses its position through the sensor faults) and
 from __future__ import annotations
 
 import math
-import struct
 import tempfile
 from pathlib import Path
 
@@ -23,10 +22,17 @@ import numpy as np
 from cosim.sensors.suite import SensorSuite
 from cosim.sim.recorder import CHUNK, SeriesSpool
 from mav import wire
+from mav.fields import Layout, done, get_f, get_i, new_payload, put_f
 
 ESTIMATE_COLUMNS = ("est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_roll",
                     "est_pitch", "est_yaw", "est_lost")
-_ROW = struct.Struct(f"<{len(ESTIMATE_COLUMNS)}d").pack     # bound once (per tick)
+# a row of the estimate (doubles), and the answer's ODOMETRY read in place (fields by index:
+# 0 time_usec, 1-3 x y z, 4-7 q, 8-10 vx vy vz, ..., 60 quality)
+_ROW_L = cython.declare(Layout, Layout(f"<{len(ESTIMATE_COLUMNS)}d"))
+_ODO = cython.declare(wire.FastMsg, wire.ODOMETRY)
+_ODO_L = cython.declare(Layout, Layout(wire.ODOMETRY.st.format))
+_QUALITY = cython.declare(cython.Py_ssize_t, _ODO_L.n - 1)
+_HDR = cython.declare(cython.Py_ssize_t, wire.HEADER_LEN_V2)
 
 
 def floor_textured(world) -> bool:
@@ -69,26 +75,45 @@ class SensorFeed:
 
     encode_odometry_lost = encode_odometry
 
-    @cython.locals(end=cython.Py_ssize_t, x=cython.double, y=cython.double, z=cython.double)
+    @cython.locals(end=cython.Py_ssize_t, n=cython.Py_ssize_t, p0=cython.Py_ssize_t,
+                   plen=cython.Py_ssize_t, x=cython.double, y=cython.double, z=cython.double,
+                   row=bytes, k=cython.Py_ssize_t)
     def decode_actuators(self, ans: bytes) -> tuple[int, float, float, float, float]:
         """(t_us, u1..u4) of the answer's HIL_ACTUATOR_CONTROLS (ValueError if it has none,
-        as HilSimulatorCodec's); its estimate (if any) is logged."""
+        as HilSimulatorCodec's); its estimate (if any: the ODOMETRY after it, the checks of
+        wire.decode_odometry, its fields read in place) is logged."""
         end = wire.frame_end(ans, 0)
         act = wire.decode_hil_actuator_controls(ans, 0, end) if end > 0 else None
         if act is None:
             raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(ans)} bytes)")
-        od = wire.decode_odometry(ans, end) if end < len(ans) else None
+        n = len(ans)
         est = self.est
-        if od is None:
+        row = new_payload(_ROW_L.size)
+        if end >= n or not wire.frame_ok(_ODO, ans, end, n):
             self.bad_answers += 1
             est[0] = est[1] = est[2] = math.nan
-            self.rows.append(_ROW(*(math.nan,) * len(ESTIMATE_COLUMNS)))
+            for k in range(_ROW_L.n):
+                put_f(row, _ROW_L, k, math.nan)
+            self.rows.append(done(row))
             return act
-        x, y, z, qw, qx, qy, qz = od[1:8]
-        est[0], est[1], est[2] = x + self.home[0], y + self.home[1], z
-        roll, pitch, yaw = wire.euler_from_quat(qw, qx, qy, qz)
-        self.rows.append(_ROW(est[0], est[1], z, od[8], od[9], od[10], roll, pitch, yaw,
-                                   1.0 if od[16] < 0 else 0.0))
+        p0, plen = end + _HDR, ans[end + 1]
+        x = get_f(ans, p0, plen, _ODO_L, 1) + self.home[0]
+        y = get_f(ans, p0, plen, _ODO_L, 2) + self.home[1]
+        z = get_f(ans, p0, plen, _ODO_L, 3)
+        est[0], est[1], est[2] = x, y, z
+        roll, pitch, yaw = wire.euler_from_quat(
+            get_f(ans, p0, plen, _ODO_L, 4), get_f(ans, p0, plen, _ODO_L, 5),
+            get_f(ans, p0, plen, _ODO_L, 6), get_f(ans, p0, plen, _ODO_L, 7))
+        put_f(row, _ROW_L, 0, x)
+        put_f(row, _ROW_L, 1, y)
+        put_f(row, _ROW_L, 2, z)
+        for k in range(3):
+            put_f(row, _ROW_L, 3 + k, get_f(ans, p0, plen, _ODO_L, 8 + k))     # vx, vy, vz
+        put_f(row, _ROW_L, 6, roll)
+        put_f(row, _ROW_L, 7, pitch)
+        put_f(row, _ROW_L, 8, yaw)
+        put_f(row, _ROW_L, 9, 1.0 if get_i(ans, p0, plen, _ODO_L, _QUALITY) < 0 else 0.0)
+        self.rows.append(done(row))
         return act
 
     def array(self) -> np.ndarray:

@@ -2,10 +2,11 @@
 sensor-fed HIL datagram, it answers the state estimate.
 
     est = Estimator(vs.own, vs.stats, geo)
-    od = est.on_hil(data)      # data: HIL_SENSOR + HIL_OPTICAL_FLOW + DISTANCE_SENSOR (+ HIL_GPS)
-                               # -> the same 17-tuple wire.decode_odometry gives (quality -1:
-                               #    position lost), or None if the datagram had no HIL_SENSOR
-    est.update(sensor_msgs, t_us) -> TemplateEstimator (the estimate in its fields)
+    est.estimate(data)         # data: HIL_SENSOR + HIL_OPTICAL_FLOW + DISTANCE_SENSOR (+ HIL_GPS)
+                               # -> True if the estimate moved on (the datagram had a HIL_SENSOR)
+    est.odometry(mav)          # -> the estimate as an ODOMETRY frame (quality -1: position lost)
+    od = est.on_hil(data)      # both, as the same 17-tuple wire.decode_odometry gives, or None
+    est.impl                   -> TemplateEstimator (the estimate in its fields)
     est.link(hil, mav)         -> the HIL link with the estimator in front of the vehicle's
                                tick (link.py: sensor datagrams in, ODOMETRY of the estimate
                                to the tick, appended to the HIL answer for the logs)

@@ -2,5 +2,6 @@
 # C fields in the per-tick path, the sensor bundle's reader and the quaternion as C calls.
 from mav cimport hil_sensors as hs
 from mav.estimator.template cimport TemplateEstimator
+from mav.hil cimport odometry_of
 
 cpdef tuple quat_from_euler(double roll, double pitch, double yaw)

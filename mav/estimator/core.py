@@ -12,10 +12,9 @@ from pymavlink.dialects.v20 import common as M
 
 from mav import hil_sensors as hs
 from mav.estimator.template import CAL_TICKS, TemplateEstimator
+from mav.hil import odometry_of
 
 FRAME_LOCAL_NED = 1
-_ID_IMU, _ID_FLOW = hs.HIL_SENSOR.id, hs.HIL_OPTICAL_FLOW.id
-_ID_RNG, _ID_GPS = hs.DISTANCE_SENSOR.id, hs.HIL_GPS.id
 
 
 @cython.locals(roll=cython.double, pitch=cython.double, yaw=cython.double, cr=cython.double,
@@ -33,6 +32,7 @@ class Estimator:
     def __init__(self, own: dict[str, float], stats: dict[str, int], geo) -> None:
         self.own, self.stats, self.geo = own, stats, geo
         self.impl = TemplateEstimator(own, stats)
+        self.bundle = hs.Bundle()          # the sensor messages of a tick, read in place
         # read once, when the vehicle starts (as PX4 picks its estimator at boot)
         self.enabled = own.get("EKF2_TYPE", 0.0) >= 1.0
         stats.setdefault("est_bad_frames", 0)
@@ -68,29 +68,45 @@ class Estimator:
         return f
 
 
-    def update(self, msgs: dict[int, tuple], t_us: int) -> TemplateEstimator:
+    @cython.locals(e=TemplateEstimator, b=hs.Bundle, imu=hs.Payload)
+    def estimate(self, data: bytes) -> bool:
+        """Run on a HIL datagram: True if it was a sensor datagram with a HIL_SENSOR (the
+        estimate moved on: `odometry`), False for anything else (nothing done)."""
+        if not self.enabled or not hs.is_sensor_bundle(data):
+            return False
+        b = self.bundle
+        b.read(data)
+        if b.bad:
+            self.stats["est_bad_frames"] += b.bad
+        imu = b.imu
+        if imu.data is None:
+            return False
         e = self.impl
-        e.update(msgs.get(_ID_IMU), msgs.get(_ID_FLOW), msgs.get(_ID_RNG), msgs.get(_ID_GPS),
-                 self.geo, t_us)
-        return e
+        e.update(imu, b.flow if b.flow.data is not None else None,
+                 b.rng if b.rng.data is not None else None,
+                 b.gps if b.gps.data is not None else None, self.geo, imu.i(0))
+        if e.lost:
+            self.stats["est_lost"] += 1
+        return True
+
+    @cython.locals(e=TemplateEstimator)
+    def odometry(self, mav) -> bytes:
+        """The estimate as the ODOMETRY frame the vehicle's tick reads (frame ids LOCAL_NED,
+        estimator type 1; quality -1 when the position is lost), stamped with the last
+        HIL_SENSOR's time_usec, on mav."""
+        e = self.impl
+        qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)
+        return odometry_of(mav, e.t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p,
+                           e.q, e.r, e.lost)
 
     @cython.locals(e=TemplateEstimator)
     def on_hil(self, data: bytes) -> tuple | None:
-        if not self.enabled or not hs.is_sensor_bundle(data):
+        """`estimate`, then the estimate as ODOMETRY's fields (None if it did not move on)."""
+        if not self.estimate(data):
             return None
-        msgs, bad = hs.decode_bundle(data)
-        if bad:
-            self.stats["est_bad_frames"] += bad
-        imu = msgs.get(_ID_IMU)
-        if imu is None:
-            return None
-        t_us = imu[0]
         e = self.impl
-        e.update(imu, msgs.get(_ID_FLOW), msgs.get(_ID_RNG), msgs.get(_ID_GPS), self.geo, t_us)
-        if e.lost:
-            self.stats["est_lost"] += 1
         qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)
-        return (t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p, e.q, e.r,
+        return (e.t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p, e.q, e.r,
                 FRAME_LOCAL_NED, FRAME_LOCAL_NED, -1 if e.lost else 100)
 
     def link(self, hil, mav):

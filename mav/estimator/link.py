@@ -18,7 +18,6 @@ from __future__ import annotations
 from typing import Any
 
 from mav import wire
-from mav.hil import odometry
 
 _ODO_LEN = wire.HEADER_LEN_V2 + wire.ODOMETRY_USED.size + 2   # the frame untrimmed, unsigned
 _ODO_READ = wire.ODOMETRY_USED.unpack_from
@@ -37,12 +36,11 @@ class EstimatorLink:
         data = self.inner.recv()
         if data is None:
             return None
-        od = self.est.on_hil(data)
-        if od is None:                # ODOMETRY (motion capture), a fault command, garbage
+        est = self.est
+        if not est.estimate(data):    # ODOMETRY (motion capture), a fault command, garbage
             self._frame = b""
             return data
-        # ODOMETRY (frame ids LOCAL_NED, estimator type 1), quality -1 when lost
-        self._frame = fr = odometry(self.mav, od[0], od[1:14], od[16] < 0)
+        self._frame = fr = est.odometry(self.mav)   # quality -1 when lost
         return fr
 
     def decoded(self, data: bytes) -> tuple | None:

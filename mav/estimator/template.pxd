@@ -2,6 +2,8 @@
 # estimator's state as C doubles, its per-tick steps as C methods. The times (us) stay Python
 # ints: time_usec is a uint64 on the wire, and any value must behave as in Python.
 
+from mav.hil_sensors cimport Payload
+
 cdef bint _finite(double s)
 cdef (double, double, double) to_world(double roll, double pitch, double yaw, double x,
                                        double y, double z)
@@ -20,8 +22,8 @@ cdef class TemplateEstimator:
     cdef public double r_rng
     cdef public double rng_gate, of_q, of_r, of_qmin, of_gate, w_gps
     cpdef update(self, imu, flow, rng, gps, geo, t_us)
-    cdef _imu(self, tuple m, double dt)
+    cdef _imu(self, Payload m, double dt)
     cdef _z_fuse(self, double zm, double r)
-    cdef _range(self, tuple m, t_us)
-    cdef _flow(self, tuple m, t_us)
-    cdef _gps(self, tuple m, geo, t_us)
+    cdef _range(self, Payload m, t_us)
+    cdef _flow(self, Payload m, t_us)
+    cdef _gps(self, Payload m, geo, t_us)

@@ -30,6 +30,7 @@ EKF2_NOAID_TOUT while above 0.5 m.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import cython
 from cython.cimports.libc.math import atan2 as _atan2
@@ -37,6 +38,9 @@ from cython.cimports.libc.math import cos as _cos
 from cython.cimports.libc.math import sin as _sin
 from cython.cimports.libc.math import sqrt as _sqrt
 from cython.cimports.libc.math import tan as _tan
+
+if TYPE_CHECKING:
+    from mav.hil_sensors import Payload
 
 # (compiled: the estimator's state as C doubles in template.pxd, its arithmetic in C doubles
 # and C's libm, the functions Python's math module calls: the same results bit for bit)
@@ -138,10 +142,11 @@ class TemplateEstimator:
 
     # ------------------------------------------------------------------ one tick
     @cython.locals(dt=f64, lost=cython.bint)
-    def update(self, imu: tuple | None, flow: tuple | None, rng: tuple | None,
-               gps: tuple | None, geo, t_us: int) -> None:
-        """imu: HIL_SENSOR's payload (wire order); flow: HIL_OPTICAL_FLOW's; rng:
-        DISTANCE_SENSOR's; gps: HIL_GPS's; None when absent this tick. `geo`: FlatEarth."""
+    def update(self, imu: Payload | None, flow: Payload | None, rng: Payload | None,
+               gps: Payload | None, geo, t_us: int) -> None:
+        """imu: HIL_SENSOR's payload (mav/hil_sensors.py's Payload: its fields in wire
+        order); flow: HIL_OPTICAL_FLOW's; rng: DISTANCE_SENSOR's; gps: HIL_GPS's; None when
+        absent this tick. `geo`: FlatEarth."""
         st = self.stats
         dt = (t_us - self.t_us) * 1e-6 if self.t_us >= 0 else 0.005
         if not 0.0 < dt < 1.0:
@@ -176,11 +181,11 @@ class TemplateEstimator:
                    yaw_m=f64, fx_w=f64, fy_w=f64, fz_w=f64, az_w=f64, qa=f64, pzz=f64,
                    pzv=f64, pvv=f64, pzb=f64, pvb=f64, pbb=f64, h=f64, a0=f64, a1=f64, a2=f64,
                    b1=f64, b2=f64, hpa=f64, z_b=f64)
-    def _imu(self, m: tuple, dt: float) -> None:
+    def _imu(self, m: Payload, dt: float) -> None:
         # m: time_usec, xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag, abs_pressure,
         #    diff_pressure, pressure_alt, temperature, fields_updated, id
         st = self.stats
-        ax, ay, az, gx, gy, gz = m[1], m[2], m[3], m[4], m[5], m[6]
+        ax, ay, az, gx, gy, gz = m.f(1), m.f(2), m.f(3), m.f(4), m.f(5), m.f(6)
         if not (_finite(ax + ay + az + gx + gy + gz) and abs(ax) < ACC_MAX
                 and abs(ay) < ACC_MAX and abs(az) < ACC_MAX and abs(gx) < GYRO_MAX
                 and abs(gy) < GYRO_MAX and abs(gz) < GYRO_MAX):
@@ -225,7 +230,7 @@ class TemplateEstimator:
                 self.bg0 -= BIAS_KI * er
                 self.bg1 -= BIAS_KI * ep
         # heading from the compass
-        mx, my, mz = m[7], m[8], m[9]
+        mx, my, mz = m.f(7), m.f(8), m.f(9)
         if _finite(mx + my + mz) and 0.05 < mx * mx + my * my + mz * mz < 4.0:
             ph, th = self.roll, self.pitch
             sph, cph, sth, cth = _sin(ph), _cos(ph), _sin(th), _cos(th)
@@ -264,7 +269,7 @@ class TemplateEstimator:
             self.pvx += self.of_q
             self.pvy += self.of_q
         # barometer: altitude from the pressure drop since the start (the floor)
-        hpa = m[10]
+        hpa = m.f(10)
         if not (_finite(hpa) and 300.0 < hpa < 1200.0):
             st["est_rej_baro"] += 1
             return
@@ -295,11 +300,11 @@ class TemplateEstimator:
 
     @cython.locals(lo=cython.long, hi=cython.long, cur=cython.long, quality=cython.long,
                    c=f64, zm=f64)
-    def _range(self, m: tuple, t_us: int) -> None:
+    def _range(self, m: Payload, t_us: int) -> None:
         # m: time_boot_ms, min, max, current (cm), type, id, orientation, covariance, hfov,
         #    vfov, quaternion[4], signal_quality
         st = self.stats
-        lo, hi, cur, quality = m[1], m[2], m[3], m[14]
+        lo, hi, cur, quality = m.i(1), m.i(2), m.i(3), m.i(14)
         if quality == 1 or cur < lo or cur > hi:
             st["est_rng_none"] += 1
             self.rng_rej_since = -1
@@ -323,12 +328,12 @@ class TemplateEstimator:
                    ok=cython.bint, dt=f64, ph=f64, th=f64, ps=f64, sph=f64, cph=f64, sth=f64,
                    cth=f64, d=f64, vbx=f64, vby=f64, sps=f64, cps=f64, vbz=f64, vn=f64, ve=f64,
                    r=f64, k=f64)
-    def _flow(self, m: tuple, t_us: int) -> None:
+    def _flow(self, m: Payload, t_us: int) -> None:
         # m: time_usec, integration_time_us, integrated_x, integrated_y, integrated_xgyro,
         #    integrated_ygyro, integrated_zgyro, time_delta_distance_us, distance,
         #    temperature, sensor_id, quality
         st = self.stats
-        dt_us, ix, iy, gx, gy, quality = m[1], m[2], m[3], m[4], m[5], m[11]
+        dt_us, ix, iy, gx, gy, quality = m.i(1), m.f(2), m.f(3), m.f(4), m.f(5), m.i(11)
         ok = (_finite(ix + iy + gx + gy) and 0 < dt_us < 1_000_000 and quality >= self.of_qmin
               and self.z < -0.4 and abs(self.roll) < 0.6 and abs(self.pitch) < 0.6
               and abs(self.p) < 7.0 and abs(self.q) < 7.0)
@@ -361,10 +366,10 @@ class TemplateEstimator:
         self.pvy *= 1.0 - k
         self.aid_us = t_us
 
-    def _gps(self, m: tuple, geo, t_us: int) -> None:
+    def _gps(self, m: Payload, geo, t_us: int) -> None:
         # m: time_usec, lat, lon, alt, eph, epv, vel, vn, ve, vd, cog, fix_type, ...
         st = self.stats
-        lat, lon, alt, fix = m[1], m[2], m[3], m[11]
+        lat, lon, alt, fix = m.i(1), m.i(2), m.i(3), m.i(11)
         if fix < 3 or not (-900_000_000 <= lat <= 900_000_000
                            and -1_800_000_000 <= lon <= 1_800_000_000):
             st["est_rej_gps"] += 1
