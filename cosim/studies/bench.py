@@ -12,6 +12,7 @@ import json
 import math
 import os
 import platform
+import statistics
 import subprocess
 import sys
 from pathlib import Path
@@ -249,6 +250,30 @@ def bench_mission(mode: str, repeats: int, sets: dict[str, Any] | None = None,
 HIL_FEED = {"sensors.feed": "hil"}     # the seed mission on the vehicle's estimate
 
 
+def bench_estimate_pairs(pairs: int) -> dict[str, Any]:
+    """Issue 27's ratio: the seed mission MIL on the estimate against the truth-fed one, flown
+    in pairs back to back (truth-fed, then estimate-fed) so that both of a pair see the same
+    host; the ratio is the median of the pairs' ratios (a shared host's speed drifts by more
+    than the difference between two runs minutes apart)."""
+    truth = bench_mission("mil", 1)
+    est = bench_mission("mil", 1, HIL_FEED)
+    ratios = [est["median"] / truth["median"]]
+    truths, ests = [truth["median"]], [est["median"]]
+    for _ in range(pairs - 1):
+        t, e = bench_mission("mil", 1)["median"], bench_mission("mil", 1, HIL_FEED)["median"]
+        truths.append(t)
+        ests.append(e)
+        ratios.append(e / t)
+    d = {**est, **_stat(ests, "x real time")}
+    d["truth_fed_pairs"] = _stat(truths, "x real time")
+    d["ratio_pairs"] = ratios
+    d["ratio_to_truth_fed"] = statistics.median(ratios)
+    d["target_ratio"] = 0.6
+    d["target"] = 0.6 * d["truth_fed_pairs"]["median"]
+    d["meets_target"] = d["ratio_to_truth_fed"] >= 0.6
+    return d
+
+
 def run(quick: bool = False) -> dict[str, Any]:
     n, r = (2000, 3) if quick else (20000, 7)
     res: dict[str, Any] = {"machine": machine(), "quick": quick}
@@ -268,11 +293,8 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["mission_sil_nospin"] = bench_mission("sil", mr, hil_spin_us=0.0)
     res["mission_sil_unix"] = bench_mission("sil", mr, hil_transport="unix")
     # issue 27: on the estimate (sensor models, HIL_SENSOR & co., the onboard estimator);
-    # target >= 0.6x the truth-fed MIL run of the same build
-    est = res["mission_mil_estimate"] = bench_mission("mil", mr, HIL_FEED)
-    est["target"] = 0.6 * res["mission_mil"]["median"]
-    est["meets_target"] = est["median"] >= est["target"]
-    est["ratio_to_truth_fed"] = est["median"] / res["mission_mil"]["median"]
+    # target >= 0.6x the truth-fed MIL run of the same build, in interleaved pairs
+    res["mission_mil_estimate"] = bench_estimate_pairs(5 if quick else 7)
     # the same sources interpreted (COSIM_COMPILED=0: the plant through ctypes too)
     res["mission_mil_python"] = interpreted("bench_mission", "mil", mr)
     res["mission_sil_python"] = interpreted("bench_mission", "sil", mr, hil_spin_us=0.0)
@@ -322,9 +344,14 @@ def format_report(res: dict[str, Any]) -> str:
     row("  SIL, HIL wait without spinning", res["mission_sil_nospin"])
     row("  SIL, HIL over a Unix socket", res["mission_sil_unix"])
     if "mission_mil_estimate" in res:
-        row("seed mission MIL on the estimate", res["mission_mil_estimate"])
-        lines.append(f"  estimate-fed / truth-fed MIL (same run): "
-                     f"{res['mission_mil_estimate']['ratio_to_truth_fed']:.2f}x (target >= 0.6x)")
+        est = res["mission_mil_estimate"]
+        row("seed mission MIL on the estimate", est)
+        row("  truth-fed, the same pairs", est["truth_fed_pairs"])
+        n = len(est["ratio_pairs"])
+        lines.append(f"  estimate-fed / truth-fed MIL (same run, median of {n}"
+                     f" pairs flown back to back): {est['ratio_to_truth_fed']:.2f}x (target >= "
+                     f"0.6x; pairs {', '.join(f'{r:.2f}' for r in est['ratio_pairs'])})  "
+                     f"{'ok' if est['meets_target'] else 'MISSED'}")
     row("  MIL interpreted (same sources)", res["mission_mil_python"])
     row("  SIL interpreted (no spin)", res["mission_sil_python"])
     row("controller, interpreted", res["controller_update"]["python_reference"])
