@@ -72,7 +72,7 @@ def test_bench_quick_reports_every_figure(tmp_path):
     for label in ("plant step", "render 160x120 frame", "seed mission MIL (tick loop)",
                   "seed mission SIL (end to end)", "MIL tick breakdown", "floor:",
                   "flood on the vehicle's gcs port", "seed mission MIL on the estimate",
-                  "estimate-fed / truth-fed MIL (same run)", "MIL tick breakdown on the estimate",
+                  "estimate-fed / truth-fed MIL (same run", "MIL tick breakdown on the estimate",
                   "paper 2 E2 mission (x real time)", "front-camera tick of E2"):
         assert label in r.stdout, label
     p2 = res["paper2"]                      # issue 29: E2 flown, its camera tick in parts
