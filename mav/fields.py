@@ -110,9 +110,7 @@ def put_i(out, lay: Layout, k: int, v: int) -> int:
     c = lay.code[k]
     at = lay.off[k]
     if cython.compiled:
-        n = _size(c)
-        if n == 0 or c == 102 or c == 100:
-            raise TypeError(f"field {k} of {lay.fmt!r} is not an integer")
+        n = _int_size(lay, k)
         if not _in_range(c, n, v):
             raise struct.error(f"{chr(c)!r} format requires {_RANGE[chr(c)][0]} <= number <= "
                                f"{_RANGE[chr(c)][1]}")
@@ -157,9 +155,7 @@ def get_i(data: bytes, p0: int, plen: int, lay: Layout, k: int) -> int:
     c = lay.code[k]
     at = lay.off[k]
     if cython.compiled:
-        n = _size(c)
-        if n == 0 or c == 102 or c == 100:
-            raise TypeError(f"field {k} of {lay.fmt!r} is not an integer")
+        n = _int_size(lay, k)
         p = cython.cast(cython.p_uchar, cython.cast(cython.p_char, data)) + p0
         u = 0
         for j in range(n):
@@ -178,6 +174,19 @@ def _unpack(data: bytes, p0: int, plen: int, c: int, at: int):
     """Interpreted: field `chr(c)` at `at` of data[p0:p0 + plen], zero past plen."""
     payload = bytes(data[p0:p0 + plen]) + bytes(at + 8)
     return _ST[chr(c)].unpack(payload[at:at + _SIZES[chr(c)]])[0]
+
+
+@cython.cfunc
+@cython.returns(cython.Py_ssize_t)
+@cython.exceptval(-1)
+@cython.locals(lay=Layout, k=cython.Py_ssize_t, c=cython.int, n=cython.Py_ssize_t)
+def _int_size(lay: Layout, k: int) -> int:
+    """The size of field k, an integer type (TypeError for a float)."""
+    c = lay.code[k]
+    n = _size(c)
+    if n == 0 or c == 102 or c == 100:
+        raise TypeError(f"field {k} of {lay.fmt!r} is not an integer")
+    return n
 
 
 @cython.cfunc
