@@ -25,5 +25,5 @@ cdef class TemplateEstimator:
     cdef _imu(self, Payload m, double dt)
     cdef _z_fuse(self, double zm, double r)
     cdef _range(self, Payload m, t_us)
-    cdef _flow(self, Payload m, t_us)
+    cdef bint _flow(self, Payload m, t_us) except -1
     cdef _gps(self, Payload m, geo, t_us)
