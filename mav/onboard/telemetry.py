@@ -180,9 +180,16 @@ class Telemetry:
 
     def emit_sys_status(self, ch: Chan) -> None:
         b = self.vs.battery
+        health = SENSORS_HEALTH
+        pre = self.cmd.preflight
+        if not self.vs.armed and pre is not None and pre() is not None:
+            health &= ~M.MAV_SYS_STATUS_PREARM_CHECK     # as PX4: a ground station shows
+            est = self.estimator                         # "not ready" (MAVSDK: not armable)
+            if est is not None and est.enabled and not est.aligned:
+                health &= ~M.MAV_SYS_STATUS_AHRS
         # wire order: sensors present/enabled/health, load, voltage mV, current cA, drop rate,
         # errors comm, errors 1..4, remaining %, extended present/enabled/health
-        ch.send(wire.pack(ch.mav, wire.SYS_STATUS, SENSORS, SENSORS, SENSORS_HEALTH, 0,
+        ch.send(wire.pack(ch.mav, wire.SYS_STATUS, SENSORS, SENSORS, health, 0,
                           wire.clamp_int(b.voltage * 1000.0, 0, 65534),
                           wire.clamp_int(b.current * 100.0, 0, 32767), 0, 0, 0, 0, 0, 0,
                           wire.clamp_int(100.0 * b.remaining, 0, 100), 0, 0, 0))
