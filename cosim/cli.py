@@ -146,6 +146,10 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--spacing", type=float, default=1.0, metavar="M",
                    help="m east between neighbouring vehicles' starts (default 1)")
     t.add_argument("--speed", type=float, default=1.0)
+    t.add_argument("--feed", choices=("hil", "truth"), default="hil",
+                   help="what the vehicles fly on: hil (default): PX4's sensor messages and "
+                        "the onboard estimator; truth: the plant's state as ODOMETRY (motion "
+                        "capture)")
     t.add_argument("--duration", type=float, default=86_400.0,
                    help="s of simulated time (default 86400)")
     t.add_argument("--out", type=Path, help="folder (default runs/sitl-<vehicle>); "

@@ -56,9 +56,9 @@ def sitl(args) -> int:
         "vehicle": {"preset": args.vehicle},
         "world": _world_table(args.world),
         "timing": {"t_final_s": args.duration},
-        # the ground-station vehicles fly on the truth ODOMETRY (motion capture): the fleet
-        # has no sensor feed yet (docs/sensors.md, Limitations)
-        "sensors": {"feed": "truth"},
+        # on the sensors and the onboard estimator, as PX4 SITL's vehicles fly on EKF2;
+        # --feed truth: the plant's state as ODOMETRY (motion capture)
+        "sensors": {"feed": args.feed},
         "criteria": {"must_complete": False},
     }, source=str(Path.cwd() / "sitl.toml"))
     out = args.out or Path("runs") / sc.name

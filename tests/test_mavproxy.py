@@ -86,7 +86,7 @@ class Watch:
 
     def __init__(self, port: int) -> None:
         self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=200)
-        self.hb = self.ext = self.lpos = None
+        self.hb = self.ext = self.lpos = self.sys = None
         self.texts: list[str] = []
         self.reached: list[int] = []
 
@@ -103,6 +103,8 @@ class Watch:
                 self.hb = m
             elif t == "EXTENDED_SYS_STATE":
                 self.ext = m
+            elif t == "SYS_STATUS":
+                self.sys = m
             elif t == "LOCAL_POSITION_NED":
                 self.lpos = m
             elif t == "STATUSTEXT":
@@ -117,6 +119,13 @@ class Watch:
     @property
     def armed(self) -> bool:
         return bool(self.hb and self.hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
+
+    @property
+    def ready(self) -> bool:
+        """The pre-arm check healthy (on the sensors: once the estimator is aligned), what a
+        MAVProxy user waits for before `arm throttle`."""
+        return bool(self.sys and self.sys.onboard_control_sensors_health
+                    & M.MAV_SYS_STATUS_PREARM_CHECK)
 
     @property
     def landed(self) -> int:
@@ -175,6 +184,7 @@ def test_mavproxy_flies_cosim_sitl(tmp_path):
             assert n > 30
             _change_mode(mp, w, "LOITER", 4, 3)
             since = mp.mark()
+            w.until(lambda v: v.ready, "ready to arm")
             mp.cmd("arm throttle")
             w.until(lambda v: v.armed, "armed")
             mp.expect("ARMED", since=since)
@@ -240,6 +250,7 @@ def test_mavproxy_uploads_and_flies_a_mission_then_rtl(tmp_path):
             since = mp.mark()
             mp.cmd("wp list")
             mp.expect("Saved 3 waypoints", "Requesting 3 waypoints", since=since)
+            w.until(lambda v: v.ready, "ready to arm")
             mp.cmd("arm throttle")
             w.until(lambda v: v.armed, "armed")
             mp.cmd("long DO_SET_MODE 1 4 4")                     # AUTO.MISSION

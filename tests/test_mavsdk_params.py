@@ -11,6 +11,7 @@ PARAM_EXT_REQUEST_READ), so the check does not depend on how fast the machine is
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import time
 
@@ -18,6 +19,7 @@ import pytest
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.param import ParamAsync, ParamError, ParamResult, ProtocolVersion
+from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from sitl_proc import free_udp_port, sitl
 
 STEP_S = 15.0
@@ -65,7 +67,15 @@ async def _session(api_port: int, log: list[str]) -> None:
         # the refused sets changed nothing
         assert await _step(param.get_param_float("MPC_LAND_SPEED"), "get") == pytest.approx(0.3)
         # armed: a thrust limit below the flight envelope is not allowed, one inside is
-        action = ActionAsync(drone)
+        action, tel = ActionAsync(drone), TelemetryAsync(drone)
+
+        async def armable() -> None:       # as a script waits: the estimator aligned
+            async with contextlib.aclosing(tel.subscribe_health()) as healths:
+                async for h in healths:
+                    if h.is_armable:
+                        return
+
+        await _step(armable(), "armable")
         await _step(action.arm(), "arm")
         result, dt = await _refused(param.set_param_float("MC_THR_MAX", 0.1))
         log.append(f"armed, set MC_THR_MAX=0.1: {result.name} in {dt * 1000:.1f} ms")

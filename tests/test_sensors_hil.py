@@ -332,3 +332,46 @@ def test_a_sensor_datagram_framed_at_once_is_its_frames_one_by_one(signed):
                                            "HIL_STATE_QUATERNION"]
     assert [g.get_seq() for g in got] == [254, 255, 0, 1]
     assert hs.decode_bundle(one_by_one)[1] == 0
+
+
+def test_at_rest_on_the_floor_the_estimate_holds_still():
+    """A vehicle left on the ground (flow messages every tick, all rejected below 0.4 m): the
+    zero-velocity update holds the estimate (it walked ~6 cm/s while ZUPT waited for a tick
+    without a flow message, found by a ground station in `cosim sitl`)."""
+    sc = load_scenario(SQUARE)
+    su = SensorSuite(sc.sensors, 0, 0.005, (0.0, 0.0), True)
+    est, st = _estimator()
+    far = 0.0
+    for k in range(2400):                                  # 12 s
+        est.on_hil(su.encode(k * 5000, _y(0.00024525)))
+        far = max(far, math.hypot(est.impl.x, est.impl.y))
+    assert st["est_rej_flow"] == 2400 and st["est_flow_fused"] == 0    # every tick, rejected
+    assert far < 0.02, far
+
+
+def _sys_status(res) -> list[tuple[float, int]]:
+    from pymavlink import mavutil
+
+    log = mavutil.mavlink_connection(str(res.run_dir / "flight.tlog"))
+    out = []
+    while (m := log.recv_match(type="SYS_STATUS")) is not None:
+        out.append((m._timestamp, m.onboard_control_sensors_health))
+    return out
+
+
+@pytest.mark.parametrize("feed", ["hil", "truth"])
+def test_sys_status_says_not_ready_until_the_estimator_is_aligned(feed, tmp_path):
+    """As PX4 before EKF2's tilt alignment: the pre-arm check (a ground station's "Ready To
+    Fly", MAVSDK's is_armable) and AHRS unhealthy while arming would be refused."""
+    from pymavlink.dialects.v20 import common as M
+
+    res = run_scenario(_square(**{"sensors.feed": feed, "timing.t_final_s": 3.0}),
+                       RunOptions(mode="mil", out_dir=tmp_path))
+    st = _sys_status(res)
+    t0 = st[0][0]
+    early = [h for t, h in st if t - t0 < 0.4]
+    later = [h for t, h in st if t - t0 > 1.0]
+    assert early and later
+    ready = M.MAV_SYS_STATUS_PREARM_CHECK | M.MAV_SYS_STATUS_AHRS
+    assert all(h & ready == ready for h in later)
+    assert all(h & ready == (0 if feed == "hil" else ready) for h in early), early

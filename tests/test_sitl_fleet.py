@@ -129,7 +129,15 @@ class Gcs:
         hb = self.get(sysid, "HEARTBEAT")
         return bool(hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
 
+    def ready(self, sysid: int) -> bool:
+        """SYS_STATUS's pre-arm check healthy (QGC's "Ready To Fly", MAVSDK's is_armable): on
+        the sensors, once the estimator's attitude is aligned."""
+        m = self.get(sysid, "SYS_STATUS")
+        return m is not None and bool(m.onboard_control_sensors_health
+                                      & M.MAV_SYS_STATUS_PREARM_CHECK)
+
     def take_off(self, sysid: int) -> None:
+        self.pump(lambda: self.ready(sysid), f"sysid {sysid} ready to arm")
         assert self.command(sysid, M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
         nan = math.nan
         assert self.command(sysid, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan,

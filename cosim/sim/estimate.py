@@ -46,15 +46,19 @@ def floor_textured(world) -> bool:
 
 class SensorFeed:
     """`spool`: the file the estimate rows go to, a chunk at a time (memory does not grow with
-    the mission, as the series'); None: a temporary file, removed when the feed is."""
+    the mission, as the series'); None: a temporary file, removed when the feed is. `keep`
+    False: the rows are dropped a chunk at a time instead (cosim sitl, which runs for hours:
+    its series' odometry columns hold the estimate)."""
 
-    def __init__(self, sc, h: float, spool: Path | None = None) -> None:
+    def __init__(self, sc, h: float, spool: Path | None = None, keep: bool = True) -> None:
         spec = sc.sensors
         floor = spec.flow_floor
         textured = floor_textured(sc.world) if floor == "auto" else floor == "textured"
         faults = getattr(sc.faults, "sensors", ()) or ()
         self.home = (sc.start.n, sc.start.e)
-        self.suite = SensorSuite(spec, sc.seed, h, self.home, textured, faults)
+        self._make = lambda: SensorSuite(spec, sc.seed, h, self.home, textured, faults)
+        self.suite = self._make()
+        self.keep = keep
         self.est = [math.nan, math.nan, math.nan]
         self._y = None
         if spool is None:
@@ -67,8 +71,23 @@ class SensorFeed:
     def measure(self, y) -> list[float]:
         self._y = y
         if len(self.rows) >= CHUNK:
-            self.spool.flush()
+            if self.keep:
+                self.spool.flush()
+            else:
+                self.rows.clear()
         return self.est
+
+    def reset(self) -> None:
+        """The sensors as at the start (a respawned vehicle: the plant reset, the flight stack
+        rebooted): their filters, delay line and noise streams."""
+        self.suite = self._make()
+
+    def close(self) -> None:
+        """The spool closed and a temporary one removed (idempotent)."""
+        self.spool.finish()
+        tmp = getattr(self, "_tmp", None)
+        if tmp is not None:
+            tmp.cleanup()
 
     def encode_odometry(self, t_us: int, meas) -> bytes:
         return self.suite.encode(t_us, self._y)

@@ -129,7 +129,7 @@ class SitlVehicle:
         self.h = sc.timing.tick_s
         self.tlog = Tlog(d / "flight.tlog")
         self.spool = SeriesSpool(d / SPOOL_NAME)
-        self.plant = self.handle = None
+        self.plant = self.handle = self.feed = None
         self.respawns: list[dict[str, Any]] = []
         self.min_clearance: tuple[float, float, str] | None = None
         self.note: str | None = None       # told to the clients after the next exchange
@@ -149,9 +149,16 @@ class SitlVehicle:
             self.close()
             raise
         self.monitor = self._monitor()
-        self.tick = Tick(plant=self.plant,
-                         sensor=OdometrySensor(sc.noise, np.random.default_rng([sc.seed, 0, k])),
-                         codec=HilSimulatorCodec(), exchange=self.handle.exchange,
+        sensor = OdometrySensor(sc.noise, np.random.default_rng([sc.seed, 0, k]))
+        codec = HilSimulatorCodec()
+        if sc.sensors is not None and sc.sensors.hil:   # the sensors, the onboard estimator
+            from cosim.sim.estimate import SensorFeed
+
+            # (its rows are not kept: sitl runs for hours; the series' columns have it)
+            self.feed = sensor = codec = SensorFeed(dataclasses.replace(sc, seed=sc.seed + k),
+                                                    self.h, keep=False)
+        self.tick = Tick(plant=self.plant, sensor=sensor,
+                         codec=codec, exchange=self.handle.exchange,
                          gcs_recv=None, tlog=self.tlog, spool=self.spool, monitor=self.monitor,
                          h_us=int(round(self.h * 1e6)), record_every=SERIES_EVERY)
 
@@ -196,6 +203,8 @@ class SitlVehicle:
         self.respawns.append({"t_s": round(t, 6), "reason": reason.value, "message": message})
         self._keep_clearance()
         self.plant.reset()
+        if self.feed is not None:          # the sensors restart with the plant
+            self.feed.reset()
         self.monitor = self.tick.monitor = self._monitor()
         self.tick.y = self.plant.y
         self.handle.respawn()
@@ -216,6 +225,8 @@ class SitlVehicle:
             self.plant.close()
         self.tlog.close()
         self.spool.finish()
+        if self.feed is not None:
+            self.feed.close()
 
     def result(self, ended: tuple[ExitReason, str], ticks: int, wall_s: float,
                loop_wall_s: float, pacer: Pacer | None) -> RunResult:
