@@ -306,6 +306,8 @@ def test_duration_is_a_normal_stop_and_a_failed_part_is_status_1(tmp_path):
     assert rc == 0 and "cosim sitl: duration reached" in out, out
     rows = (sitl.out / "0" / "timeseries.csv").read_text().splitlines()
     assert len(rows) == 1 + 200 // 20          # 1 s of 5 ms ticks, one row in 20
+    summary = json.loads((sitl.out / "0" / "summary.json").read_text())
+    assert summary["estimator"] == "template (EKF2_TYPE 1)"      # on its sensors by default
     # the GCS link cannot bind (the port is taken): the flight stack's links failed
     taken = socks[0].getsockname()[1]
     sitl = Sitl(tmp_path, "--duration", "600", *links, "--gcs-bind", f"127.0.0.1:{taken}",
@@ -318,3 +320,11 @@ def test_duration_is_a_normal_stop_and_a_failed_part_is_status_1(tmp_path):
             s.close()
     assert rc == 1, out
     assert "cosim sitl: failed: vehicle 0: onboard: cannot bind" in out, out
+
+
+def test_feed_truth_flies_the_vehicles_on_the_plants_state(tmp_path):
+    with sitl_and_gcs(tmp_path, "--feed", "truth") as (sitl, gcs):
+        gcs.pump(lambda: gcs.ready(1), "ready to arm")
+        assert gcs.command(1, M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+    summary = json.loads((sitl.out / "0" / "summary.json").read_text())
+    assert summary["estimator"] == "none (truth ODOMETRY)"
