@@ -151,3 +151,33 @@ def test_a_front_camera_worker_gives_freed_frames_back(tmp_path):
     print("worker RSS (MB) after each run, released / not:", got["on"], got["off"])
     assert got["on"][-1] <= got["off"][-1] + 1.0, got
     assert got["on"][-1] - got["on"][4] < 2.0, got
+
+
+_FAULTS = """
+import resource, sys
+import numpy as np
+from cosim.studies import jobs
+if sys.argv[1] == "1":
+    jobs.heap_for_frames()
+f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(200):                       # a front-camera frame, made and dropped
+    a = np.ones((480, 856, 4), np.uint8)
+    del a
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+"""
+
+
+@pytest.mark.skipif(jobs_module._MALLOPT is None, reason="glibc's mallopt: Linux only")
+def test_a_worker_takes_frames_from_the_heap_under_dasks_trim_threshold():
+    """Dask's nanny sets MALLOC_TRIM_THRESHOLD_=65536 for its workers, which maps each large
+    frame afresh (a page fault per 4 KB); `heap_for_frames`, called before each run, takes
+    them from the heap again."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, MALLOC_TRIM_THRESHOLD_="65536")
+    faults = [int(subprocess.run([sys.executable, "-c", _FAULTS, arg], env=env, check=True,
+                                 capture_output=True, text=True).stdout) for arg in "01"]
+    assert faults[0] > 200 * 400, faults          # each 1.6 MB frame faulted in again
+    assert faults[1] < faults[0] / 20, faults
