@@ -42,19 +42,21 @@ BLUR_MIN_PX = 0.01        # px, a streak shorter than this is no blur (the frame
 def centre_depth(surfaces, c: np.ndarray, axis: np.ndarray, near: float) -> float:
     """z (m) of the nearest surface hit by the ray from c along the unit optical axis (seen
     from its visible side, at least `near` away); inf if none."""
-    best = math.inf
-    for s in surfaces:
+    hits = []                       # (distance, order, surface) of the planes ahead
+    for i, s in enumerate(surfaces):
         nrm = s.normal
         den = float(axis @ nrm)
         if den >= -1e-12:           # seen edge-on or from behind (culled as in the renders)
             continue
         lam = float(nrm @ (s.O - c)) / den
-        if lam < near or lam >= best:
-            continue
+        if lam >= near:
+            hits.append((lam, i, s))
+    hits.sort()
+    for lam, _, s in hits:          # nearest first: the first inside its outline is it
         X = c + lam * axis - s.O
         if inside(np.array([[X @ s.U, X @ s.V]]), s.outline())[0]:
-            best = lam
-    return best
+            return lam
+    return math.inf
 
 
 def streak_px(fx: float, fy: float, v_C, w_C, depth: float, exposure_s: float

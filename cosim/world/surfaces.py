@@ -16,6 +16,7 @@ distractors) as one surface; above the horizon it has no walls (the renderer's b
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -41,9 +42,12 @@ class Surface:
     poly: np.ndarray | None = None   # (k, 2) convex outline in (s, t) m; None: the rectangle
     solid: int = -1          # index of the solid it belongs to (groups >= 2)
 
-    @property
+    @functools.cached_property
     def normal(self) -> np.ndarray:
-        return np.cross(self.V, self.U)
+        """(3,) unit, towards the viewer (made once: U and V are not changed after)."""
+        n = np.cross(self.V, self.U)
+        n.flags.writeable = False
+        return n
 
     def outline(self) -> np.ndarray:
         """(k, 2) convex outline in (s, t) metres, counter-clockwise as seen (s right, t down:
