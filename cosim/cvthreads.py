@@ -47,9 +47,13 @@ def run_threads() -> int:
     return 1 if busy else cores
 
 
-def apply() -> int:
-    """Set OpenCV's thread count for a run; returns it."""
-    n = run_threads()
+def apply(pipelined: bool = False) -> int:
+    """Set OpenCV's thread count for a run; returns it. A pipelined run (its camera stream
+    renders, and computes the app's per-frame image work, on a worker thread while the main
+    thread flies: cosim/sensors/stream.py) has its cores in its own two threads, and OpenCV
+    runs on one thread in each: its count is global to the process, and a parallel section
+    of one thread must not change what ``single_thread()`` holds in the other."""
+    n = 1 if pipelined else run_threads()
     cv2.setNumThreads(n)
     return n
 

@@ -1,6 +1,7 @@
 """Issue 29: what makes paper 2's missions cheaper must not change them. Caches give back the
 same bytes, the column detector labels within the colour's box exactly as over the frame,
-OpenCV's thread count changes no result, and a study's runs share what one world makes."""
+OpenCV's thread count and the pipelined stream change no result, and a study's runs share
+what one world makes; the pixel thresholds scale with the image's width."""
 
 from __future__ import annotations
 
@@ -195,28 +196,123 @@ def test_thread_count_setting(monkeypatch):
     assert cv2.getNumThreads() == 2
 
 
-def _fly_e1(threads: int, seconds: float):
+def _fly_e1(threads: int, seconds: float, sets: dict | None = None, where: list | None = None):
+    """E1 cut to `seconds`; `where` collects the thread names the app's frame work ran on."""
+    import threading
+
+    from cosim.apps import visual_servo
     from cosim.sim.master import run_scenario
     from cosim.sim.options import RunOptions
 
-    sc = with_set(load_scenario(E1), {"timing.t_final_s": seconds})
+    sc = with_set(load_scenario(E1), {"timing.t_final_s": seconds, **(sets or {})})
     saved = cvthreads._run_threads
+    work = visual_servo.frame_work
+
+    def traced(image, avoidance):
+        where.append(threading.current_thread().name)
+        return work(image, avoidance)
     cvthreads.set_run_threads(threads)
+    if where is not None:
+        visual_servo.frame_work = traced
     try:
         return run_scenario(sc, RunOptions(mode="mil"))
     finally:
         cvthreads.set_run_threads(saved)
+        visual_servo.frame_work = work
 
 
-def test_e1_is_the_same_on_one_and_two_opencv_threads_and_from_the_cache(fresh_cache):
+def test_e1_is_the_same_sequential_and_pipelined_and_from_the_cache(fresh_cache):
     """Take-off, matching, tracking and the column in view (the first 7 s of E1): one
-    thread with everything made afresh, then two threads with the world and keys cached."""
-    a = _fly_e1(1, 7.0)
-    b = _fly_e1(2, 7.0)
+    thread, sequential, with everything made afresh; then two cores with the world and keys
+    cached: the stream renders and computes the app's frame work (grey, column) on its
+    worker, OpenCV on one thread in each."""
+    on_a: list[str] = []
+    on_b: list[str] = []
+    a = _fly_e1(1, 7.0, where=on_a)
+    b = _fly_e1(2, 7.0, where=on_b)
     assert any((fresh_cache / k).is_dir() for k in ("texture", "visual-path"))
     assert a.series.shape == b.series.shape
     assert np.asarray(a.series).tobytes() == np.asarray(b.series).tobytes()     # bit for bit
     assert a.frame_log == b.frame_log and len(a.frame_log) > 20
+    assert on_a and not any(n.startswith("cosim-render") for n in on_a)
+    assert on_b and all(n.startswith("cosim-render") for n in on_b)
+    assert len(on_b) >= len(on_a)                # every frame there, only those used here
+
+
+def test_a_frame_a_camera_fault_replaces_is_worked_on_afresh_when_pipelined(fresh_cache):
+    """A frozen or black frame is not the frame the worker prepared: the app works on the
+    frame it gets, as a sequential run does (E1 with both faults while it tracks)."""
+    faults = {"faults.camera": [{"kind": "freeze", "start_s": 5.0, "end_s": 5.4},
+                                {"kind": "black", "start_s": 5.4, "end_s": 5.6}]}
+    where: list[str] = []
+    a = _fly_e1(1, 6.5, faults)
+    b = _fly_e1(2, 6.5, faults, where)
+    assert np.asarray(a.series).tobytes() == np.asarray(b.series).tobytes()
+    assert a.frame_log == b.frame_log
+    assert "MainThread" in where                 # the replaced frames, worked on here
+
+
+def test_frame_stage_hands_out_what_was_computed_for_that_frame_once():
+    from cosim.apps.base import FrameStage
+
+    calls = []
+    stage = FrameStage(lambda img: calls.append(1) or float(img.sum()))
+    a, b = np.ones((2, 2)), np.ones((2, 2))
+    stage.offer(a, -1.0)                         # what the worker computed for a
+    assert stage(a) == -1.0 and not calls
+    assert stage(a) == 4.0 and len(calls) == 1   # handed out once, then computed
+    stage.offer(a, -1.0)
+    assert stage(b) == 4.0 and len(calls) == 2   # another frame (a fault's): computed
+
+
+def test_pixel_thresholds_scale_with_the_width():
+    from cosim.apps.vs.features import Detector, Tracker, px_scale
+
+    assert px_scale(856) == 1.0 and px_scale(428) == 0.5
+    t = Tracker()
+    img = np.zeros((480, 856), np.uint8)
+    t.track(img, img, np.zeros((1, 2), np.float32))
+    assert t.params["winSize"] == (21, 21) and t.params["maxLevel"] == 3 and t.fb_px == 1.0
+    t.track(img[::2, ::2], img[::2, ::2], np.zeros((1, 2), np.float32))
+    assert t.params["winSize"] == (11, 11) and t.params["maxLevel"] == 2 and t.fb_px == 0.5
+    rng = np.random.default_rng(0)
+    noise = cv2.GaussianBlur(rng.integers(0, 255, (240, 428), dtype=np.uint8), (0, 0), 1.0)
+    pts, desc = Detector("gftt", 300).detect(noise)
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=2) + np.eye(len(pts)) * 99
+    assert len(pts) > 50 and d.min() >= 3.5 - 1e-6    # 7 px at 856 wide: 3.5 px here
+
+
+def test_e1_at_half_resolution_matches_and_tracks(fresh_cache):
+    """428 x 240 (the documented fast choice): the keys are taught at that size, the points
+    matched and tracked with the scaled thresholds (the first 7 s of E1)."""
+    r = _fly_e1(1, 7.0, {"camera.width": 428, "camera.height": 240})
+    rows = [f for f in r.frame_log if f[3] >= 8]      # n_points
+    assert len(rows) > 20
+    assert max(f[2] for f in rows) < 240               # eps (px) within the smaller frame
+
+
+def test_centre_depth_is_the_nearest_surface_hit():
+    """blur.centre_depth (nearest first, one outline test) against every plane tested."""
+    from cosim.sensors.blur import centre_depth
+    from cosim.sensors.raycast import _inside
+
+    sc = load_scenario(E2)
+    surfaces = world_surfaces(sc.world)
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        c = rng.uniform((-0.5, -2.0, -2.5), (4.5, 2.0, -0.1))
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        best = math.inf
+        for s in surfaces:
+            den = float(axis @ s.normal)
+            if den >= -1e-12:
+                continue
+            lam = float(s.normal @ (s.O - c)) / den
+            X = c + lam * axis - s.O
+            if 0.05 <= lam < best and _inside(np.array([[X @ s.U, X @ s.V]]), s.outline())[0]:
+                best = lam
+        assert centre_depth(surfaces, c, axis, 0.05) == best
 
 
 def test_a_numpy_float_metric_is_written_as_a_number():

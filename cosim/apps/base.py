@@ -17,6 +17,7 @@ parameters with ValueError.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
@@ -46,6 +47,36 @@ class AppContext:
         """A world NED point in the vehicle's local frame (MAVLink LOCAL_NED: origin at the
         start, where its estimator initialised, as on a PX4 vehicle)."""
         return n - self.home_ned[0], e - self.home_ned[1], d - self.home_ned[2]
+
+
+class FrameStage:
+    """An app's pure per-frame image work (a function of the frame alone: a grey conversion,
+    a colour segmentation), which a pipelined camera stream computes on its worker thread
+    right after the render, while the plant and the flight stack step on (issue 29).
+
+    An app that has one sets ``frame_stage = FrameStage(fn)`` and calls
+    ``self.frame_stage(image)`` in ``on_frame``: that returns what the stream computed for
+    that very frame object, or computes ``fn(image)`` there (a sequential stream, or a frame
+    a camera fault replaced). ``fn`` must not read or change the app's state, so the flight is
+    the same either way, bit for bit; OpenCV runs on one thread in a pipelined run
+    (cosim/cvthreads.py), so what it computes does not depend on the other thread.
+    """
+
+    def __init__(self, fn: Callable[[np.ndarray], Any]) -> None:
+        self.fn = fn
+        self._image: np.ndarray | None = None
+        self._value: Any = None
+
+    def offer(self, image: np.ndarray, value: Any) -> None:
+        """What the stream computed for `image` (on the main thread, at delivery)."""
+        self._image, self._value = image, value
+
+    def __call__(self, image: np.ndarray) -> Any:
+        if image is self._image:
+            value = self._value
+            self._image = self._value = None
+            return value
+        return self.fn(image)
 
 
 @runtime_checkable

@@ -28,23 +28,23 @@ Parameters: cosim/apps/vs/presets.py.
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cosim.apps.base import NAN, AppContext, FlightSequencer
+from cosim.apps.base import NAN, AppContext, FlightSequencer, FrameStage
 from cosim.apps.vs import geometry as G
 from cosim.apps.vs import visual_path as VP
 from cosim.apps.vs.choice import HomographyChoice, Refresh
 from cosim.apps.vs.features import (
     Detector,
     Tracker,
-    gray_of,
     homographies,
-    homography,
     match,
+    px_scale,
     robust_inliers,
     sort_points,
 )
@@ -52,10 +52,11 @@ from cosim.apps.vs.lowlevel import LowLevel
 from cosim.apps.vs.memory import ObstacleMemory
 from cosim.apps.vs.presets import resolve
 from cosim.apps.vs.tasks import (
+    Obstacle,
     active_intervals,
     avoidance_task,
     corridor_task,
-    find_obstacle,
+    frame_work,
     lateral_hold,
     outside_rectangle,
     visibility_task,
@@ -106,6 +107,9 @@ class VisualServoApp:
         self._dnu_max = 0.0
         self._last_J_a = None
         self.memory = ObstacleMemory()
+        # the per-frame image work, on the stream's worker when it is pipelined
+        self.frame_stage = FrameStage(functools.partial(frame_work,
+                                                        avoidance=bool(p["avoidance"])))
 
     # ---------------------------------------------------------------- set-up
     def prepare(self, scenario, run_dir: Path) -> None:
@@ -129,6 +133,7 @@ class VisualServoApp:
         self._hold = (0.0, 0.0, -float(p["takeoff_alt_m"]))   # local: above the start
         self.K = vp.K
         self.W, self.H = vp.size
+        self.px = px_scale(self.W)     # the pixel thresholds are the 856-px stream's
         self.det = Detector(vp.detector, vp.n_features)
         self.tracker = Tracker()
         self.body_from_cam = G.body_from_camera_matrix(vp.mount_B)
@@ -138,8 +143,9 @@ class VisualServoApp:
         self.h_t = G.Ramp(p["smoothing_s"], 1.0)
         s = p["sigma"]
         self.sigmas = s if isinstance(s, list) else [s]
-        pairs = (self._key_pairs() if p["feedforward"] or p["turn_t_ev"] > 0.0
-                 or p["decouple"] else [])
+        pairs = (VP.key_pair_errors(vp, self.det, self.K, p["homography"], self.seed,
+                                    p["min_tracked"], self.px)
+                 if p["feedforward"] or p["turn_t_ev"] > 0.0 or p["decouple"] else [])
         # Eqs. 31-32: gamma S eTc nu_c(I*_k, I*_k+1)
         self.nu_p = [p["gamma"] * (self.body_from_cam @ self._law(e)[0]) if e is not None
                      else np.zeros(4) for e in pairs] if p["feedforward"] else []
@@ -157,22 +163,6 @@ class VisualServoApp:
         self.low = LowLevel(p["low_level"], float(p["moveby_dt_s"]),
                             (ctx.frame_period_s or 0.0) * p["vision_every"])
 
-    def _key_pairs(self) -> list[np.ndarray | None]:
-        """Eq. 2's error between consecutive key images (I*_k+1 seen from I*_k), or None
-        where they do not match: the feed-forward of Eqs. 31-32 and the turn keys."""
-        out: list[np.ndarray | None] = []
-        keys = self.path.keys
-        for a, b in zip(keys[:-1], keys[1:], strict=False):
-            tgt, cur = match(self.det, b.pts, b.desc, a.pts, a.desc, self.seed)
-            e = None
-            if len(tgt) >= self.p["min_tracked"]:
-                tgt, cur = sort_points(tgt, cur)
-                r = homography(cur, tgt, self.K, self.p["homography"], self.seed)
-                if r.H is not None:
-                    e = G.homography_error(r.H)
-            out.append(e)
-        return out
-
     def _law(self, e: np.ndarray) -> tuple[np.ndarray, float]:
         p = self.p
         lam = G.adaptive_gain(float(np.linalg.norm(e)), p["l0"], p["linf"], p["l0_slope"])
@@ -185,7 +175,7 @@ class VisualServoApp:
         self._frame_i += 1
         if self._frame_i % self.p["vision_every"]:
             return
-        gray = gray_of(image)
+        gray, ob = self.frame_stage(image)
         if self.phase == "final":
             self._command(t, np.zeros(4))
             if t - self._t_goal >= self.p["hold_final_s"]:
@@ -194,13 +184,14 @@ class VisualServoApp:
         if self.phase == "matching":
             self._match(t, gray)
         if self.phase == "servo":
-            self._servo(t, image, gray)
+            self._servo(t, gray, ob)
         self._prev = gray
 
     def _match(self, t: float, gray: np.ndarray) -> None:
         key = self.path.keys[self.k]
         pts, desc = self.det.detect(gray)
-        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + self.k)
+        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + self.k,
+                         px=self.px)
         if len(tgt) >= self.p["min_matches"]:
             self._use_points(t, tgt, cur)
             self.phase = "servo"
@@ -221,7 +212,8 @@ class VisualServoApp:
         servo on them. Whether it did."""
         key = self.path.keys[self.k]
         pts, desc = self.det.detect(gray)
-        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * salt)
+        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * salt,
+                         px=self.px)
         if len(tgt) < self.p["min_matches"]:
             return False
         self._use_points(t, tgt, cur)
@@ -237,7 +229,7 @@ class VisualServoApp:
             self._finish(t, f"aborted: {why} at key {self.k + 1} for "
                             f"{self.p['lost_timeout_s']:g} s")
 
-    def _servo(self, t: float, image: np.ndarray, gray: np.ndarray) -> None:
+    def _servo(self, t: float, gray: np.ndarray, ob: Obstacle | None) -> None:
         p = self.p
         if self._eps_hist:       # not the frame the points were matched on: track them
             new, keep = self.tracker.track(self._prev, gray, self.cur)
@@ -246,7 +238,7 @@ class VisualServoApp:
             # points that drifted off their match (LK on a repeated texture, an occlusion):
             # outliers of the epipolar geometry between current and target go
             inl = robust_inliers(self.cur, self.tgt, self.seed + len(self.cur),
-                                 p["outlier_px"])
+                                 p["outlier_px"], self.px)
             if inl.sum() >= p["min_tracked"] and not inl.all():
                 head_lost = head_lost or not inl[:3].all()
                 self.cur, self.tgt = self.cur[inl], self.tgt[inl]
@@ -265,7 +257,7 @@ class VisualServoApp:
             if self._fresh_match(t, gray, 11 * self.k + len(self._switches)):
                 eps = float(np.mean(np.linalg.norm(self.cur - self.tgt, axis=1)))
         e, used = self.hchoice.choose(homographies(self.cur, self.tgt, self.K, p["homography"],
-                                                   self.seed + len(self.cur)),
+                                                   self.seed + len(self.cur), px=self.px),
                                       self.turn_key[self.k])
         if e is None:
             self.phase = "matching"
@@ -279,7 +271,7 @@ class VisualServoApp:
         if self.nu_p and 1 <= self.k < len(self.path.keys) - 1:   # none at the last key
             ff = self.nu_p[self.k - 1]
             nu_v = p["p"] * nu_v + (1.0 - p["p"]) * ff
-        J_a, edot_a, ob_px = (self._avoidance(t, image, float(nu_v[0])) if p["avoidance"]
+        J_a, edot_a, ob_px = (self._avoidance(t, ob, float(nu_v[0])) if p["avoidance"]
                               else (None, 0.0, 0.0))
         h_a = self.h_a.value(t)
         # visibility (Sec. 3.2)
@@ -306,8 +298,10 @@ class VisualServoApp:
                                *map(float, ff), ob_px))
         self._switch(t, eps, gray)
 
-    def _avoidance(self, t: float, image: np.ndarray, v_fwd: float) -> tuple[Any, Any, float]:
-        """Sec. 3.1: (J_a, desired rate, apparent width px) and the activation's target.
+    def _avoidance(self, t: float, ob: Obstacle | None, v_fwd: float
+                   ) -> tuple[Any, Any, float]:
+        """Sec. 3.1: (J_a, desired rate, apparent width px) and the activation's target; `ob`
+        the column this frame shows (`frame_work`).
 
         Corridor task (ours, the default): wanted while the column, estimated `avoid_range_m`
         or closer, stands in the corridor the vehicle sweeps and the servo moves forward
@@ -318,7 +312,6 @@ class VisualServoApp:
         soon as the column leaves the view, and a sideways hold for a fixed time froze the
         offset reached so far, short of clear when the column left the view early)."""
         p = self.p
-        ob = find_obstacle(image)
         corridor = p["avoidance_task"] == "corridor"
         if ob is None:
             if corridor:
@@ -376,10 +369,12 @@ class VisualServoApp:
         the key afresh (ours). When the fresh matches disagree, servoing goes on with them."""
         key = self.path.keys[self.k]
         pts, desc = self.det.detect(gray)
-        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * self.k)
+        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * self.k,
+                         px=self.px)
         if len(tgt) < self.p["min_tracked"]:
             return False
-        if float(np.mean(np.linalg.norm(cur - tgt, axis=1))) < self.p["t_eps_final_px"]:
+        eps = float(np.mean(np.linalg.norm(cur - tgt, axis=1)))
+        if eps < self.p["t_eps_final_px"] * self.px:
             return True
         self._use_points(t, tgt, cur)
         self._rematches += 1
@@ -395,9 +390,9 @@ class VisualServoApp:
         self._eps_hist.append(eps)
         hist = self._eps_hist[-(p["rising_n"] + 1):]
         rising = (p["feedforward"] and not last and len(hist) == p["rising_n"] + 1
-                  and (p["rising_max_px"] <= 0.0 or eps < p["rising_max_px"])
+                  and (p["rising_max_px"] <= 0.0 or eps < p["rising_max_px"] * self.px)
                   and all(b > a for a, b in zip(hist[:-1], hist[1:], strict=False)))
-        near = eps < p["t_eps_px"]
+        near = eps < p["t_eps_px"] * self.px
         turn = self.turn_key[self.k] and p["turn_t_ev"] > 0.0
         rising = rising and not turn     # a turn key is not left half-turned (issue 28)
         if near and turn:
@@ -409,7 +404,8 @@ class VisualServoApp:
                 self._t_eps_ok = t
             near = (float(np.linalg.norm(self._e[:3])) < p["turn_t_ev"]
                     or t - self._t_eps_ok >= p["turn_wait_s"])
-        if last and eps < p["t_eps_final_px"] and (gray is None or self._verified(t, gray)):
+        final = eps < p["t_eps_final_px"] * self.px
+        if last and final and (gray is None or self._verified(t, gray)):
             self._switches.append((t, self.k, "eps"))
             self._t_goal = t
             self.phase = "final"

@@ -114,6 +114,12 @@ class FrameStream:
         self.pipelined = bool(pipelined and spec.delayed)
         self.pool = (ThreadPoolExecutor(1, thread_name_prefix="cosim-render")
                      if self.pipelined else None)
+        self.stage = None                # the app's FrameStage (pipelined: run on the worker)
+
+    def prepare_with(self, stage) -> None:
+        """Compute an app's `FrameStage` (cosim/apps/base.py) for each frame on the worker,
+        after its render; only when pipelined (else the app computes it when it needs it)."""
+        self.stage = stage if self.pipelined else None
 
     def delivery_tick(self, k: int) -> int:
         """The tick a frame captured at tick k is delivered on (one jitter draw), never
@@ -139,17 +145,23 @@ class FrameStream:
 
     def pop(self) -> tuple[int, list, np.ndarray]:
         kd, k, ys, job = self.queue.popleft()
-        img, blur_px = job.result() if self.pool is not None else job
+        img, blur_px, pre = job.result() if self.pool is not None else job
+        if self.stage is not None:
+            self.stage.offer(img, pre)
         self.times.append((k, kd, blur_px))
         return k, ys, img
 
-    def _render(self, y: list) -> tuple[np.ndarray, float]:
+    def _render(self, y: list) -> tuple[np.ndarray, float, Any]:
+        """(frame, its blur px, the app's FrameStage of it or None)."""
         cam = self.camera
         if not self.moving:
-            return cam.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1])), 0.0
-        img = cam.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1]),
-                         motion=(y[Y_VX:Y_VZ + 1], y[Y_P:Y_R + 1]))
-        return img, cam.last_blur_px
+            img, blur_px = cam.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1])), 0.0
+        else:
+            img = cam.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1]),
+                             motion=(y[Y_VX:Y_VZ + 1], y[Y_P:Y_R + 1]))
+            blur_px = cam.last_blur_px
+        stage = self.stage
+        return img, blur_px, (stage.fn(img) if stage is not None else None)
 
     def close(self) -> None:
         """Stop the worker (frames not yet delivered are not rendered further)."""

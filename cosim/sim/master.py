@@ -261,6 +261,12 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         app = build_app(sc, opts)
         if app is not None:
             ctx = start_app(app, sc, vehicle, camera, run_dir)
+        if stream is not None:
+            stream.prepare_with(getattr(app, "frame_stage", None))
+            if stream.pipelined:
+                from cosim import cvthreads
+
+                cvthreads.apply(pipelined=True)
         monitor = ExitMonitor(sc.world.arena, h, app, sitl=opts.sitl, scene=sc.world.scene,
                               body_radius=sc.vehicle.body_radius)
         sinks = []

@@ -20,6 +20,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -29,6 +30,15 @@ from cosim.cvthreads import single_thread
 
 DETECTORS = ("sift", "gftt", "orb")
 HOMOGRAPHIES = ("virtual_plane", "dominant_plane")
+# Every pixel length here (RANSAC thresholds, the LK window, GFTT spacing, the forward-backward
+# bound) is given for the Bebop 2's 856-px-wide stream, the paper's, and scales with the
+# image's width (`px_scale`): at half the resolution a point's error is half as many pixels.
+REF_WIDTH_PX = 856
+
+
+def px_scale(width: int) -> float:
+    """Pixels of an image `width` px wide per pixel of the 856-px stream (1.0 at 856)."""
+    return int(width) / REF_WIDTH_PX
 
 
 class Detector:
@@ -52,8 +62,10 @@ class Detector:
 
     def _detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if self.kind == "gftt":
-            c = cv2.goodFeaturesToTrack(gray, self.n_max, 0.01, 7, blockSize=5)
-            kps = [] if c is None else [cv2.KeyPoint(float(x), float(y), 16.0)
+            s = px_scale(gray.shape[1])
+            block = max(3, 2 * round(2.0 * s) + 1)          # 5 px at 856
+            c = cv2.goodFeaturesToTrack(gray, self.n_max, 0.01, 7.0 * s, blockSize=block)
+            kps = [] if c is None else [cv2.KeyPoint(float(x), float(y), 16.0 * s)
                                         for x, y in c.reshape(-1, 2)]
             kps, desc = self._det.compute(gray, kps)
         else:
@@ -69,8 +81,8 @@ def gray_of(rgb: np.ndarray) -> np.ndarray:
 
 
 def match(det: Detector, pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray,
-          desc_b: np.ndarray, seed: int, ratio: float = 0.8, ransac_px: float = 1.5
-          ) -> tuple[np.ndarray, np.ndarray]:
+          desc_b: np.ndarray, seed: int, ratio: float = 0.8, ransac_px: float = 1.5,
+          px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Matched (a, b) pixel positions (M x 2 each) after the ratio test, the one-to-one check
     and the robust filter; empty arrays when fewer than 8 survive."""
     empty = (np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32))
@@ -89,21 +101,22 @@ def match(det: Detector, pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarra
     ib = np.array(sorted(best), dtype=int)
     ia = np.array([best[i][1] for i in ib], dtype=int)
     a, b = pts_a[ia], pts_b[ib]
-    keep = robust_inliers(a, b, seed, ransac_px)
+    keep = robust_inliers(a, b, seed, ransac_px, px)
     return a[keep], b[keep]
 
 
-def robust_inliers(a: np.ndarray, b: np.ndarray, seed: int, ransac_px: float = 1.5
-                   ) -> np.ndarray:
-    """Boolean inlier mask of correspondences a <-> b (seeded RANSAC)."""
+def robust_inliers(a: np.ndarray, b: np.ndarray, seed: int, ransac_px: float = 1.5,
+                   px: float = 1.0) -> np.ndarray:
+    """Boolean inlier mask of correspondences a <-> b (seeded RANSAC); `ransac_px` at the
+    856-px stream, times `px` (`px_scale`)."""
     n = len(a)
     if n < 8:
         return np.zeros(n, bool)
     cv2.setRNGSeed(int(seed))
-    F, mask = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, ransac_px, 0.999, 2000)
+    F, mask = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, ransac_px * px, 0.999, 2000)
     if F is None or F.shape != (3, 3) or mask is None:
         cv2.setRNGSeed(int(seed))
-        _, mask = cv2.findHomography(a, b, cv2.RANSAC, 3.0)
+        _, mask = cv2.findHomography(a, b, cv2.RANSAC, 3.0 * px)
     if mask is None:
         return np.zeros(n, bool)
     return mask.ravel().astype(bool)
@@ -126,18 +139,31 @@ def sort_points(target: np.ndarray, current: np.ndarray) -> tuple[np.ndarray, np
 
 class Tracker:
     """Pyramidal LK of the current points from the last frame to this one; points that fail
-    or do not come back within `fb_px` (forward-backward) are dropped."""
+    or do not come back within `fb_px` (forward-backward) are dropped. The window, the
+    pyramid's levels and `fb_px` are the 856-px stream's; on another width they scale with it
+    (`px_scale`): the window by the scale (odd), one level fewer per halving, so the
+    coarsest level sees the same part of the scene."""
 
     def __init__(self, win: int = 21, levels: int = 3, fb_px: float = 1.0) -> None:
-        self.params = dict(winSize=(win, win), maxLevel=levels,
+        self.win, self.levels, self.fb = win, levels, fb_px
+        self._width = -1
+
+    def _scaled(self, width: int) -> None:
+        s = px_scale(width)
+        half = max(1, round((self.win - 1) / 2 * s))
+        levels = max(0, self.levels + round(math.log2(s)))
+        self.params = dict(winSize=(2 * half + 1, 2 * half + 1), maxLevel=levels,
                            criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
-        self.fb_px = fb_px
+        self.fb_px = self.fb * s
+        self._width = width
 
     def track(self, prev: np.ndarray, cur: np.ndarray, pts: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray]:
         """(new positions N x 2, keep mask N)."""
         if len(pts) == 0:
             return pts, np.zeros(0, bool)
+        if cur.shape[1] != self._width:
+            self._scaled(cur.shape[1])
         p0 = pts.reshape(-1, 1, 2).astype(np.float32)
         p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, **self.params)
         pb, st_b, _ = cv2.calcOpticalFlowPyrLK(cur, prev, p1, None, **self.params)
@@ -186,7 +212,7 @@ def _virtual_plane(F: np.ndarray, x: np.ndarray, xp: np.ndarray) -> np.ndarray |
 
 
 def homographies(current: np.ndarray, target: np.ndarray, K: np.ndarray, method: str,
-                 seed: int, planar_px: float = 2.0, gate: float = 0.3
+                 seed: int, planar_px: float = 2.0, gate: float = 0.3, px: float = 1.0
                  ) -> dict[str, tuple[np.ndarray, np.ndarray] | None]:
     """Both candidate Euclidean homographies from current to target points (pixels, sorted:
     the first 3 define the virtual plane), each with the point m* (normalised, z = 1) its
@@ -201,7 +227,7 @@ def homographies(current: np.ndarray, target: np.ndarray, K: np.ndarray, method:
     if len(current) < 8:
         return out
     cv2.setRNGSeed(int(seed))
-    Hd, inl = cv2.findHomography(current, target, cv2.RANSAC, 2.0)
+    Hd, inl = cv2.findHomography(current, target, cv2.RANSAC, 2.0 * px)
     Kinv = np.linalg.inv(K)
     H_px = None
     if method == "virtual_plane":
@@ -209,10 +235,11 @@ def homographies(current: np.ndarray, target: np.ndarray, K: np.ndarray, method:
         if Hd is not None:
             proj = cv2.perspectiveTransform(current.reshape(-1, 1, 2).astype(np.float64), Hd)
             err = np.linalg.norm(proj.reshape(-1, 2) - target, axis=1)
-            planar = float(np.median(err)) < planar_px
+            planar = float(np.median(err)) < planar_px * px
         if not planar:
             cv2.setRNGSeed(int(seed))
-            F, _ = cv2.findFundamentalMat(current, target, cv2.FM_RANSAC, 1.0, 0.999, 500)
+            F, _ = cv2.findFundamentalMat(current, target, cv2.FM_RANSAC, 1.0 * px, 0.999,
+                                          500)
             if F is not None and F.shape == (3, 3):
                 H_px = _virtual_plane(F, current.astype(np.float64), target.astype(np.float64))
     Hd_e = _normalise(Kinv @ Hd @ K) if Hd is not None else None
@@ -234,11 +261,12 @@ def homographies(current: np.ndarray, target: np.ndarray, K: np.ndarray, method:
 
 
 def homography(current: np.ndarray, target: np.ndarray, K: np.ndarray, method: str,
-               seed: int, planar_px: float = 2.0, gate: float = 0.3) -> HomographyResult:
+               seed: int, planar_px: float = 2.0, gate: float = 0.3, px: float = 1.0
+               ) -> HomographyResult:
     """The Euclidean homography from current to target points (pixels, sorted: the first 3
     define the virtual plane): the virtual plane's when it is usable, else the dominant
     plane's (one cycle on its own; the app holds its choice steady: vs/choice.py)."""
-    c = homographies(current, target, K, method, seed, planar_px, gate)
+    c = homographies(current, target, K, method, seed, planar_px, gate, px)
     for used in ("virtual_plane", "dominant_plane"):
         if c[used] is not None:
             return HomographyResult(c[used][0], used)

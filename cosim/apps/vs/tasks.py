@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from cosim.apps.vs.features import gray_of
 from cosim.apps.vs.geometry import interaction_point
 from cosim.cvthreads import single_thread
 
@@ -84,6 +85,13 @@ def find_obstacle(rgb: np.ndarray, hue_deg: tuple[float, float] = (70.0, 170.0),
     if x <= 0 or x + w >= rgb.shape[1]:
         return None          # cut by the image border: its width would be wrong (leaving view)
     return Obstacle(float(x), float(x + w), y + 0.5 * h, area)
+
+
+def frame_work(image: np.ndarray, avoidance: bool) -> tuple[np.ndarray, Obstacle | None]:
+    """What the app needs of a frame whatever its state (its `FrameStage`: on the camera
+    stream's worker when pipelined): the grey image, and the column it shows (None without
+    avoidance)."""
+    return gray_of(image), (find_obstacle(image) if avoidance else None)
 
 
 def avoidance_task(ob: Obstacle, K: np.ndarray, sigma: float, width_m: float,

@@ -34,7 +34,15 @@ import cv2
 import numpy as np
 
 from cosim import cache
-from cosim.apps.vs.features import DETECTORS, Detector, gray_of
+from cosim.apps.vs.features import (
+    DETECTORS,
+    Detector,
+    gray_of,
+    homography,
+    match,
+    sort_points,
+)
+from cosim.apps.vs.geometry import homography_error
 
 FORMAT = "cosim-visual-path"
 VERSION = 1
@@ -324,3 +332,20 @@ def load(folder: Path | str, camera=None) -> VisualPath:
         keys.append(Key(img, gray, pts, desc, pose))
     return VisualPath(keys, meta["_K"], meta["_size"], meta["_mount"], meta["detector"],
                       meta["n_features"], meta)
+
+
+def key_pair_errors(vp: VisualPath, det: Detector, K: np.ndarray, method: str, seed: int,
+                    min_tracked: int, px: float = 1.0) -> list[np.ndarray | None]:
+    """Eq. 2's error between consecutive key images (I*_k+1 seen from I*_k), or None where
+    they do not match: the feed-forward of Eqs. 31-32 and the turn keys."""
+    out: list[np.ndarray | None] = []
+    for a, b in zip(vp.keys[:-1], vp.keys[1:], strict=False):
+        tgt, cur = match(det, b.pts, b.desc, a.pts, a.desc, seed, px=px)
+        e = None
+        if len(tgt) >= min_tracked:
+            tgt, cur = sort_points(tgt, cur)
+            r = homography(cur, tgt, K, method, seed, px=px)
+            if r.H is not None:
+                e = homography_error(r.H)
+        out.append(e)
+    return out
