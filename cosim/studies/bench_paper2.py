@@ -5,13 +5,19 @@ front-camera tick goes (issue 29).
   (set-up, teach and flight; not the CSV and plots `cosim run` writes afterwards), MIL, one
   process. The first run in a process makes the world's textures, tiles and taught keys
   ("cold", what `cosim run` pays); the repeats find them made ("warm", what every run after the
-  first in a study worker pays). OpenCV on every core (a single run) and on one thread (a
-  study worker) from the same run.
-- E3 and E4 (the 30-key oval) likewise, warm, without --quick.
-- The breakdown of E2's front-camera tick, ms per camera frame: render, column detection,
-  tracking (LK + the epipolar outlier test), matching at a key change (features + match),
-  homography and law (homography, gain and law, hierarchy), the rest of the app's frame,
-  and beside it the other ticks of a camera period (plant, flight stack, app ticks, master).
+  first in a study worker pays). A run with a camera latency (E1, E2) on a machine with free
+  cores is pipelined (cosim/sensors/stream.py: render, grey conversion and column detection
+  on the stream's worker thread); without free cores, or with `threads=1`, sequential.
+- "E2 at 428x240": the same mission at half the Bebop 2 stream's resolution, the documented
+  resolution choice of docs/performance-paper2.md (every pixel threshold scales with the
+  width: cosim/apps/vs/features.py px_scale).
+- E3 and E4 (the 30-key oval, at both sizes) likewise, without --quick.
+- The breakdown of E2's front-camera tick at 428 x 240, ms per camera frame, from a
+  sequential run on one thread (each part timed where it runs): render, grey conversion,
+  column detection, tracking (LK + the epipolar outlier test), matching at a key change
+  (features + match), homography and law (homographies, gain and law, hierarchy), the rest of
+  the app's frame, and beside it the other ticks of a camera period (plant, flight stack, app
+  ticks, master); then the same run pipelined, with the CPU time of each of its two threads.
 
 `python -m cosim.studies.bench_paper2 [--quick]` prints these alone; `--against DIR` flies
 E2 in fresh processes alternately with the code in DIR (e.g. a copy of the tree before a
@@ -31,33 +37,51 @@ from typing import Any
 
 from cosim.studies.bench_common import ROOT, _stat
 
-MISSIONS = {"E2": ("bebop2_vs_e2.toml", 15.0), "E3": ("bebop2_vs_oval.toml", 12.0),
-            "E4": ("bebop2_vs_oval_ff.toml", 12.0)}       # scenario, target (x real time)
+HALF = {"camera.width": 428, "camera.height": 240}
+# label: (scenario, target x real time, --set overrides)
+MISSIONS: dict[str, tuple[str, float, dict[str, Any]]] = {
+    "E2": ("bebop2_vs_e2.toml", 15.0, {}),
+    "E2 at 428x240": ("bebop2_vs_e2.toml", 15.0, HALF),
+    "E3": ("bebop2_vs_oval.toml", 12.0, {}),
+    "E4": ("bebop2_vs_oval_ff.toml", 12.0, {}),
+    "E3 at 428x240": ("bebop2_vs_oval.toml", 12.0, HALF),
+    "E4 at 428x240": ("bebop2_vs_oval_ff.toml", 12.0, HALF),
+}
 # (module, attribute owner or None for a module function, attribute, part)
 PARTS = (
     ("cosim.sensors.front", "FrontCamera", "render", "render"),
-    ("cosim.apps.visual_servo", None, "find_obstacle", "detection (column)"),
+    ("cosim.apps.vs.tasks", None, "gray_of", "grey conversion"),
+    ("cosim.apps.vs.tasks", None, "find_obstacle", "detection (column)"),
     ("cosim.apps.vs.features", "Tracker", "track", "tracking (LK, outlier test)"),
     ("cosim.apps.visual_servo", None, "robust_inliers", "tracking (LK, outlier test)"),
     ("cosim.apps.vs.features", "Detector", "detect", "matching at key changes"),
     ("cosim.apps.visual_servo", None, "match", "matching at key changes"),
-    ("cosim.apps.visual_servo", None, "homography", "homography / law"),
+    ("cosim.apps.visual_servo", None, "homographies", "homography / law"),
     ("cosim.apps.visual_servo", "VisualServoApp", "_law", "homography / law"),
     ("cosim.apps.vs.geometry", None, "hierarchy", "homography / law"),
     ("cosim.apps.visual_servo", "VisualServoApp", "on_frame", "_on_frame"),
 )
+# what the stream's worker computes in a pipelined run
+WORKER_PARTS = ("render", "grey conversion", "detection (column)")
 
 
-def _fly(path: Path) -> tuple[float, float, str]:
+def _scenario(name: str):
+    from cosim.scenario.parse import load_scenario, with_set
+
+    file, _, sets = MISSIONS[name]
+    sc = load_scenario(ROOT / "scenarios" / file)
+    return with_set(sc, sets) if sets else sc
+
+
+def _fly(name: str, pipeline: bool | None = None) -> tuple[float, float, str]:
     """(simulated s, wall s, exit reason) of one MIL run in this process; its CPU time goes
     to `_CPU` (on a host busy with other work, closer to what the run costs than its wall)."""
-    from cosim.scenario.parse import load_scenario
     from cosim.sim.master import RunOptions, run_scenario
 
-    sc = load_scenario(path)
+    sc = _scenario(name)
     with tempfile.TemporaryDirectory(prefix="cosim-bench-") as tmp:
         t0, c0 = time.perf_counter(), time.process_time()
-        res = run_scenario(sc, RunOptions(mode="mil", out_dir=Path(tmp)))
+        res = run_scenario(sc, RunOptions(mode="mil", out_dir=Path(tmp), pipeline=pipeline))
         wall = time.perf_counter() - t0
         _CPU.append(time.process_time() - c0)
     return res.t_end_s, wall, res.exit_reason.value
@@ -81,9 +105,9 @@ def _threads(n: int | None) -> Iterator[None]:
 def mission(name: str, repeats: int, threads: int | None = None) -> dict[str, Any]:
     """x real time of `repeats` runs of a paper-2 mission (the first one cold if the world
     was not flown yet in this process)."""
-    file, target = MISSIONS[name]
+    target = MISSIONS[name][1]
     with _threads(threads):
-        runs = [_fly(ROOT / "scenarios" / file) for _ in range(repeats)]
+        runs = [_fly(name) for _ in range(repeats)]
     rtf = [s / w for s, w, _ in runs]
     d = _stat(rtf, "x real time", target, higher_is_better=True)
     d.update(sim_time_s=runs[0][0], exit_reason=runs[0][2], wall_s=[w for _, w, _ in runs],
@@ -115,36 +139,73 @@ def _timing(acc: dict[str, float], calls: dict[str, int]) -> Iterator[None]:
             setattr(owner, attr, fn)
 
 
+@contextlib.contextmanager
+def _thread_cpu(acc: dict[str, float]) -> Iterator[None]:
+    """The CPU time of the stream's worker (its jobs, timed in the worker) and of the calling
+    thread, over the block."""
+    from cosim.sensors.stream import FrameStream
+
+    render = FrameStream._render
+
+    def timed(self: Any, y: list) -> Any:
+        c0 = time.thread_time()
+        try:
+            return render(self, y)
+        finally:
+            acc["worker"] = acc.get("worker", 0.0) + time.thread_time() - c0
+    FrameStream._render = timed            # type: ignore[method-assign]
+    c0 = time.thread_time()
+    try:
+        yield
+    finally:
+        FrameStream._render = render       # type: ignore[method-assign]
+        acc["main"] = time.thread_time() - c0
+
+
 def tick_breakdown(name: str = "E2", warm: bool = False) -> dict[str, Any]:
     """ms per camera frame of each part of a warm run of the mission (``warm``: it was
-    flown in this process already)."""
-    file = MISSIONS[name][0]
+    flown in this process already), flown sequentially on one OpenCV thread so that every
+    part is timed on its own; then the same mission pipelined, with the CPU time of its two
+    threads (the stream's worker: render, grey, columns; the main thread: the rest)."""
     if not warm:
-        _fly(ROOT / "scenarios" / file)      # textures, tiles and keys made
+        _fly(name)                           # textures, tiles and keys made
     acc: dict[str, float] = {}
     calls: dict[str, int] = {}
-    with _timing(acc, calls):
-        sim, wall, _ = _fly(ROOT / "scenarios" / file)
+    with _threads(1), _timing(acc, calls):
+        sim, wall, _ = _fly(name, pipeline=False)
     frames = calls["render"]
     parts = {p: 1e3 * acc.get(p, 0.0) / frames for p in dict.fromkeys(p[3] for p in PARTS)}
     on_frame = parts.pop("_on_frame")
-    inside = sum(v for k, v in parts.items() if k != "render")
-    parts["rest of the app's frame"] = on_frame - inside
+    inside = sum(v for k, v in parts.items() if k not in ("render", "grey conversion",
+                                                          "detection (column)"))
+    parts["rest of the app's frame"] = on_frame - inside - parts["grey conversion"] - parts[
+        "detection (column)"]
     camera_tick = parts["render"] + on_frame
     period = 1e3 * wall / frames
-    return {"mission": name, "frames": frames, "sim_time_s": sim, "wall_s": wall,
-            "ms_per_frame": parts, "camera_tick_ms": camera_tick,
-            "other_ticks_ms": period - camera_tick, "camera_period_ms": period}
+    out: dict[str, Any] = {
+        "mission": name, "frames": frames, "sim_time_s": sim, "wall_s": wall,
+        "ms_per_frame": parts, "camera_tick_ms": camera_tick,
+        "other_ticks_ms": period - camera_tick, "camera_period_ms": period}
+    cpu: dict[str, float] = {}
+    with _threads(2), _thread_cpu(cpu):
+        sim2, wall2, _ = _fly(name, pipeline=True)
+    out["pipelined"] = {"wall_s": wall2, "x_real_time": sim2 / wall2,
+                        "worker_cpu_s": cpu.get("worker", 0.0), "main_cpu_s": cpu["main"]}
+    return out
 
 
 def bench_paper2(quick: bool = False) -> dict[str, Any]:
+    """The missions in x real time (--quick: E2 once, cold, and E2 at 428 x 240 twice, the
+    first cold; else 4 times each, and E3/E4 at both sizes twice), then E2's breakdown at
+    428 x 240."""
     res: dict[str, Any] = {}
     res["E2"] = mission("E2", 1 if quick else 4)
-    if not quick:                            # --quick: E2 once, then its breakdown
+    res["E2 at 428x240"] = mission("E2 at 428x240", 2 if quick else 4)
+    if not quick:
         res["E2_one_thread"] = mission("E2", 3, threads=1)
-        res["E3"] = mission("E3", 2)
-        res["E4"] = mission("E4", 2)
-    res["breakdown"] = tick_breakdown("E2", warm=True)
+        for k in ("E3", "E4", "E3 at 428x240", "E4 at 428x240"):
+            res[k] = mission(k, 2)
+    res["breakdown"] = tick_breakdown("E2 at 428x240", warm=True)
     return res
 
 
@@ -154,24 +215,31 @@ def format_paper2(res: dict[str, Any]) -> list[str]:
         return (f"{label:<34s}{d['median']:>10.2f}{d['min']:>10.2f}{d['max']:>10.2f}  "
                 f"{d['unit']:<12s} >= {d['target']:g}  {ok}")
 
-    e2 = res["E2"]
-    cold = e2["sim_time_s"] / e2["wall_s"][0]
-    per_cpu = ", ".join(f"{e2['sim_time_s'] / c:.1f}" for c in e2["cpu_s"])
-    lines = [row("paper 2 E2 mission (x real time)", e2),
-             f"  E2 first run in the process (cold: textures, tiles, keys made): {cold:.2f}x",
-             f"  E2 simulated s per CPU s of the process, each run: {per_cpu}"]
-    if "E2_one_thread" in res:
-        lines.append(row("  E2, OpenCV on one thread", res["E2_one_thread"]))
-    for k in ("E3", "E4"):
+    lines = []
+    for k in ("E2", "E2 at 428x240"):
+        d = res[k]
+        cold = d["sim_time_s"] / d["wall_s"][0]
+        per_cpu = ", ".join(f"{d['sim_time_s'] / c:.1f}" for c in d["cpu_s"])
+        lines += [row(f"paper 2 {k} mission (x real time)", d),
+                  f"  first run in the process (cold: textures, tiles, keys made): {cold:.2f}x",
+                  f"  simulated s per CPU s of the process, each run: {per_cpu}"]
+        if k == "E2" and "E2_one_thread" in res:
+            lines.append(row("  E2, OpenCV on one thread", res["E2_one_thread"]))
+    for k in ("E3", "E4", "E3 at 428x240", "E4 at 428x240"):
         if k in res:
             lines.append(row(f"paper 2 {k} mission (x real time)", res[k]))
     b = res["breakdown"]
-    lines.append(f"front-camera tick of {b['mission']} ({b['frames']} frames, "
-                 f"{b['sim_time_s']:.1f} s simulated in {b['wall_s']:.2f} s), ms per frame:")
+    lines.append(f"front-camera tick of {b['mission']}, sequential, one thread "
+                 f"({b['frames']} frames, {b['sim_time_s']:.1f} s simulated in "
+                 f"{b['wall_s']:.2f} s), ms per frame:")
     for k, v in b["ms_per_frame"].items():
         lines.append(f"  {k:<48s}{v:>8.3f}")
     lines.append(f"  {'= the camera tick (render + app frame)':<48s}{b['camera_tick_ms']:>8.3f}")
     lines.append(f"  {'the other ticks of a camera period':<48s}{b['other_ticks_ms']:>8.3f}")
+    pl = b["pipelined"]
+    lines.append(f"  pipelined (render, grey, columns on the stream's worker): "
+                 f"{pl['x_real_time']:.2f}x real time; CPU s: worker {pl['worker_cpu_s']:.2f}, "
+                 f"main thread {pl['main_cpu_s']:.2f}, wall {pl['wall_s']:.2f}")
     return lines
 
 
@@ -192,7 +260,7 @@ def against(before: Path, name: str = "E2", rounds: int = 3) -> dict[str, Any]:
     import os
     import subprocess
 
-    path = ROOT / "scenarios" / MISSIONS[name][0]
+    path = ROOT / "scenarios" / MISSIONS[name][0]    # (its overrides are not applied)
     out: dict[str, list[float]] = {"before": [], "now": [], "before_cpu": [], "now_cpu": []}
     for _ in range(rounds):
         for label, src in (("before", Path(before).resolve()), ("now", ROOT)):
