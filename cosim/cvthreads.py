@@ -49,10 +49,12 @@ def run_threads() -> int:
 
 def apply(pipelined: bool = False) -> int:
     """Set OpenCV's thread count for a run; returns it. A pipelined run (its camera stream
-    renders, and computes the app's per-frame image work, on a worker thread while the main
-    thread flies: cosim/sensors/stream.py) has its cores in its own two threads, and OpenCV
-    runs on one thread in each: its count is global to the process, and a parallel section
-    of one thread must not change what ``single_thread()`` holds in the other."""
+    renders, and computes the app's per-frame image work, in a worker while the main thread
+    flies: cosim/sensors/stream.py) has its cores in its worker and its main thread, and
+    OpenCV runs on one thread in each: with a worker thread, the count is global to the
+    process, and a parallel section of one thread must not change what ``single_thread()``
+    holds in the other; a render process is forked after this (a fork does not copy
+    OpenCV's pool)."""
     n = 1 if pipelined else run_threads()
     cv2.setNumThreads(n)
     return n

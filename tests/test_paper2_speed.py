@@ -221,22 +221,78 @@ def _fly_e1(threads: int, seconds: float, sets: dict | None = None, where: list 
         visual_servo.frame_work = work
 
 
-def test_e1_is_the_same_sequential_and_pipelined_and_from_the_cache(fresh_cache):
+def test_e1_is_the_same_sequential_and_pipelined_and_from_the_cache(fresh_cache, monkeypatch):
     """Take-off, matching, tracking and the column in view (the first 7 s of E1): one
-    thread, sequential, with everything made afresh; then two cores with the world and keys
-    cached: the stream renders and computes the app's frame work (grey, column) on its
-    worker, OpenCV on one thread in each."""
+    thread, sequential, with everything made afresh; then on two cores with the world and
+    keys cached, the stream rendering and computing the app's frame work (grey, column) on
+    a worker thread, then in a render process; OpenCV on one thread in each."""
+    from cosim.sensors.render_proc import fork_is_safe
+
     on_a: list[str] = []
     on_b: list[str] = []
+    on_c: list[str] = []
     a = _fly_e1(1, 7.0, where=on_a)
+    monkeypatch.setenv("COSIM_RENDER_PROCESS", "0")
     b = _fly_e1(2, 7.0, where=on_b)
+    monkeypatch.delenv("COSIM_RENDER_PROCESS")
+    forkable = fork_is_safe()
+    c = _fly_e1(2, 7.0, where=on_c)
     assert any((fresh_cache / k).is_dir() for k in ("texture", "visual-path"))
-    assert a.series.shape == b.series.shape
-    assert np.asarray(a.series).tobytes() == np.asarray(b.series).tobytes()     # bit for bit
-    assert a.frame_log == b.frame_log and len(a.frame_log) > 20
+    assert a.series.shape == b.series.shape == c.series.shape
+    for r in (b, c):                                                        # bit for bit
+        assert np.asarray(a.series).tobytes() == np.asarray(r.series).tobytes()
+        assert a.frame_log == r.frame_log and len(a.frame_log) > 20
+    assert a.camera_stream["worker"] == "" and b.camera_stream["worker"] == "thread"
     assert on_a and not any(n.startswith("cosim-render") for n in on_a)
     assert on_b and all(n.startswith("cosim-render") for n in on_b)
     assert len(on_b) >= len(on_a)                # every frame there, only those used here
+    if forkable:                                 # (pytest alone: one thread)
+        assert c.camera_stream["worker"] == "process"
+        assert not on_c                          # the frame work ran in the child
+
+
+def _job(ys):
+    """A render process's job: an image and a FrameStage-like tuple from the request."""
+    if ys[0] < 0:
+        raise ValueError("a bad pose")
+    img = np.full((24, 32, 3), ys[0] % 256, np.uint8)
+    return img, 0.5 * ys[0], (img[:, :, 0].copy(), {"n": ys[0]}, None)
+
+
+def test_render_process_hands_back_each_frame_in_order_and_raises_its_errors():
+    from cosim.sensors.render_proc import RenderProcess
+
+    rp = RenderProcess(_job, 24 * 32 * 3, n_slots=3)
+    try:
+        tickets = [rp.submit([float(i)]) for i in range(10)]   # more than its slots
+        for i, t in enumerate(tickets):
+            img, blur, (grey, meta, none) = rp.result(t)
+            assert img.shape == (24, 32, 3) and int(img[0, 0, 0]) == i and blur == 0.5 * i
+            assert grey.shape == (24, 32) and int(grey[5, 5]) == i
+            assert meta == {"n": float(i)} and none is None
+            img[:] = 0                                          # the parent's own copy
+        bad = rp.submit([-1.0])
+        with pytest.raises(RuntimeError, match="a bad pose"):
+            rp.result(bad)
+        assert int(rp.result(rp.submit([7.0]))[0][0, 0, 0]) == 7   # still serving
+    finally:
+        rp.close()
+    assert rp.proc is None
+
+
+def test_render_process_gone_is_an_error_not_a_hang():
+    from cosim.sensors.render_proc import RenderProcess
+
+    rp = RenderProcess(_job, 24 * 32 * 3)
+    try:
+        t = rp.submit([1.0])
+        assert rp.result(t)[1] == 0.5
+        rp.proc.kill()
+        rp.proc.join(5.0)
+        with pytest.raises(RuntimeError, match="render process ended"):
+            rp.result(rp.submit([2.0]))
+    finally:
+        rp.close()
 
 
 def test_a_frame_a_camera_fault_replaces_is_worked_on_afresh_when_pipelined(fresh_cache):

@@ -51,8 +51,9 @@ class AppContext:
 
 class FrameStage:
     """An app's pure per-frame image work (a function of the frame alone: a grey conversion,
-    a colour segmentation), which a pipelined camera stream computes on its worker thread
-    right after the render, while the plant and the flight stack step on (issue 29).
+    a colour segmentation), which a pipelined camera stream computes in its worker (a render
+    process, or thread) right after the render, while the plant and the flight stack step
+    on (issue 29).
 
     An app that has one sets ``frame_stage = FrameStage(fn)`` and calls
     ``self.frame_stage(image)`` in ``on_frame``: that returns what the stream computed for

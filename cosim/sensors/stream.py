@@ -12,15 +12,20 @@ on the tick it is captured, exactly as before the stream existed.
 key the table does not set (front camera only); the keys themselves can be set with any
 stream. docs/cameras.md, "The video stream", gives the sources of the preset.
 
-``FrameStream`` renders a frame when it is captured. With a delay it may instead render on a
-worker thread (``pipelined``): the render of frame k is a pure function of the pose at
-capture (the renderer's own seeded noise is drawn in capture order, one job at a time), so it
-runs while the plant and the flight stack step on, and is joined at delivery; the flight is
-the same, bit for bit.
+``FrameStream`` renders a frame when it is captured. With a delay it may instead render
+``pipelined``: the render of frame k is a pure function of the pose at capture (the
+renderer's own seeded noise is drawn in capture order, one job at a time), so it runs while
+the plant and the flight stack step on, and is joined at delivery; with it runs the app's
+per-frame image work (``FrameStage``: cosim/apps/base.py). The worker is a forked render
+process where a fork is safe (cosim/sensors/render_proc.py: its own interpreter, so the
+render's Python does not take turns with the loop's), else a thread
+(``COSIM_RENDER_PROCESS=0`` forces the thread). The flight is the same, bit for bit, either
+way.
 """
 
 from __future__ import annotations
 
+import os
 from collections import deque
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -99,7 +104,7 @@ class FrameStream:
     """
 
     def __init__(self, camera, spec: StreamSpec, h_us: int, seed: int,
-                 pipelined: bool = False) -> None:
+                 pipelined: bool = False, processes: bool = True) -> None:
         self.camera = camera
         self.spec = spec
         self.h_us = int(h_us)
@@ -112,9 +117,12 @@ class FrameStream:
         self.last_k = -1                 # delivery tick of the frame captured last
         self.times: list[tuple[int, int, float]] = []
         self.pipelined = bool(pipelined and spec.delayed)
-        self.pool = (ThreadPoolExecutor(1, thread_name_prefix="cosim-render")
-                     if self.pipelined else None)
+        self.pool = None                 # the worker thread, or
+        self.proc = None                 # the render process (render_proc.py)
+        self.worker = ""                 # which of the two, once the first frame is captured
         self.stage = None                # the app's FrameStage (pipelined: run on the worker)
+        self.processes = bool(processes)
+        self.worker_cpu_s: float | None = None
 
     def prepare_with(self, stage) -> None:
         """Compute an app's `FrameStage` (cosim/apps/base.py) for each frame on the worker,
@@ -133,10 +141,32 @@ class FrameStream:
         self.last_k = kd
         return kd
 
+    def _start_worker(self) -> None:
+        """At the first capture (the app and OpenCV's threads are set by then): a render
+        process where a fork is safe, else a worker thread."""
+        from cosim.sensors.render_proc import RenderProcess, fork_is_safe
+
+        cfg = getattr(self.camera, "config", None)
+        frame_bytes = 3 * int(getattr(cfg, "width", 0)) * int(getattr(cfg, "height", 0))
+        wanted = self.processes and os.environ.get("COSIM_RENDER_PROCESS", "1") != "0"
+        if wanted and frame_bytes > 0 and fork_is_safe():
+            self.proc = RenderProcess(self._render, frame_bytes)
+            self.worker = "process"
+        else:
+            self.pool = ThreadPoolExecutor(1, thread_name_prefix="cosim-render")
+            self.worker = "thread"
+
     def capture(self, k: int, y) -> None:
         kd = self.delivery_tick(k)
         ys = list(y)                      # the pose at capture, kept as it was
-        job = self.pool.submit(self._render, ys) if self.pool is not None else self._render(ys)
+        if self.pipelined and not self.worker:
+            self._start_worker()
+        if self.proc is not None:
+            job = self.proc.submit(ys)
+        elif self.pool is not None:
+            job = self.pool.submit(self._render, ys)
+        else:
+            job = self._render(ys)
         self.queue.append((kd, k, ys, job))
 
     def due(self, k: int) -> bool:
@@ -145,7 +175,12 @@ class FrameStream:
 
     def pop(self) -> tuple[int, list, np.ndarray]:
         kd, k, ys, job = self.queue.popleft()
-        img, blur_px, pre = job.result() if self.pool is not None else job
+        if self.proc is not None:
+            img, blur_px, pre = self.proc.result(job)
+        elif self.pool is not None:
+            img, blur_px, pre = job.result()
+        else:
+            img, blur_px, pre = job
         if self.stage is not None:
             self.stage.offer(img, pre)
         self.times.append((k, kd, blur_px))
@@ -168,13 +203,19 @@ class FrameStream:
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
             self.pool = None
+        if self.proc is not None:
+            self.proc.close()
+            self.worker_cpu_s = self.proc.cpu_s
+            self.proc = None
 
     def summary(self, h_s: float) -> dict[str, Any]:
         """The stream's figures for summary.json."""
         s = self.spec
         out: dict[str, Any] = {"preset": s.preset, "latency_s": s.latency_s,
                                "jitter_s": s.jitter_s, "frames": len(self.times),
-                               "pipelined": self.pipelined}
+                               "pipelined": self.pipelined, "worker": self.worker}
+        if self.worker_cpu_s is not None:
+            out["worker_cpu_s"] = self.worker_cpu_s      # the render process's CPU time
         if self.times:
             delay = np.array([(kd - k) * h_s for k, kd, _ in self.times])
             blur = np.array([b for _, _, b in self.times])
