@@ -326,13 +326,13 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         if opts.progress:
             print(file=sys.stderr)
         stats = {}
+        if stream is not None:   # first: a render process holds copies of the run's files
+            stream.close()
         if vehicle is not None:
-            vehicle.close()  # first: a SIL process reports its counters as it exits
+            vehicle.close()  # then: a SIL process reports its counters as it exits
             stats = vehicle.stats()
         if plant is not None:
             plant.close()
-        if stream is not None:
-            stream.close()
         tlog.close()
         recorded = spool.finish()
         video_path = video.close() if video is not None else None
