@@ -34,8 +34,6 @@ import math
 import cv2
 import numpy as np
 
-from cosim.sensors.raycast import _inside as inside
-
 BLUR_MIN_PX = 0.01        # px, a streak shorter than this is no blur (the frame unchanged)
 
 
@@ -54,9 +52,23 @@ def centre_depth(surfaces, c: np.ndarray, axis: np.ndarray, near: float) -> floa
     hits.sort()
     for lam, _, s in hits:          # nearest first: the first inside its outline is it
         X = c + lam * axis - s.O
-        if inside(np.array([[X @ s.U, X @ s.V]]), s.outline())[0]:
+        if _inside_point(float(X @ s.U), float(X @ s.V), s.outline().tolist()):
             return lam
     return math.inf
+
+
+def _inside_point(x: float, y: float, poly: list) -> bool:
+    """raycast._inside for one point, in Python floats (the same operations in the same
+    order, so the same answer bit for bit; a tenth of the numpy version's cost)."""
+    pos = neg = True
+    k = len(poly)
+    for i in range(k):
+        a0, a1 = poly[i]
+        b0, b1 = poly[(i + 1) % k]
+        cr = (b0 - a0) * (y - a1) - (b1 - a1) * (x - a0)
+        pos = pos and cr >= -1e-12
+        neg = neg and cr <= 1e-12
+    return pos or neg
 
 
 def streak_px(fx: float, fy: float, v_C, w_C, depth: float, exposure_s: float
