@@ -5,10 +5,11 @@ front-camera tick goes (issue 29).
   (set-up, teach and flight; not the CSV and plots `cosim run` writes afterwards), MIL, one
   process. The first run in a process makes the world's textures, tiles and taught keys
   ("cold", what `cosim run` pays); the repeats find them made ("warm", what every run after the
-  first in a study worker pays). A run with a camera latency (E1, E2) on a machine with free
-  cores is pipelined (cosim/sensors/stream.py: render, grey conversion and column detection
-  in the stream's worker: a render process, cosim/sensors/render_proc.py); without free
-  cores, or with `threads=1`, sequential.
+  first in a study worker pays). Flown as a single run on a free 2-core machine is: with a
+  camera latency (E1, E2) pipelined (cosim/sensors/stream.py: render, grey conversion and
+  column detection in the stream's worker, a render process: cosim/sensors/render_proc.py),
+  else OpenCV on both cores; "E2, OpenCV on one thread" is the sequential run a study worker
+  makes.
 - "E2 at 428x240": the same mission at half the Bebop 2 stream's resolution, the documented
   resolution choice of docs/performance-paper2.md (every pixel threshold scales with the
   width: cosim/apps/vs/features.py px_scale).
@@ -106,9 +107,12 @@ def _threads(n: int | None) -> Iterator[None]:
         cvthreads.set_run_threads(saved)
 
 
-def mission(name: str, repeats: int, threads: int | None = None) -> dict[str, Any]:
+def mission(name: str, repeats: int, threads: int = 2) -> dict[str, Any]:
     """x real time of `repeats` runs of a paper-2 mission (the first one cold if the world
-    was not flown yet in this process)."""
+    was not flown yet in this process), as a single run on a free 2-core machine goes
+    (`threads` 2: pipelined where the stream has a latency, else OpenCV on both cores), or
+    sequential on one thread (`threads` 1). Set, not left to the load rule of
+    cosim/cvthreads.py: the bench's own runs raise the load average it reads."""
     target = MISSIONS[name][1]
     with _threads(threads):
         runs = [_fly(name) for _ in range(repeats)]

@@ -28,6 +28,12 @@ Ours, for rooms and paths nobody tuned the app for (issue 28; docs/papers/visual
   one also needs |e_v| < `turn_t_ev` (0: off), at most `turn_wait_s` after eps < T_eps.
 Out-of-view columns are remembered in the vehicle's local frame (vs/memory.py): no parameter
 beyond `obstacle_width_m`, `clearance_m` and `avoid_range_m`.
+
+Pixel values (`t_eps_px`, `t_eps_final_px`, `outlier_px`, `rising_max_px`, and the fixed ones
+of vs/features.py: RANSAC thresholds, the LK window and levels, the forward-backward bound,
+GFTT spacing) are the paper's, for the Bebop 2's 856-px-wide stream; on another width they
+scale with it (features.px_scale): `--set camera.width=428 --set camera.height=240` flies
+with the same thresholds in scene terms (docs/performance-paper2.md has what that changes).
 """
 
 from __future__ import annotations
