@@ -280,6 +280,38 @@ def test_render_process_hands_back_each_frame_in_order_and_raises_its_errors():
     assert rp.proc is None
 
 
+def test_render_process_ends_when_its_parent_is_killed(tmp_path):
+    """The child holds no copy of the parent's end of the pipe: a parent killed outright
+    (SIGKILL, no clean-up) leaves no render process behind."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    code = ("import os, signal, sys\n"
+            "sys.path.insert(0, sys.argv[1])\n"
+            "from test_paper2_speed import _job\n"
+            "from cosim.sensors.render_proc import RenderProcess\n"
+            "rp = RenderProcess(_job, 24 * 32 * 3)\n"
+            "rp.result(rp.submit([1.0]))\n"
+            "print(rp.proc.pid, flush=True)\n"
+            "os.kill(os.getpid(), signal.SIGKILL)\n")
+    r = subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent)],
+                       capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert r.returncode == -signal.SIGKILL, r.stderr
+    child = int(r.stdout.split()[0])
+    for _ in range(100):                 # it reads the closed pipe and exits (init reaps it)
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(child, signal.SIGKILL)
+        raise AssertionError("the render process outlived its parent")
+
+
 def test_render_process_gone_is_an_error_not_a_hang():
     from cosim.sensors.render_proc import RenderProcess
 

@@ -72,10 +72,11 @@ def _unpack(desc: list, buf: mmap.mmap, base: int) -> list:
     return out
 
 
-def _serve(conn, job: Callable[[list], tuple], buf: mmap.mmap, slot_bytes: int,
+def _serve(conn, parent_end, job: Callable[[list], tuple], buf: mmap.mmap, slot_bytes: int,
            n_slots: int) -> None:
     """The child: render each requested frame in order into its slot, answer with its
     description; None (or the parent gone) ends it."""
+    parent_end.close()           # else the pipe never reads as closed when the parent dies
     view = memoryview(buf)
     try:
         while True:
@@ -111,7 +112,8 @@ class RenderProcess:
         ctx = mp.get_context("fork")
         self.conn, child = ctx.Pipe()
         self.proc = ctx.Process(target=_serve, name="cosim-render", daemon=True,
-                                args=(child, job, self.buf, self.slot_bytes, self.n_slots))
+                                args=(child, self.conn, job, self.buf, self.slot_bytes,
+                                      self.n_slots))
         self.proc.start()
         child.close()
         self.sent = 0
