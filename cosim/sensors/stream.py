@@ -104,7 +104,7 @@ class FrameStream:
     """
 
     def __init__(self, camera, spec: StreamSpec, h_us: int, seed: int,
-                 pipelined: bool = False, processes: bool = True) -> None:
+                 pipelined: bool = False) -> None:
         self.camera = camera
         self.spec = spec
         self.h_us = int(h_us)
@@ -121,7 +121,6 @@ class FrameStream:
         self.proc = None                 # the render process (render_proc.py)
         self.worker = ""                 # which of the two, once the first frame is captured
         self.stage = None                # the app's FrameStage (pipelined: run on the worker)
-        self.processes = bool(processes)
         self.worker_cpu_s: float | None = None
 
     def prepare_with(self, stage) -> None:
@@ -148,7 +147,7 @@ class FrameStream:
 
         cfg = getattr(self.camera, "config", None)
         frame_bytes = 3 * int(getattr(cfg, "width", 0)) * int(getattr(cfg, "height", 0))
-        wanted = self.processes and os.environ.get("COSIM_RENDER_PROCESS", "1") != "0"
+        wanted = os.environ.get("COSIM_RENDER_PROCESS", "1") != "0"
         if wanted and frame_bytes > 0 and fork_is_safe():
             self.proc = RenderProcess(self._render, frame_bytes)
             self.worker = "process"

@@ -1,8 +1,9 @@
 """The render worker of a delayed camera stream (issue 29's second core): paper 2's E2 with a
 stream latency, flown with each frame rendered at capture in the loop ("sequential") and in
 the stream's worker from capture to delivery ("pipelined": the render process, or the thread
-with COSIM_RENDER_PROCESS=0), alternately in this one process (OpenCV as `cosim run` sets it). Prints the wall time of each flight, the
-ratio of the medians, and whether the flights are the same bit for bit (they must be).
+with COSIM_RENDER_PROCESS=0), alternately in this one process (OpenCV as `cosim run` sets
+it). Prints the wall time of each flight, the ratio of the medians, and whether the flights
+are the same bit for bit (they must be).
 
     python -m cosim.studies.bench_stream [--repeats N] [--set camera.latency_s=0.12 ...]
 """
