@@ -18,6 +18,8 @@ COMPILED = [
     "cosim.outputs.tlog", "cosim.plant.fmu", "cosim.sensors.odometry",
     # sensor-fed runs: the sensor models and the master's end of their HIL link
     "cosim.sensors.imu", "cosim.sensors.suite", "cosim.sim.estimate",
+    # 3D worlds: the collision check's clearance, every tick
+    "cosim.world.clearance",
 ]
 BINDINGS = {
     "cosim.plant._fmi2step": (_HERE / "plant" / "csrc" / "fmi2step.c",

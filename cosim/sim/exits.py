@@ -13,6 +13,7 @@ import cython
 
 from cosim.errors import ComponentError
 from cosim.plant.fmu import Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_Z
+from cosim.world.clearance import sphere_clearance
 
 
 class ExitReason(enum.Enum):
@@ -83,6 +84,8 @@ class ExitMonitor:
         self.disarmed_ticks = 0     # ticks on the ground disarmed (the app's time to see it)
         # 3D worlds: clearance of the body sphere to walls, ceiling, boxes, columns
         self.scene = scene if scene is not None and not scene.empty else None
+        if self.scene is not None:
+            self.walls, self.solids = self.scene.walls(), self.scene.solids()
         self.body_radius = body_radius
         self.min_clearance: tuple[float, float, str] | None = None   # (m, t s, what)
 
@@ -129,7 +132,7 @@ class ExitMonitor:
 
     def clearance(self, t: float, n: float, e: float, d: float) -> Exit | None:
         """Track the smallest clearance; a negative one is a collision with the named thing."""
-        gap, what = self.scene.clearance(n, e, d, self.body_radius)
+        gap, what = sphere_clearance(self.walls, self.solids, n, e, d, self.body_radius)
         mc = self.min_clearance
         if mc is None or gap < mc[0]:
             self.min_clearance = (gap, t, what)

@@ -49,6 +49,7 @@ from typing import Any
 
 from cosim.errors import ScenarioError
 from cosim.scenario.validate import integer, no_unknown, number, rgb, string
+from cosim.world.clearance import sphere_clearance
 from cosim.world.textures import TextureSpec, palette_ok
 
 GREEN = (0, 170, 0)
@@ -122,20 +123,20 @@ class Scene:
 
     # ------------------------------------------------------------------ geometry
     def solids(self) -> list[tuple]:
-        """Obstacles as ('box', name, cn, ce, cos, sin, half_l, half_w, top_d) or
-        ('cyl', name, cn, ce, r, top_d) records (columns, boxes), for clearance."""
+        """Obstacles as (True, name, cn, ce, cos, sin, half_l, half_w, top_d) (boxes, square
+        columns) or (False, name, cn, ce, r, top_d) (cylinders) records, for clearance."""
         if not self._solids:
             out = []
             for b in self.boxes:
-                out.append(("box", f"box '{b.name}'", b.center[0], b.center[1],
+                out.append((True, f"box '{b.name}'", b.center[0], b.center[1],
                             math.cos(b.heading), math.sin(b.heading), 0.5 * b.size[0],
                             0.5 * b.size[1], -b.size[2]))
             for c in self.columns:
                 if c.shape == "cylinder":
-                    out.append(("cyl", f"column '{c.name}'", c.center[0], c.center[1],
+                    out.append((False, f"column '{c.name}'", c.center[0], c.center[1],
                                 0.5 * c.size[0], -c.height))
                 else:
-                    out.append(("box", f"column '{c.name}'", c.center[0], c.center[1],
+                    out.append((True, f"column '{c.name}'", c.center[0], c.center[1],
                                 math.cos(c.heading), math.sin(c.heading), 0.5 * c.size[0],
                                 0.5 * c.size[1], -c.height))
             self._solids.extend(out)
@@ -143,33 +144,15 @@ class Scene:
 
     def clearance(self, n: float, e: float, d: float, radius: float) -> tuple[float, str]:
         """(distance from a sphere of ``radius`` at (n, e, d) to the nearest obstacle surface,
-        m, negative when they overlap; the obstacle's name). Floor excluded."""
-        best, what = math.inf, ""
-        if self.room is not None:
-            n0, n1, e0, e1 = self.arena
-            for dist, name in ((n - n0, "south wall"), (n1 - n, "north wall"),
-                               (e - e0, "west wall"), (e1 - e, "east wall"),
-                               (d + self.room.height, "ceiling")):
-                if dist < best:
-                    best, what = dist, name
-        for s in self.solids():
-            if s[0] == "box":
-                _, name, cn, ce, cu, su, hl, hw, top = s
-                dn, de = n - cn, e - ce
-                x = abs(dn * cu + de * su) - hl
-                y = abs(-dn * su + de * cu) - hw
-                z = max(top - d, d)
-            else:
-                _, name, cn, ce, r, top = s
-                x = math.hypot(n - cn, e - ce) - r
-                y = -math.inf
-                z = max(top - d, d)
-            # signed distance to an axis-aligned box in the solid's frame
-            ox, oy, oz = max(x, 0.0), max(y, 0.0), max(z, 0.0)
-            dist = math.sqrt(ox * ox + oy * oy + oz * oz) + min(max(x, y, z), 0.0)
-            if dist < best:
-                best, what = dist, name
-        return best - radius, what
+        m, negative when they overlap; the obstacle's name). Floor excluded. Computed by
+        cosim/world/clearance.py (compiled: it runs on every tick)."""
+        return sphere_clearance(self.walls(), self.solids(), float(n), float(e), float(d),
+                                float(radius))
+
+    def walls(self) -> tuple[float, float, float, float, float] | None:
+        """(N min, N max, E min, E max, height) of the room's walls and ceiling, for
+        clearance; None without a room."""
+        return None if self.room is None else (*self.arena, self.room.height)
 
 
 # ====================================================================== parsing
