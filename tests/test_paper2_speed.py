@@ -244,11 +244,14 @@ def test_e1_is_the_same_sequential_and_pipelined_and_from_the_cache(fresh_cache,
         assert a.frame_log == r.frame_log and len(a.frame_log) > 20
     assert a.camera_stream["worker"] == "" and b.camera_stream["worker"] == "thread"
     assert on_a and not any(n.startswith("cosim-render") for n in on_a)
-    assert on_b and all(n.startswith("cosim-render") for n in on_b)
-    assert len(on_b) >= len(on_a)                # every frame there, only those used here
+    # on the worker, but for the frames captured before the app's mission began and worked
+    # on after (the latency: 3 frames); none for the frames before (FrameStage.wanted)
+    on_main = [n for n in on_b if not n.startswith("cosim-render")]
+    assert on_b and len(on_main) <= 4, on_main
+    assert len(on_a) <= len(on_b) < b.camera_stream["frames"]
     if forkable:                                 # (pytest alone: one thread)
         assert c.camera_stream["worker"] == "process"
-        assert not on_c                          # the frame work ran in the child
+        assert len(on_c) == len(on_main)          # the others ran in the child
 
 
 def _job(ys):

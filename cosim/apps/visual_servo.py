@@ -108,8 +108,9 @@ class VisualServoApp:
         self._last_J_a = None
         self.memory = ObstacleMemory()
         # the per-frame image work, on the stream's worker when it is pipelined
-        self.frame_stage = FrameStage(functools.partial(frame_work,
-                                                        avoidance=bool(p["avoidance"])))
+        self.frame_stage = FrameStage(
+            functools.partial(frame_work, avoidance=bool(p["avoidance"])),
+            wanted=lambda: self.phase in ("matching", "servo"))
 
     # ---------------------------------------------------------------- set-up
     def prepare(self, scenario, run_dir: Path) -> None:
@@ -175,12 +176,12 @@ class VisualServoApp:
         self._frame_i += 1
         if self._frame_i % self.p["vision_every"]:
             return
-        gray, ob = self.frame_stage(image)
         if self.phase == "final":
             self._command(t, np.zeros(4))
             if t - self._t_goal >= self.p["hold_final_s"]:
                 self._finish(t, "goal_reached")
             return
+        gray, ob = self.frame_stage(image)
         if self.phase == "matching":
             self._match(t, gray)
         if self.phase == "servo":

@@ -72,7 +72,7 @@ def _unpack(desc: list, buf: mmap.mmap, base: int) -> list:
     return out
 
 
-def _serve(conn, parent_end, job: Callable[[list], tuple], buf: mmap.mmap, slot_bytes: int,
+def _serve(conn, parent_end, job: Callable[..., tuple], buf: mmap.mmap, slot_bytes: int,
            n_slots: int) -> None:
     """The child: render each requested frame in order into its slot, answer with its
     description; None (or the parent gone) ends it."""
@@ -84,9 +84,9 @@ def _serve(conn, parent_end, job: Callable[[list], tuple], buf: mmap.mmap, slot_
             if msg is None:
                 conn.send((-1, time.process_time(), None, None))      # its CPU time, s
                 return
-            i, ys = msg
+            i, args = msg
             try:
-                img, blur_px, pre = job(ys)
+                img, blur_px, pre = job(*args)
                 tup = isinstance(pre, tuple)
                 values = [img, *pre] if tup else [img, pre]
                 base = (i % n_slots) * slot_bytes
@@ -100,11 +100,11 @@ def _serve(conn, parent_end, job: Callable[[list], tuple], buf: mmap.mmap, slot_
 
 
 class RenderProcess:
-    """`job(ys) -> (image, blur px, FrameStage result)` run in a forked child, one request at
-    a time in order; `submit(ys)` returns a ticket, `result(ticket)` the job's value (its
-    arrays copied out of the shared slot)."""
+    """`job(*args) -> (image, blur px, FrameStage result)` run in a forked child, one request
+    at a time in order; `submit(*args)` returns a ticket, `result(ticket)` the job's value
+    (its arrays copied out of the shared slot)."""
 
-    def __init__(self, job: Callable[[list], tuple], frame_bytes: int, n_slots: int = 8
+    def __init__(self, job: Callable[..., tuple], frame_bytes: int, n_slots: int = 8
                  ) -> None:
         self.n_slots = int(n_slots)
         self.slot_bytes = _aligned(2 * int(frame_bytes) + 4 * ALIGN)
@@ -121,12 +121,12 @@ class RenderProcess:
         self.done: dict[int, Any] = {}
         self.cpu_s: float | None = None   # the child's CPU time, once it has ended
 
-    def submit(self, ys: list) -> int:
+    def submit(self, *args: Any) -> int:
         i = self.sent
         while i - self.received >= self.n_slots:    # its slot holds a frame not copied yet
             self._receive()
         try:
-            self.conn.send((i, ys))
+            self.conn.send((i, args))
         except OSError as exc:
             raise self._ended() from exc
         self.sent += 1

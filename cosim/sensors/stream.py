@@ -160,12 +160,13 @@ class FrameStream:
         ys = list(y)                      # the pose at capture, kept as it was
         if self.pipelined and not self.worker:
             self._start_worker()
+        work = self.stage is not None and self.stage.wanted()   # the app's frame work too
         if self.proc is not None:
-            job = self.proc.submit(ys)
+            job = self.proc.submit(ys, work)
         elif self.pool is not None:
-            job = self.pool.submit(self._render, ys)
+            job = self.pool.submit(self._render, ys, work)
         else:
-            job = self._render(ys)
+            job = self._render(ys, work)
         self.queue.append((kd, k, ys, job))
 
     def due(self, k: int) -> bool:
@@ -180,13 +181,13 @@ class FrameStream:
             img, blur_px, pre = job.result()
         else:
             img, blur_px, pre = job
-        if self.stage is not None:
+        if self.stage is not None and pre is not None:
             self.stage.offer(img, pre)
         self.times.append((k, kd, blur_px))
         return k, ys, img
 
-    def _render(self, y: list) -> tuple[np.ndarray, float, Any]:
-        """(frame, its blur px, the app's FrameStage of it or None)."""
+    def _render(self, y: list, work: bool = False) -> tuple[np.ndarray, float, Any]:
+        """(frame, its blur px, the app's FrameStage of it if `work`, else None)."""
         cam = self.camera
         if not self.moving:
             img, blur_px = cam.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1])), 0.0
@@ -194,8 +195,7 @@ class FrameStream:
             img = cam.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1]),
                              motion=(y[Y_VX:Y_VZ + 1], y[Y_P:Y_R + 1]))
             blur_px = cam.last_blur_px
-        stage = self.stage
-        return img, blur_px, (stage.fn(img) if stage is not None else None)
+        return img, blur_px, (self.stage.fn(img) if work else None)
 
     def close(self) -> None:
         """Stop the worker (frames not yet delivered are not rendered further)."""

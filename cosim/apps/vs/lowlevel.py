@@ -53,15 +53,13 @@ class LowLevel:
 
     def send(self, client, t: float, cmd, new: bool) -> bool:
         """Send `cmd` (vx, vy, vz, wz) if due; True if something was sent."""
+        if not new and (self.mode == "moveby" or t - self.t_sent < RESEND_S):
+            return False
         vx, vy, vz, wz = (float(v) for v in cmd)
         if self.mode == "moveby":
-            if not new:
-                return False
             client.set_relative_move(*twist_displacement(vx, vy, vz, wz, self.dt))
             self.moves += 1
         else:
-            if not new and t - self.t_sent < RESEND_S:
-                return False
             client.set_velocity_target(vx, vy, vz, yaw_rate=wz, frame="body")
         self.t_sent = t
         return True
