@@ -49,10 +49,6 @@ class AppContext:
         return n - self.home_ned[0], e - self.home_ned[1], d - self.home_ned[2]
 
 
-def _always() -> bool:
-    return True
-
-
 class FrameStage:
     """An app's pure per-frame image work (a function of the frame alone: a grey conversion,
     a colour segmentation), which a pipelined camera stream computes in its worker (a render
@@ -65,17 +61,11 @@ class FrameStage:
     a camera fault replaced). ``fn`` must not read or change the app's state, so the flight is
     the same either way, bit for bit; OpenCV runs on one thread in a pipelined run
     (cosim/cvthreads.py), so what it computes does not depend on the other thread.
-
-    ``wanted()``, if given, says at each capture whether the app will work on the frames
-    captured now (False before its mission starts and after it ends, say); the stream skips
-    the work of the others. A guess, never a result: a frame the app works on after all gets
-    its work done in ``__call__``, as does one whose ``fn`` gave None.
+    A value of None is not kept: ``fn`` is then computed again in ``__call__``.
     """
 
-    def __init__(self, fn: Callable[[np.ndarray], Any],
-                 wanted: Callable[[], bool] | None = None) -> None:
+    def __init__(self, fn: Callable[[np.ndarray], Any]) -> None:
         self.fn = fn
-        self.wanted = wanted if wanted is not None else _always
         self._image: np.ndarray | None = None
         self._value: Any = None
 
@@ -101,6 +91,11 @@ class OffboardApp(Protocol):
     def on_start(self, ctx: AppContext) -> None: ...
 
     def on_frame(self, t: float, image: np.ndarray) -> None: ...
+
+    # Optional: ``frames_wanted() -> bool``, False while ``on_frame`` would not look at a
+    # frame (before the mission, while landing). The camera stream then does not render the
+    # frames captured meanwhile, and does not hand them to ``on_frame``, unless something
+    # else sees every frame (a video, a fault); cosim/sensors/stream.py.
 
     def on_tick(self, t: float) -> None: ...
 

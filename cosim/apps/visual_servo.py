@@ -108,9 +108,8 @@ class VisualServoApp:
         self._last_J_a = None
         self.memory = ObstacleMemory()
         # the per-frame image work, on the stream's worker when it is pipelined
-        self.frame_stage = FrameStage(
-            functools.partial(frame_work, avoidance=bool(p["avoidance"])),
-            wanted=lambda: self.phase in ("matching", "servo"))
+        self.frame_stage = FrameStage(functools.partial(frame_work,
+                                                        avoidance=bool(p["avoidance"])))
 
     # ---------------------------------------------------------------- set-up
     def prepare(self, scenario, run_dir: Path) -> None:
@@ -170,8 +169,13 @@ class VisualServoApp:
         return G.control_law(e, lam, p["vy_extra"], p["w_ratio"]), lam
 
     # ---------------------------------------------------------------- per frame
+    def frames_wanted(self) -> bool:
+        """Whether `on_frame` looks at frames now (OffboardApp): not before the repeat
+        starts, nor once it has ended."""
+        return self.seq.state == "flying" and self.phase in ("matching", "servo", "final")
+
     def on_frame(self, t: float, image: np.ndarray) -> None:
-        if self.seq.state != "flying" or self.phase not in ("matching", "servo", "final"):
+        if not self.frames_wanted():
             return
         self._frame_i += 1
         if self._frame_i % self.p["vision_every"]:

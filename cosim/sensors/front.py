@@ -113,16 +113,18 @@ class FrontCamera:
         self._background[:] = (*cfg.background_rgb, 255)
 
     # ------------------------------------------------------------------ rendering
-    def render(self, p_W: Sequence[float], q_WB: Sequence[float], motion=None) -> np.ndarray:
+    def render(self, p_W: Sequence[float], q_WB: Sequence[float], motion=None,
+               drawn: tuple | None = None) -> np.ndarray:
         """The frame at a body pose; ``motion = (v_W m/s world NED, w_B rad/s body FRD)``
-        blurs it over ``exposure_s`` (the stream passes it when ``wants_motion``)."""
+        blurs it over ``exposure_s`` (the stream passes it when ``wants_motion``). With
+        ``drawn`` (from ``skip``): that skipped frame, made now, the same to the byte."""
         cfg = self.config
         if self._ref is not None:
             img, depth = self._ref.render_with_depth(p_W, q_WB)
             self.last_depth = depth if cfg.depth else None
             if motion is not None and cfg.exposure_s > 0.0:
                 img = self._blur(img, _View(cfg, self.R_BC, p_W, q_WB), q_WB, motion)
-            return self._noise.apply(img)
+            return self._noise.apply(img, drawn)
         view = _View(cfg, self.R_BC, p_W, q_WB)
         frame = self._background.copy()
         inv_z = np.zeros((cfg.height, cfg.width), np.float32) if cfg.depth else None
@@ -137,10 +139,25 @@ class FrontCamera:
         img = cv2.cvtColor(frame, cv2.COLOR_RGBA2RGB)
         if motion is not None and cfg.exposure_s > 0.0:
             img = self._blur(img, view, q_WB, motion)
-        return self._noise.apply(img)
+        return self._noise.apply(img, drawn)
+
+    def skip(self, p_W: Sequence[float], q_WB: Sequence[float], motion=None) -> tuple:
+        """A frame nobody looks at: what it takes from the camera's state (its noise draws;
+        its blur streak, in ``last_blur_px``) without its image, so the frames after it are
+        the same. Returns the draws: ``render(..., drawn=)`` makes the frame if it is wanted
+        after all. A camera that keeps ``last_depth`` is always rendered (not skipped)."""
+        if motion is not None and self.config.exposure_s > 0.0:
+            self._streak(_View(self.config, self.R_BC, p_W, q_WB), q_WB, motion)
+        return self._noise.draw()
 
     def _blur(self, img: np.ndarray, view: _View, q_WB, motion) -> np.ndarray:
         """The frame blurred along the image centre's motion over the exposure."""
+        k = self._streak(view, q_WB, motion)
+        return img if k is None else blur.apply(img, k)
+
+    def _streak(self, view: _View, q_WB, motion) -> np.ndarray | None:
+        """The blur kernel of the image centre's motion over the exposure (None: none);
+        sets ``last_blur_px``."""
         cfg = self.config
         v_W, w_B = (np.asarray(m, dtype=float) for m in motion)
         R_WB = R_from_quat(q_WB)
@@ -150,8 +167,7 @@ class FrontCamera:
         depth = blur.centre_depth(self.surfaces, view.c, R[2], cfg.near_m)
         du, dv = blur.streak_px(cfg.fx, cfg.fy, R @ v_cam, R @ w_W, depth, cfg.exposure_s)
         self.last_blur_px = math.hypot(du, dv)
-        k = blur.kernel(du, dv)
-        return img if k is None else blur.apply(img, k)
+        return blur.kernel(du, dv)
 
     def _visible(self, view: _View):
         """What to draw, in the painter's order (room, posters, solids far to near): the tiles

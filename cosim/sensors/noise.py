@@ -43,16 +43,27 @@ class FrameNoise:
         return (self.noise_std > 0.0 or self.lighting_noise > 0.0 or self.brightness != 1.0
                 or self.offset_noise > 0.0)
 
-    def apply(self, img: np.ndarray) -> np.ndarray:
+    def draw(self) -> tuple[float, float, int]:
+        """A frame's draws (gain, offset, noise window start), in the order above: what
+        ``apply`` takes from the generator; a frame nobody looks at takes them too
+        (``FrontCamera.skip``), so the frames after it are the same."""
         if not self.active:
-            return img
+            return 1.0, 0.0, 0
         ln = self.lighting_noise
         gain = 1.0 + ln * self.rng.standard_normal() if ln else 1.0
         if self.brightness != 1.0:
             gain *= self.brightness
         offset = self.offset_noise * self.rng.standard_normal() if self.offset_noise else 0.0
+        k = int(self.rng.integers(0, NOISE_BANK)) if self.bank is not None else 0
+        return gain, offset, k
+
+    def apply(self, img: np.ndarray, drawn: tuple[float, float, int] | None = None
+              ) -> np.ndarray:
+        """The frame with its noise: new draws, or ``drawn`` (a frame's, from ``draw``)."""
+        if not self.active:
+            return img
+        gain, offset, k = self.draw() if drawn is None else drawn
         if self.bank is not None:
-            k = int(self.rng.integers(0, NOISE_BANK))
             noise = self.bank[k:k + img.size].reshape(img.shape)
             if offset:
                 noise = noise + np.float32(offset)

@@ -121,12 +121,26 @@ class FrameStream:
         self.proc = None                 # the render process (render_proc.py)
         self.worker = ""                 # which of the two, once the first frame is captured
         self.stage = None                # the app's FrameStage (pipelined: run on the worker)
+        self.wanted = None               # the app's frames_wanted, where frames may be skipped
+        self.skipped = 0                 # frames delivered without an image (nobody wanted it)
         self.worker_cpu_s: float | None = None
 
-    def prepare_with(self, stage) -> None:
-        """Compute an app's `FrameStage` (cosim/apps/base.py) for each frame on the worker,
-        after its render; only when pipelined (else the app computes it when it needs it)."""
+    def prepare_with(self, stage, wanted=None, render_all: bool = False) -> None:
+        """The app's `FrameStage` and `frames_wanted` (cosim/apps/base.py).
+
+        - The stage is computed for each frame on the worker, after its render; only when
+          pipelined (else the app computes it when it needs it).
+        - A frame captured while `wanted()` says False is not rendered: the camera takes its
+          draws (`skip`), and the frame is delivered without an image. If the app wants it
+          by its delivery, it is rendered then, from its pose and draws. The same frames
+          either way, bit for bit.
+        - `render_all` (a video, PNG, MCAP or live sink, camera faults) renders every
+          frame, as does a camera that cannot skip or keeps a depth image."""
         self.stage = stage if self.pipelined else None
+        cam = self.camera
+        can_skip = hasattr(cam, "skip") and not getattr(getattr(cam, "config", None), "depth",
+                                                         False)
+        self.wanted = wanted if can_skip and not render_all else None
 
     def delivery_tick(self, k: int) -> int:
         """The tick a frame captured at tick k is delivered on (one jitter draw), never
@@ -160,41 +174,62 @@ class FrameStream:
         ys = list(y)                      # the pose at capture, kept as it was
         if self.pipelined and not self.worker:
             self._start_worker()
-        work = self.stage is not None and self.stage.wanted()   # the app's frame work too
-        if self.proc is not None:
-            job = self.proc.submit(ys, work)
-        elif self.pool is not None:
-            job = self.pool.submit(self._render, ys, work)
-        else:
-            job = self._render(ys, work)
+        render = self.wanted is None or bool(self.wanted())
+        job = self._job(ys, render and self.stage is not None, render)
         self.queue.append((kd, k, ys, job))
+
+    def _job(self, ys: list, work: bool, render: bool, drawn=None):
+        """`_render` on the worker (a ticket or a future) or here (its value)."""
+        if self.proc is not None:
+            return self.proc.submit(ys, work, render, drawn)
+        if self.pool is not None:
+            return self.pool.submit(self._render, ys, work, render, drawn)
+        return self._render(ys, work, render, drawn)
+
+    def _value(self, job) -> tuple:
+        if self.proc is not None:
+            return self.proc.result(job)
+        if self.pool is not None:
+            return job.result()
+        return job
 
     def due(self, k: int) -> bool:
         q = self.queue
         return bool(q) and q[0][0] <= k
 
-    def pop(self) -> tuple[int, list, np.ndarray]:
+    def pop(self) -> tuple[int, list, np.ndarray | None]:
+        """(capture tick, plant outputs at capture, image); the image is None for a frame
+        nobody wanted (see `prepare_with`)."""
         kd, k, ys, job = self.queue.popleft()
-        if self.proc is not None:
-            img, blur_px, pre = self.proc.result(job)
-        elif self.pool is not None:
-            img, blur_px, pre = job.result()
-        else:
-            img, blur_px, pre = job
+        img, blur_px, pre = self._value(job)
+        if img is None:                   # skipped at capture: `pre` holds its draws
+            if self.wanted():             # ... but wanted now: made from them, the same
+                img, _, pre = self._value(self._job(ys, self.stage is not None, True, pre))
+            else:
+                self.skipped += 1
+                pre = None
         if self.stage is not None and pre is not None:
             self.stage.offer(img, pre)
         self.times.append((k, kd, blur_px))
         return k, ys, img
 
-    def _render(self, y: list, work: bool = False) -> tuple[np.ndarray, float, Any]:
-        """(frame, its blur px, the app's FrameStage of it if `work`, else None)."""
+    def _render(self, y: list, work: bool = False, render: bool = True, drawn=None
+                ) -> tuple[np.ndarray | None, float, Any]:
+        """(frame, its blur px, the app's FrameStage of it if `work`, else None); not
+        `render`: (None, its blur px, the camera's draws for it); `drawn`: a skipped
+        frame's draws, to make it now."""
         cam = self.camera
-        if not self.moving:
-            img, blur_px = cam.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1])), 0.0
-        else:
-            img = cam.render(y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1]),
-                             motion=(y[Y_VX:Y_VZ + 1], y[Y_P:Y_R + 1]))
-            blur_px = cam.last_blur_px
+        p, q = y[Y_X:Y_Z + 1], tuple(y[Y_QW:Y_QZ + 1])
+        kw: dict[str, Any] = {}
+        if self.moving:
+            kw["motion"] = (y[Y_VX:Y_VZ + 1], y[Y_P:Y_R + 1])
+        if not render:
+            drawn = cam.skip(p, q, **kw)
+            return None, (cam.last_blur_px if self.moving else 0.0), drawn
+        if drawn is not None:
+            kw["drawn"] = drawn
+        img = cam.render(p, q, **kw)
+        blur_px = cam.last_blur_px if self.moving else 0.0
         return img, blur_px, (self.stage.fn(img) if work else None)
 
     def close(self) -> None:
@@ -212,7 +247,8 @@ class FrameStream:
         s = self.spec
         out: dict[str, Any] = {"preset": s.preset, "latency_s": s.latency_s,
                                "jitter_s": s.jitter_s, "frames": len(self.times),
-                               "pipelined": self.pipelined, "worker": self.worker}
+                               "pipelined": self.pipelined, "worker": self.worker,
+                               "skipped": self.skipped}
         if self.worker_cpu_s is not None:
             out["worker_cpu_s"] = self.worker_cpu_s      # the render process's CPU time
         if self.times:

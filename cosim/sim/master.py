@@ -261,12 +261,6 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         app = build_app(sc, opts)
         if app is not None:
             ctx = start_app(app, sc, vehicle, camera, run_dir)
-        if stream is not None:
-            stream.prepare_with(getattr(app, "frame_stage", None))
-            if stream.pipelined:
-                from cosim import cvthreads
-
-                cvthreads.apply(pipelined=True)
         monitor = ExitMonitor(sc.world.arena, h, app, sitl=opts.sitl, scene=sc.world.scene,
                               body_radius=sc.vehicle.body_radius)
         sinks = []
@@ -285,6 +279,14 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
                 live = opts.live.vehicle(sc, app=app)
             sinks.append(lambda k, t, img: live.frame(t, img, tick.frame_y[Y_X:Y_Z + 1],
                                                       tick.frame_y[Y_QW:Y_QZ + 1]))
+        if stream is not None:    # frames the app does not want are rendered only if seen
+            stream.prepare_with(getattr(app, "frame_stage", None),
+                                getattr(app, "frames_wanted", None),
+                                render_all=bool(sinks) or hooks is not None)
+            if stream.pipelined:
+                from cosim import cvthreads
+
+                cvthreads.apply(pipelined=True)
         codec = HilSimulatorCodec()
         if sc.sensors is not None and sc.sensors.hil:   # sensor messages, the vehicle estimates
             from cosim.sim.estimate import SensorFeed
