@@ -83,3 +83,6 @@ def test_bench_quick_reports_every_figure(tmp_path):
         assert parts[name] > 0, name
     assert p2["breakdown"]["frames"] > 800 and p2["breakdown"]["camera_tick_ms"] > sum(
         v for k, v in parts.items() if k != "rest of the app's frame") * 0.999
+    assert p2["breakdown"]["rendered"] < p2["breakdown"]["frames"]   # take-off not rendered
+    pl = p2["breakdown"]["pipelined"]            # the same mission flown whole, pipelined
+    assert pl["wall_s"] > 0.5 and pl["main_cpu_s"] > 0.5 and pl["worker_cpu_s"] > 0.5
