@@ -192,12 +192,19 @@ def test_two_sil_runs_side_by_side(tmp_path):
 
 
 def test_sitl_answers_a_ground_station():
-    gcs = mavutil.mavlink_connection("udpin:127.0.0.1:14550", source_system=255)
-    proc = subprocess.Popen([*COSIM, "sitl", "--vehicle", "mambo", "--duration", "20"],
+    """On ports the OS picks (never the well-known 14540/14550: the machine is shared)."""
+    gcs = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=255)
+    port = gcs.port.getsockname()[1]
+    api = mavutil.mavlink_connection("udpin:127.0.0.1:0")      # its API link's peer: unread
+    api_port = api.port.getsockname()[1]
+    proc = subprocess.Popen([*COSIM, "sitl", "--vehicle", "mambo", "--duration", "20",
+                             "--gcs-remote", f"127.0.0.1:{port}", "--gcs-bind", "127.0.0.1:0",
+                             "--api-remote", f"127.0.0.1:{api_port}",
+                             "--api-bind", "127.0.0.1:0"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=20)
-        assert hb is not None, "no heartbeat on 14550"
+        assert hb is not None, f"no heartbeat on {port}"
         assert hb.autopilot == mavutil.mavlink.MAV_AUTOPILOT_PX4
         assert hb.type == mavutil.mavlink.MAV_TYPE_QUADROTOR
         gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
@@ -214,6 +221,7 @@ def test_sitl_answers_a_ground_station():
         except subprocess.TimeoutExpired:
             proc.kill()
         gcs.close()
+        api.close()
 
 
 def test_realtime_pacing_keeps_the_lockstep():
