@@ -118,6 +118,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--mcap", action="store_true",
                    help="also write run.mcap (Foxglove schemas; opens in Foxglove, PlotJuggler)")
     _add_foxglove(r)
+    r.add_argument("--render-worker", choices=("auto", "on", "off"), default="auto",
+                   help="a delayed camera stream: render in a worker (a second process) while "
+                        "the loop steps on; auto: when the machine has a free core (the same "
+                        "flight every way)")
     r.add_argument("--quiet", action="store_true", help="no progress display")
 
     v = add("validate", help="check scenario files")
@@ -375,7 +379,8 @@ def _run(args) -> int:
     opts = RunOptions(mode=args.mode, realtime=args.realtime, speed=args.speed,
                       hil_transport=args.hil_transport,
                       video=args.video, png_every=args.png_every, mcap=args.mcap,
-                      progress=not args.quiet and sys.stderr.isatty(), out_dir=out)
+                      progress=not args.quiet and sys.stderr.isatty(), out_dir=out,
+                      pipeline={"auto": None, "on": True, "off": False}[args.render_worker])
     with claim_run_folder(out), live_view(args) as live:
         opts.live = live
         res = run_scenario(sc, opts)
@@ -386,6 +391,8 @@ def _run(args) -> int:
               file=sys.stderr)
     if res.exit_reason is ExitReason.COMPONENT_ERROR:
         print(f"cosim: run failed: {res.message}", file=sys.stderr)
+    if res.exit_reason is ExitReason.INTERRUPTED:    # Ctrl-C (SIGTERM: 143, below)
+        return 130
     return 0 if summary["passed"] else 1
 
 

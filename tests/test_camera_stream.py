@@ -333,3 +333,84 @@ def test_paper2_e1_with_the_bebop2_stream_is_the_same_in_mil_and_sil(tmp_path):
     assert np.array_equal(a.series, b.series, equal_nan=True)
     assert a.frame_log == b.frame_log and len(a.frame_log) > 20
     assert a.frame_times == b.frame_times
+
+
+def test_cli_render_worker_switch_flies_the_same(tmp_path):
+    """`cosim run --render-worker on|off`: which worker ran is in summary.json and on the
+    screen; the flight is the same bytes."""
+    import json
+
+    out = {}
+    for how in ("on", "off"):
+        d = tmp_path / how
+        r = subprocess.run([sys.executable, "-m", "cosim.cli", "run",
+                            str(ROOT / "scenarios/bebop2_room_e1.toml"), "--set",
+                            "camera.stream=bebop2", "--set", "camera.width=428", "--set",
+                            "camera.height=240", "--set", "timing.t_final_s=2", "--no-plots",
+                            "--quiet", "--render-worker", how, "--out", str(d)],
+                           capture_output=True, text=True, timeout=300, cwd=ROOT)
+        assert r.returncode in (0, 1), r.stderr
+        out[how] = (json.loads((d / "summary.json").read_text())["camera_stream"], r.stdout,
+                    (d / "timeseries.csv").read_bytes())
+    on, off = out["on"], out["off"]
+    assert on[0]["pipelined"] and on[0]["worker"] in ("process", "thread")
+    assert not off[0]["pipelined"] and off[0]["worker"] == ""
+    assert "rendered in a worker" in on[1] and "rendered in the loop" in off[1]
+    assert on[2] == off[2]
+
+
+def test_a_term_to_the_process_group_ends_a_pipelined_run_cleanly(tmp_path):
+    """Ctrl-C or `timeout` signal the whole process group, the render process too: it leaves
+    the signal to the run, which ends 'interrupted' (exit 143), closes the stream (the
+    child's CPU time in summary.json) and leaves no process behind."""
+    import json
+    import os
+    import signal
+    import time
+
+    out = tmp_path / "r"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", str(ROOT / "scenarios/bebop2_room_e1.toml"),
+         "--set", "camera.stream=bebop2", "--set", "camera.width=428", "--set",
+         "camera.height=240", "--set", "timing.t_final_s=600", "--set",
+         "app.params.waypoints=[[0.8, 0.45, -1.0, 600.0]]", "--render-worker", "on",
+         "--no-plots", "--quiet", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120          # bounded wait for frames under way
+        while time.monotonic() < deadline and not _kids(proc.pid):
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.1)
+        kids = _kids(proc.pid)
+        assert kids, "the render process should be running"
+        time.sleep(1.0)
+        os.killpg(proc.pid, signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["exit_reason"] == "interrupted"
+    assert summary["camera_stream"]["worker"] == "process"
+    assert summary["camera_stream"]["worker_cpu_s"] > 0.0
+    for pid in kids:
+        assert not os.path.exists(f"/proc/{pid}") or \
+            Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
+
+
+def _kids(pid: int) -> list[int]:
+    """The run's forked children (a render process is a copy of it: the same command)."""
+    try:
+        kids = [int(p) for p in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+        mine = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return []
+    out = []
+    for k in kids:
+        try:
+            if Path(f"/proc/{k}/cmdline").read_bytes() == mine:
+                out.append(k)
+        except OSError:
+            pass
+    return out

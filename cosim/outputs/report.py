@@ -194,6 +194,11 @@ def write_series(res: RunResult, path: Path) -> None:
                 f.write("\n")
 
 
+def _rtf(x: float) -> str:
+    """x real time, to the digits that mean something: 2.65x, 11.3x, 412x."""
+    return f"{x:.2f}x" if x < 10 else f"{x:.1f}x" if x < 100 else f"{x:.0f}x"
+
+
 def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
     m = summary["metrics"]
     lines = [
@@ -204,8 +209,14 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
         *([f"app       {summary['metrics']['outcome']}"]
           if isinstance(summary["metrics"].get("outcome"), str) else []),
         f"sim time  {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall "
-        f"({summary['real_time_factor']:.0f}x real time)",
+        f"({_rtf(summary['real_time_factor'])} real time)",
     ]
+    st = summary.get("camera_stream")
+    if st:       # how the frames were made: the render worker or not, the frames not needed
+        how = {"process": "rendered in a worker process", "thread": "rendered in a worker "
+               "thread"}.get(st.get("worker", ""), "rendered in the loop")
+        lines.append(f"camera    {st['frames']} frames ({st.get('skipped', 0)} not needed, "
+                     f"not rendered), {how}")
     fmt = {
         "mission_time_s": ("mission time", "{:.2f} s"),
         "track_coverage": ("track coverage", "{:.1%}"),

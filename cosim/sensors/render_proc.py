@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import mmap
 import multiprocessing as mp
+import signal
 import sys
 import threading
 import time
@@ -77,6 +78,11 @@ def _serve(conn, parent_end, job: Callable[..., tuple], buf: mmap.mmap, slot_byt
     """The child: render each requested frame in order into its slot, answer with its
     description; None (or the parent gone) ends it."""
     parent_end.close()           # else the pipe never reads as closed when the parent dies
+    # Ctrl-C or a TERM to the process group is the parent's to handle: it ends the run,
+    # closes the stream, and this child reports its CPU time and exits (or sees the pipe
+    # closed if the parent died)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     view = memoryview(buf)
     try:
         while True:

@@ -38,6 +38,7 @@ from cosim.errors import ScenarioError
 from cosim.plant.fmu import Y_P, Y_QW, Y_QZ, Y_R, Y_VX, Y_VZ, Y_X, Y_Z
 from cosim.scenario.validate import number, string
 
+OFF = ("0", "false", "no", "off")   # COSIM_RENDER_PROCESS values that keep the thread
 STREAM_SEED = 12          # the jitter's stream: default_rng([scenario seed, STREAM_SEED])
 
 # The Bebop 2 preset (docs/cameras.md, "The video stream", has the sources). No measurement of
@@ -161,7 +162,7 @@ class FrameStream:
 
         cfg = getattr(self.camera, "config", None)
         frame_bytes = 3 * int(getattr(cfg, "width", 0)) * int(getattr(cfg, "height", 0))
-        wanted = os.environ.get("COSIM_RENDER_PROCESS", "1") != "0"
+        wanted = os.environ.get("COSIM_RENDER_PROCESS", "1").strip().lower() not in OFF
         if wanted and frame_bytes > 0 and fork_is_safe():
             self.proc = RenderProcess(self._render, frame_bytes)
             self.worker = "process"
