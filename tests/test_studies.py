@@ -292,6 +292,34 @@ def test_sweep_through_the_study_engine(tmp_path):
     for w in rep["worst"]:            # the replay pins the fixed sets, the seed, the swept value
         assert "--set timing.t_final_s=5 " in w["replay"] and f"--seed {w['seed']} " in w["replay"]
         assert f"--set wind.n_mps={w['params']['wind.n_mps']} " in w["replay"]
+    md = (tmp_path / "pool" / "report.md").read_text()   # 5 s: none completes, and it says so
+    assert rep["failed_criteria"]["must_complete"] == 4 and "must_complete 4" in md
+
+
+def test_the_report_says_why_runs_failed_and_ranks_each_main_metric():
+    from cosim.studies.report import build_report, markdown
+
+    rows = []
+    for i, (clear, err, why) in enumerate([(0.30, 0.02, ""), (0.01, 0.03, "clearance_min"),
+                                           (0.20, 0.09, "final_error mission_time"),
+                                           (0.05, 0.01, "")]):
+        rows.append({"run_id": str(i), "seed": str(i), "status": "ok",
+                     "exit_reason": "mission_complete", "passed": str(not why),
+                     "app_phase": "done", "message": "", "error": "", "x": str(i / 10),
+                     "min_clearance_m": repr(clear), "final_pose_error_m": repr(err),
+                     "failed_criteria": why})
+    man = {"kind": "montecarlo", "scenario": "s.toml", "params": ["x"], "sets": {},
+           "command": "cosim montecarlo s.toml", "program": ".venv/bin/cosim"}
+    rep = build_report(rows, man)
+    assert rep["failed_criteria"] == {"clearance_min": 1, "final_error": 1, "mission_time": 1}
+    by = rep["worst_by_metric"]
+    assert [w["run_id"] for w in by["min_clearance_m"]] == [1, 3, 2]        # smallest first
+    assert [w["run_id"] for w in by["final_pose_error_m"]] == [2, 1, 0]     # largest first
+    assert by["min_clearance_m"][0]["replay"].startswith(".venv/bin/cosim run s.toml --seed 1")
+    assert rep["worst"][0]["failed_criteria"] in ("clearance_min", "final_error mission_time")
+    md = markdown({**rep, "plots": []})
+    assert "failed criteria (runs): clearance_min 1, final_error 1, mission_time 1" in md
+    assert "## the smallest min_clearance_m" in md and "(clearance_min failed)" in md
 
 
 @pytest.mark.slow

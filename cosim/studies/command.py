@@ -112,12 +112,28 @@ def _mcap(args) -> bool:
     return bool(args.mcap)
 
 
+def program() -> str:
+    """This `cosim` as a user can type it again: `cosim` when that is the one on the PATH,
+    else the path it was started by (`.venv/bin/cosim`); `cosim` when started otherwise."""
+    import os
+    import shutil
+
+    a = sys.argv[0] if sys.argv else ""
+    if os.path.basename(a) != "cosim":
+        return "cosim"
+    on_path = shutil.which("cosim")
+    if on_path and os.path.realpath(on_path) == os.path.realpath(a):
+        return "cosim"
+    return a
+
+
 def _go(jobs, manifest, out: Path, args, title: str) -> int:
     from cosim.studies.engine import StudyError, StudyInterrupted
     from cosim.studies.study import TABLE, run_in_folder
 
     kw = _engine_kw(args)
-    manifest["command"] = " ".join(shlex.quote(a) for a in ["cosim", *sys.argv[1:]])
+    manifest["program"] = program()
+    manifest["command"] = " ".join(shlex.quote(a) for a in [program(), *sys.argv[1:]])
     where = args.scheduler or ("a local Dask cluster" if args.executor == "dask"
                                else f"the {args.executor} executor")
     print(f"{title} on {where}; results in {out / TABLE}", file=sys.stderr, flush=True)

@@ -94,6 +94,9 @@ def run_job(job: Job) -> dict[str, Any]:
                    passed=bool(summary["passed"]), app_phase=_last_phase(res),
                    message=res.message, error=res.message if failed else "")
         row.update(flat_metrics(summary["metrics"]))
+        # why a run that ended well did not pass (a metric column of text)
+        row["failed_criteria"] = " ".join(n for n, c in summary.get("criteria", {}).items()
+                                          if not c["passed"])
     except Exception as exc:  # a crashed run is a row, the study goes on
         tb = traceback.extract_tb(exc.__traceback__)
         where = f" (at {Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""

@@ -6,8 +6,11 @@
   is sound for small n and rates near 0 or 1, unlike the normal approximation;
 - p5 / p50 / p95 of each numeric metric over the runs that have it (numpy's linear
   interpolation between order statistics);
+- why runs did not pass: their exit reasons, and the criteria that failed (counted);
 - the worst runs (failed first, then not passed, then the largest value of the study's main
-  metric) with their seed, parameters and the `cosim run` command that replays one exactly;
+  metric) with their seed, parameters, failed criteria and the `cosim run` command that
+  replays one exactly; then the worst few by each of the main metrics (the smallest
+  clearance, the largest errors and times);
 - plots: a histogram of each main metric, and each main metric against each varied parameter.
 """
 
@@ -30,6 +33,8 @@ MAIN_METRICS = ("path_error_rms_m", "landing_error_m", "position_error_max_m",
                 "final_pose_error_m", "min_clearance_m", "mission_time_s", "path_error_max_m",
                 "speed_mean_mps")
 WORST_N = 5
+WORST_PER_METRIC = 3
+LOWER_IS_WORSE = ("min_clearance_m", "speed_mean_mps")
 
 
 def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
@@ -55,7 +60,7 @@ def toml_literal(v: Any) -> str:
 
 def replay_command(manifest: dict[str, Any], row: dict[str, str]) -> str:
     """The `cosim run` line that flies this run again, bit for bit."""
-    args = ["cosim", "run", manifest["scenario"]]
+    args = [manifest.get("program") or "cosim", "run", manifest["scenario"]]
     if row["seed"] != "":
         args += ["--seed", row["seed"]]
     if manifest.get("mode", "mil") != "mil":
@@ -112,14 +117,28 @@ def build_report(rows: list[dict[str, str]], manifest: dict[str, Any]) -> dict[s
                       "exit_reason": r["exit_reason"], "passed": r["passed"] == "True",
                       "params": {p: r[p] for p in params},
                       "main_metric": r.get(main, "") if main else "",
+                      "failed_criteria": r.get("failed_criteria", ""),
                       "error": r["error"], "replay": replay_command(manifest, r)})
     exits: dict[str, int] = {}
+    failed_criteria: dict[str, int] = {}
     for r in rows:
         exits[r["exit_reason"] or "(raised)"] = exits.get(r["exit_reason"] or "(raised)", 0) + 1
+        for c in r.get("failed_criteria", "").split():
+            failed_criteria[c] = failed_criteria.get(c, 0) + 1
+    by_metric = {}
+    for m in [m for m in MAIN_METRICS if m in metrics][:4]:
+        have = [r for r in rows if _num(r.get(m, "")) is not None]
+        sign = 1.0 if m in LOWER_IS_WORSE else -1.0
+        have.sort(key=lambda r, m=m, sign=sign: (sign * _num(r[m]), int(r["run_id"])))
+        by_metric[m] = [{"run_id": int(r["run_id"]), "value": _num(r[m]),
+                         "passed": r["passed"] == "True",
+                         "replay": replay_command(manifest, r)}
+                        for r in have[:WORST_PER_METRIC]]
     return {"study": manifest, "runs": n, "failed": sum(r["status"] == "failed" for r in rows),
             "success": {"passed": k, "runs": n, "rate": k / n if n else None,
                         "wilson95": [lo, hi]},
-            "exit_reasons": exits, "main_metric": main, "metrics": stats, "worst": worst}
+            "exit_reasons": exits, "failed_criteria": failed_criteria, "main_metric": main,
+            "metrics": stats, "worst": worst, "worst_by_metric": by_metric}
 
 
 def write_report(rows: list[dict[str, str]], manifest: dict[str, Any], out: Path) -> dict:
@@ -140,7 +159,11 @@ def markdown(rep: dict[str, Any]) -> str:
         lines += [f"**success rate {s['passed']}/{s['runs']} = {100 * s['rate']:.1f} %** "
                   f"(Wilson 95 % interval {100 * lo:.1f} % to {100 * hi:.1f} %)", ""]
     lines += ["exit reasons: " + ", ".join(f"{k} {v}" for k, v in
-                                           sorted(rep["exit_reasons"].items())), "",
+                                           sorted(rep["exit_reasons"].items())), ""]
+    if rep.get("failed_criteria"):
+        lines += ["failed criteria (runs): " + ", ".join(
+            f"{k} {v}" for k, v in sorted(rep["failed_criteria"].items())), ""]
+    lines += [
               "| metric | runs | p5 | p50 | p95 | mean |", "|---|---:|---:|---:|---:|---:|"]
     for m, v in rep["metrics"].items():
         lines.append(f"| {m} | {v['n']} | {v['p5']:.4g} | {v['p50']:.4g} | {v['p95']:.4g} | "
@@ -149,9 +172,17 @@ def markdown(rep: dict[str, Any]) -> str:
     for w in rep["worst"]:
         ps = ", ".join(f"{k}={v}" for k, v in w["params"].items() if k != "seed")
         what = w["error"] or f"{w['exit_reason']}, {'passed' if w['passed'] else 'not passed'}"
+        if w.get("failed_criteria"):
+            what += f" ({w['failed_criteria']} failed)"
         lines += [f"- run {w['run_id']} (seed {w['seed']}; {ps}): {what}"
                   + (f"; {rep['main_metric']} = {w['main_metric']}" if w["main_metric"] else ""),
                   f"  `{w['replay']}`"]
+    for m, ws in rep.get("worst_by_metric", {}).items():
+        which = "smallest" if m in LOWER_IS_WORSE else "largest"
+        lines += ["", f"## the {which} {m}", ""]
+        for w in ws:
+            lines += [f"- run {w['run_id']}: {w['value']:.4g}"
+                      f" ({'passed' if w['passed'] else 'not passed'})", f"  `{w['replay']}`"]
     lines += ["", "## plots", ""] + [f"![{p}]({p})" for p in rep["plots"]]
     return "\n".join(lines) + "\n"
 
@@ -161,6 +192,7 @@ def plot_study(rows, manifest, out: Path, main: str | None) -> list[str]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     params = list(manifest["params"])
     metrics = numeric_metrics(rows, params)
@@ -170,6 +202,7 @@ def plot_study(rows, manifest, out: Path, main: str | None) -> list[str]:
         fig, axs = plt.subplots(1, len(shown), figsize=(4 * len(shown), 3.2), squeeze=False)
         for ax, m in zip(axs[0], shown, strict=True):
             ax.hist(metrics[m], bins=min(30, max(5, len(metrics[m]) // 5)))
+            ax.xaxis.set_major_locator(MaxNLocator(5))    # labels that do not run together
             ax.set_xlabel(m)
             ax.set_ylabel("runs")
             ax.grid(True, alpha=0.3)
@@ -192,6 +225,7 @@ def plot_study(rows, manifest, out: Path, main: str | None) -> list[str]:
                         xs, ys = zip(*pts, strict=True)
                         ax.plot(xs, ys, style, ms=3, alpha=0.7,
                                 label="passed" if ok else "not passed")
+                ax.xaxis.set_major_locator(MaxNLocator(5))
                 ax.set_xlabel(p)
                 ax.set_ylabel(m)
                 ax.grid(True, alpha=0.3)

@@ -28,7 +28,7 @@ from cosim.studies.table import ResultsTable
 MANIFEST = "study.json"
 TABLE = "results.csv"
 # manifest keys that may change between two runs of the same study
-MAY_CHANGE = {"n", "command"}
+MAY_CHANGE = {"n", "command", "program"}
 
 
 # A study has at most MAX_RUNS runs: its jobs are made (and a Monte Carlo study's draws checked)
