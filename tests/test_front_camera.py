@@ -400,11 +400,22 @@ def test_bad_scene_input_names_the_field(patch, field):
     ({"mount_B": [0.1, 0.0]}, "camera.mount_B"),
     ({"stabilized": "yes"}, "camera.stabilized"),
     ({"kind": "side"}, "camera.kind"),
+    ({"width": 300}, "camera.height"),      # another shape: the scaled lens would stretch it
 ])
 def test_bad_camera_input_names_the_field(cam, field):
     with pytest.raises(ScenarioError) as e:
         parse_camera({"kind": "front", **cam})
     assert e.value.field == field
+
+
+def test_another_shape_takes_its_lens_and_the_half_size_keeps_square_pixels():
+    half = parse_camera({"kind": "front", "width": 428, "height": 240})
+    full = FrontCameraConfig()
+    assert (half.fx, half.fy) == (full.fx / 2, full.fy / 2)          # the lens, scaled
+    wide = parse_camera({"kind": "front", "width": 640, "height": 480, "hfov_deg": 80})
+    assert wide.fx == wide.fy and wide.width == 640
+    own = parse_camera({"kind": "front", "width": 300, "height": 480, "fx": 200, "fy": 200})
+    assert (own.fx, own.fy) == (200.0, 200.0)
 
 
 def test_cli_bad_scene_is_exit_2_naming_the_field(tmp_path):

@@ -92,6 +92,12 @@ class FrontCameraConfig:
             kw["fx"] = kw["fy"] = 0.5 * w / math.tan(math.radians(0.5 * hfov))
         else:
             scale = w / cls.width     # defaults follow the resolution (428 x 240: half)
+            aspect = (w / h) / (cls.width / cls.height)
+            if "fx" not in d and "fy" not in d and abs(aspect - 1.0) > 0.01:
+                raise ScenarioError(
+                    f"{where}.height", h, f"{round(w * cls.height / cls.width)} for a width of "
+                    f"{w} (the {cls.width} x {cls.height} stream's shape, whose lens the "
+                    f"defaults scale), or the lens for this shape: fx and fy, or hfov_deg")
             kw["fx"] = number(d, "fx", where, cls.fx * scale, lo=1.0, hi=1e5, lo_open=False)
             kw["fy"] = number(d, "fy", where, cls.fy * h / cls.height, lo=1.0, hi=1e5)
         kw["cx"] = number(d, "cx", where, 0.5 * w, lo=-0.5, hi=w - 0.5)
