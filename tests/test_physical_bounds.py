@@ -67,8 +67,8 @@ def test_app_numbers_are_bounded():
 
 
 def test_a_camera_that_needs_gigabytes_per_frame_is_refused():
-    e = _refused(E1, {"camera.width": 4096, "camera.height": 4096, "camera.exact": True,
-                      "camera.supersample": 8}, "camera.supersample")
+    e = _refused(E1, {"camera.width": 4096, "camera.height": 4096, "camera.hfov_deg": 90,
+                      "camera.exact": True, "camera.supersample": 8}, "camera.supersample")
     assert "GiB" in str(e)
     with_set(load_scenario(E1), {"camera.exact": True})      # the default exact camera is fine
 
