@@ -344,10 +344,10 @@ def test_cli_render_worker_switch_flies_the_same(tmp_path):
     for how in ("on", "off"):
         d = tmp_path / how
         r = subprocess.run([sys.executable, "-m", "cosim.cli", "run",
-                            str(ROOT / "scenarios/bebop2_room_e1.toml"), "--set",
-                            "camera.stream=bebop2", "--set", "camera.width=428", "--set",
-                            "camera.height=240", "--set", "timing.t_final_s=2", "--no-plots",
-                            "--quiet", "--render-worker", how, "--out", str(d)],
+                            str(ROOT / "scenarios/bebop2_vs_e1.toml"), "--set",
+                            "camera.width=428", "--set", "camera.height=240", "--set",
+                            "timing.t_final_s=7", "--no-plots", "--quiet",
+                            "--render-worker", how, "--out", str(d)],
                            capture_output=True, text=True, timeout=300, cwd=ROOT)
         assert r.returncode in (0, 1), r.stderr
         out[how] = (json.loads((d / "summary.json").read_text())["camera_stream"], r.stdout,
@@ -356,6 +356,7 @@ def test_cli_render_worker_switch_flies_the_same(tmp_path):
     assert on[0]["pipelined"] and on[0]["worker"] in ("process", "thread")
     assert not off[0]["pipelined"] and off[0]["worker"] == ""
     assert "rendered in a worker" in on[1] and "rendered in the loop" in off[1]
+    assert on[0]["skipped"] == off[0]["skipped"] > 20         # the take-off's frames
     assert on[2] == off[2]
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cosim.apps.base import FrameStage
 from cosim.plant.fmu import Y_P, Y_QW, Y_VX, Y_X, Y_Z
 from cosim.scenario.parse import load_scenario, with_set
 from cosim.sensors.front import FrontCamera, FrontCameraConfig
@@ -45,12 +46,19 @@ def _wanted_at(k: int) -> bool:
     return (k // 40) % 2 == 1                     # five frames wanted, five not, ...
 
 
-def _fly(skip: bool, pipelined: bool, n: int = 400):
+def _work(img):
+    """An app's per-frame image work (a FrameStage function)."""
+    return img.astype(np.int32).sum(axis=2)
+
+
+def _fly(skip: bool, pipelined: bool, n: int = 400, camera=None):
     """[(capture tick, delivery tick, frame or None)], the stream's times, its skip count and
-    worker."""
-    st = FrameStream(_camera(), StreamSpec(latency_s=LATENCY), H_US, 0, pipelined=pipelined)
+    worker; pipelined, with a FrameStage whose offered results are checked as they come."""
+    st = FrameStream(camera or _camera(), StreamSpec(latency_s=LATENCY), H_US, 0,
+                     pipelined=pipelined)
     now = {"k": 0}
-    st.prepare_with(None, (lambda: _wanted_at(now["k"])) if skip else None)
+    stage = FrameStage(_work)
+    st.prepare_with(stage, (lambda: _wanted_at(now["k"])) if skip else None)
     got = []
     try:
         for k in range(n):
@@ -60,6 +68,8 @@ def _fly(skip: bool, pipelined: bool, n: int = 400):
             while st.due(k):
                 kc, _, img = st.pop()
                 got.append((kc, k, None if img is None else img.copy()))
+                if img is not None and pipelined:   # its work came with it, and is right
+                    assert stage._image is img and np.array_equal(stage(img), _work(img))
     finally:
         st.close()
     return got, st.times, st.skipped, st.worker
@@ -87,6 +97,20 @@ def test_skipped_frames_leave_the_others_the_same_bytes(worker, monkeypatch):
     assert late > 3
 
 
+def test_the_exact_renderer_skips_the_same_way():
+    cam = lambda: FrontCamera(                                          # noqa: E731
+        World.from_dict({"arena": {"n_min": -1.5, "n_max": 4.5, "e_min": -2.0, "e_max": 2.0},
+                         "room": {"height": 2.6}}),
+        FrontCameraConfig.from_dict({"width": 32, "height": 18, "exact": True,
+                                     "supersample": 1, "exposure_s": 0.02, "noise_std": 3.0,
+                                     "lighting_noise": 0.02}), seed=3)
+    every = _fly(skip=False, pipelined=False, n=160, camera=cam())[0]
+    got, _, skipped, _ = _fly(skip=True, pipelined=False, n=160, camera=cam())
+    assert skipped > 0
+    for (_, _, img), (_, _, ref) in zip(got, every, strict=True):
+        assert img is None or np.array_equal(img, ref)
+
+
 def test_a_camera_that_cannot_skip_renders_every_frame():
     class Plain:
         def render(self, p_W, q_WB):
@@ -110,3 +134,20 @@ def test_e1_flies_the_same_when_every_frame_is_rendered(tmp_path):
     assert np.asarray(a.series).tobytes() == np.asarray(b.series).tobytes()
     assert a.frame_log == b.frame_log and len(a.frame_log) > 20
     assert a.frame_times == b.frame_times
+
+
+def test_frames_wanted_is_the_apps_own_not_a_wrappers_borrowed_one():
+    from cosim.apps.registry import make_app
+    from cosim.sim.master import frames_wanted
+
+    app = make_app(load_scenario(ROOT / "scenarios/bebop2_vs_e1.toml").app)
+    assert frames_wanted(app)() is False                 # on the ground: no frames wanted
+
+    class Wrapper:                  # hands everything on, but looks at every frame itself
+        def __init__(self, inner):
+            self.inner = inner
+
+        def __getattr__(self, name):
+            return getattr(self.inner, name)
+
+    assert Wrapper(app).frames_wanted() is False and frames_wanted(Wrapper(app)) is None

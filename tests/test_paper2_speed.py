@@ -244,14 +244,14 @@ def test_e1_is_the_same_sequential_and_pipelined_and_from_the_cache(fresh_cache,
         assert a.frame_log == r.frame_log and len(a.frame_log) > 20
     assert a.camera_stream["worker"] == "" and b.camera_stream["worker"] == "thread"
     assert on_a and not any(n.startswith("cosim-render") for n in on_a)
-    # on the worker, but for the frames captured before the app's mission began and worked
-    # on after (the latency: 3 frames); none for the frames before (FrameStage.wanted)
-    on_main = [n for n in on_b if not n.startswith("cosim-render")]
-    assert on_b and len(on_main) <= 4, on_main
+    # all on the worker, the frames rendered late (captured before the app's mission began,
+    # delivered after) too; none for the frames nobody wanted (frames_wanted)
+    assert on_b and all(n.startswith("cosim-render") for n in on_b), on_b
+    assert b.camera_stream["skipped"] > 20
     assert len(on_a) <= len(on_b) < b.camera_stream["frames"]
     if forkable:                                 # (pytest alone: one thread)
         assert c.camera_stream["worker"] == "process"
-        assert len(on_c) == len(on_main)          # the others ran in the child
+        assert not on_c                          # the frame work ran in the child
 
 
 def _job(ys):
@@ -313,6 +313,23 @@ def test_render_process_ends_when_its_parent_is_killed(tmp_path):
     else:
         os.kill(child, signal.SIGKILL)
         raise AssertionError("the render process outlived its parent")
+
+
+def _stuck(ys):
+    import time
+    time.sleep(120)
+
+
+def test_a_stuck_render_process_is_killed_at_close():
+    """The child ignores SIGTERM (a TERM to the process group is its run's to handle), so
+    close() kills one that does not answer, rather than waiting for it (also at exit)."""
+    from cosim.sensors.render_proc import RenderProcess
+
+    rp = RenderProcess(_stuck, 24 * 32 * 3)
+    rp.submit([1.0])
+    proc = rp.proc
+    rp.close()                         # ~10 s: its answer, then its end, waited for in vain
+    assert not proc.is_alive() and proc.exitcode == -9
 
 
 def test_render_process_gone_is_an_error_not_a_hang():

@@ -92,10 +92,11 @@ class OffboardApp(Protocol):
 
     def on_frame(self, t: float, image: np.ndarray) -> None: ...
 
-    # Optional: ``frames_wanted() -> bool``, False while ``on_frame`` would not look at a
-    # frame (before the mission, while landing). The camera stream then does not render the
-    # frames captured meanwhile, and does not hand them to ``on_frame``, unless something
-    # else sees every frame (a video, a fault); cosim/sensors/stream.py.
+    # Optional, a method of the app's class: ``frames_wanted() -> bool``, False while
+    # ``on_frame`` would not look at a frame (before the mission, while landing). The camera
+    # stream then does not render the frames captured meanwhile, and does not hand them to
+    # ``on_frame``, unless something else sees every frame (a video, a fault);
+    # cosim/sensors/stream.py, cosim/sim/master.py frames_wanted.
 
     def on_tick(self, t: float) -> None: ...
 

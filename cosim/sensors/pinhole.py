@@ -93,7 +93,7 @@ class FrontCameraConfig:
         else:
             scale = w / cls.width     # defaults follow the resolution (428 x 240: half)
             aspect = (w / h) / (cls.width / cls.height)
-            if "fx" not in d and "fy" not in d and abs(aspect - 1.0) > 0.01:
+            if ("fx" not in d or "fy" not in d) and abs(aspect - 1.0) > 0.01:
                 raise ScenarioError(
                     f"{where}.height", h, f"{round(w * cls.height / cls.width)} for a width of "
                     f"{w} (the {cls.width} x {cls.height} stream's shape, whose lens the "

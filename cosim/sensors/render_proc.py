@@ -21,6 +21,7 @@ the child ends with the run (or with the parent: its pipe closes).
 
 from __future__ import annotations
 
+import atexit
 import mmap
 import multiprocessing as mp
 import signal
@@ -122,6 +123,9 @@ class RenderProcess:
                                       self.n_slots))
         self.proc.start()
         child.close()
+        # before multiprocessing's own exit handler, which would SIGTERM the child (ignored)
+        # and wait for it without end
+        atexit.register(self.close)
         self.sent = 0
         self.received = 0
         self.done: dict[int, Any] = {}
@@ -178,9 +182,10 @@ class RenderProcess:
         except (OSError, EOFError, ValueError):
             pass
         self.proc.join(5.0)
-        if self.proc.is_alive():
-            self.proc.terminate()
+        if self.proc.is_alive():      # it ignores SIGTERM (its run's to handle): kill it
+            self.proc.kill()
             self.proc.join(5.0)
+        atexit.unregister(self.close)
         self.conn.close()
         self.proc = None
         self.buf.close()

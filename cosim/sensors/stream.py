@@ -95,6 +95,14 @@ def split_stream(d: Mapping[str, Any], where: str, kind: str) -> tuple[dict, Str
     return rest, spec
 
 
+@dataclass(frozen=True)
+class Skipped:
+    """A frame not rendered at its capture: the camera's draws for it (``FrontCamera.skip``),
+    from which it is rendered if it is wanted by its delivery."""
+
+    drawn: Any
+
+
 class FrameStream:
     """A renderer's frames, captured on camera ticks and handed out on their delivery ticks.
 
@@ -203,9 +211,10 @@ class FrameStream:
         nobody wanted (see `prepare_with`)."""
         kd, k, ys, job = self.queue.popleft()
         img, blur_px, pre = self._value(job)
-        if img is None:                   # skipped at capture: `pre` holds its draws
+        if isinstance(pre, Skipped):      # not rendered at capture: its draws
             if self.wanted():             # ... but wanted now: made from them, the same
-                img, _, pre = self._value(self._job(ys, self.stage is not None, True, pre))
+                img, _, pre = self._value(self._job(ys, self.stage is not None, True,
+                                                    pre.drawn))
             else:
                 self.skipped += 1
                 pre = None
@@ -226,7 +235,7 @@ class FrameStream:
             kw["motion"] = (y[Y_VX:Y_VZ + 1], y[Y_P:Y_R + 1])
         if not render:
             drawn = cam.skip(p, q, **kw)
-            return None, (cam.last_blur_px if self.moving else 0.0), drawn
+            return None, (cam.last_blur_px if self.moving else 0.0), Skipped(drawn)
         if drawn is not None:
             kw["drawn"] = drawn
         img = cam.render(p, q, **kw)

@@ -171,6 +171,14 @@ def build_stream(sc: Scenario, camera, h_us: int, opts: RunOptions) -> FrameStre
     return FrameStream(camera, sc.camera.stream, h_us, sc.seed, pipelined=pipelined)
 
 
+def frames_wanted(app):
+    """The app's own `frames_wanted` (cosim/apps/base.py), bound; None if its class has none.
+    Looked up on the class: a wrapper that hands other attributes on to an app it wraps
+    sees every frame unless it says otherwise itself."""
+    fn = getattr(type(app), "frames_wanted", None)
+    return fn.__get__(app) if callable(fn) else None
+
+
 def build_app(sc: Scenario, opts: RunOptions):
     from cosim.apps.registry import make_app
 
@@ -280,8 +288,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             sinks.append(lambda k, t, img: live.frame(t, img, tick.frame_y[Y_X:Y_Z + 1],
                                                       tick.frame_y[Y_QW:Y_QZ + 1]))
         if stream is not None:    # frames the app does not want are rendered only if seen
-            stream.prepare_with(getattr(app, "frame_stage", None),
-                                getattr(app, "frames_wanted", None),
+            stream.prepare_with(getattr(app, "frame_stage", None), frames_wanted(app),
                                 render_all=bool(sinks) or hooks is not None)
             if stream.pipelined:
                 from cosim import cvthreads

@@ -116,6 +116,8 @@ def mission(name: str, repeats: int, threads: int = 2) -> dict[str, Any]:
     target = MISSIONS[name][1]
     with _threads(threads):
         runs = [_fly(name) for _ in range(repeats)]
+    for _, _, why in runs:
+        _check(name, why)
     rtf = [s / w for s, w, _ in runs]
     d = _stat(rtf, "x real time", target, higher_is_better=True)
     d.update(sim_time_s=runs[0][0], exit_reason=runs[0][2], wall_s=[w for _, w, _ in runs],
