@@ -67,18 +67,26 @@ def _crc16_py(data: bytes, crc: int = 0xFFFF) -> int:
 crc16 = _mcrf4xx if _mcrf4xx is not None else _crc16_py
 
 
-@cython.locals(data=bytes, start=cython.Py_ssize_t, end=cython.Py_ssize_t, crc=cython.uint,
-               ex=cython.uchar)
-def crc_of(data: bytes, start: int, end: int, extra: int) -> int:
-    """The checksum of a MAVLink frame whose CRC-covered bytes are data[start:end]: the CRC of
-    them followed by the byte `extra` (the message's CRC_EXTRA). Compiled: in C over data's
-    own buffer (no slice, no call into fastcrc); interpreted: `crc16` of the slice and
-    CRC_EXTRA (a loop in Python would cost ~100x), where data may also be a bytearray."""
+@cython.locals(start=cython.Py_ssize_t, end=cython.Py_ssize_t, crc=cython.uint,
+               ex=cython.uchar, p=cython.p_uchar)
+def crc_of(data, start: int, end: int, extra: int) -> int:
+    """The checksum of a MAVLink frame whose CRC-covered bytes are data[start:end] (bytes or
+    a bytearray): the CRC of them followed by the byte `extra` (the message's CRC_EXTRA).
+    Compiled: in C over data's own buffer (no slice, no call into fastcrc); interpreted:
+    `crc16` of the slice and CRC_EXTRA (a loop in Python would cost ~100x). Both check the
+    span and the byte first and raise the same errors."""
+    if not isinstance(data, (bytes, bytearray)):
+        raise TypeError(f"crc_of: bytes or a bytearray, not {type(data).__name__}")
+    if start < 0 or end > len(data) or start > end:
+        raise IndexError("crc_of: span outside the data")
+    if extra < 0 or extra > 255:
+        raise ValueError("bytes must be in range(0, 256)")
     if cython.compiled:
-        if start < 0 or end > len(data) or start > end:
-            raise IndexError("crc_of: span outside the data")
-        crc = _x25(cython.cast(cython.p_uchar, cython.cast(cython.p_char, data)), start, end,
-                   0xFFFF)
+        if type(data) is bytes:
+            p = cython.cast(cython.p_uchar, PyBytes_AS_STRING(data))        # noqa: F821
+        else:
+            p = cython.cast(cython.p_uchar, PyByteArray_AS_STRING(data))    # noqa: F821
+        crc = _x25(p, start, end, 0xFFFF)
         ex = extra
         return _x25(cython.address(ex), 0, 1, crc)
     return crc16(bytes(data[start:end]) + bytes((extra,)))

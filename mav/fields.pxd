@@ -6,11 +6,8 @@ cdef extern from "Python.h":
     int PyFloat_Pack8(double x, char *p, int le) except -1
     double PyFloat_Unpack4(const char *p, int le) except? -1.0
     double PyFloat_Unpack8(const char *p, int le) except? -1.0
-    bytes PyBytes_FromStringAndSize(const char *v, Py_ssize_t n)
+    char *PyByteArray_AS_STRING(object b)
     char *PyBytes_AS_STRING(object b)
-
-cdef extern from "string.h":
-    void *memset(void *s, int c, size_t n)
 
 
 cdef class Layout:
@@ -20,12 +17,12 @@ cdef class Layout:
     cdef int code[96]
 
 
-cpdef object new_payload(Py_ssize_t n)
-cpdef object copy_of(bytes template)
-cpdef bytes done(buf)
-cpdef int put_f(bytes out, Layout lay, Py_ssize_t k, double v) except -1
-cpdef int put_i(bytes out, Layout lay, Py_ssize_t k, long long v) except -1
-cpdef double get_f(bytes data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
+cpdef bytearray new_payload(Py_ssize_t n)
+cpdef bytearray copy_of(bytes template)
+cpdef bytes done(object buf)
+cpdef int put_f(object out, Layout lay, Py_ssize_t k, double v) except -1
+cpdef int put_i(object out, Layout lay, Py_ssize_t k, long long v) except -1
+cpdef double get_f(object data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
                    Py_ssize_t k) except? -1.0
-cpdef long long get_i(bytes data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
+cpdef long long get_i(object data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
                       Py_ssize_t k) except? -1

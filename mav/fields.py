@@ -2,7 +2,8 @@
 
 `Layout(fmt)` is a payload's layout from its `struct` format (pymavlink's, e.g. HIL_SENSOR's
 "<Q13fIB": little-endian, packed, arrays flattened): each field's offset and type code.
-`put_f` / `put_i` write field k of a payload being built (`new_payload(n)`, then `done`), and
+`put_f` / `put_i` write field k of a payload being built (a `bytearray` of its own:
+`new_payload(n)` or `copy_of(template)`, then `done` for its bytes), and
 `get_f` / `get_i` read field k of a received frame's payload in place, zero-extended past its
 (trimmed) length as pymavlink does. The bytes are `struct`'s, bit for bit: floats go through
 the functions `struct` itself uses (`PyFloat_Pack4` / `PyFloat_Unpack4`, the same rounding, the
@@ -10,6 +11,9 @@ same OverflowError for a finite value too large for a float), integers out of th
 range raise `struct.error`. Why: a per-tick message packed by `struct` boxes every value into
 a Python float and unboxes it again; written here from C doubles it is not (compiled).
 Interpreted, every function is `struct.pack_into` / `unpack_from` of the one field.
+Both builds check every index, offset and length first (`_field`, `_span`) and raise the same
+IndexError / TypeError: compiled code reads and writes only inside the buffers it is given,
+and writes only into a bytearray, never into a `bytes` object Python may share.
 tests/test_onboard_wire.py compares both with `struct` and pymavlink.
 """
 
@@ -56,39 +60,66 @@ class Layout:
         self.n, self.size = n, at - base
 
 
-@cython.locals(b=bytes)
-def new_payload(n: int):
-    """A zeroed payload of n bytes to write with put_f / put_i, then hand to `done`
-    (compiled: a new bytes object, written in place before anyone else sees it)."""
-    if cython.compiled:
-        b = PyBytes_FromStringAndSize(cython.NULL, n)          # noqa: F821 (fields.pxd)
-        memset(PyBytes_AS_STRING(b), 0, n)                     # noqa: F821
-        return b
-    else:
-        return bytearray(n)
+def new_payload(n: int) -> bytearray:
+    """A zeroed payload of n bytes to write with put_f / put_i, then hand to `done`."""
+    return bytearray(n)
 
 
-@cython.locals(b=bytes)
-def copy_of(template: bytes):
+def copy_of(template: bytes) -> bytearray:
     """A new buffer holding template's bytes, to write in place (then `done`)."""
-    if cython.compiled:
-        b = PyBytes_FromStringAndSize(PyBytes_AS_STRING(template), len(template))  # noqa: F821
-        return b
-    else:
-        return bytearray(template)
+    _readable(template)
+    return bytearray(template)
 
 
-def done(buf) -> bytes:
-    return buf if cython.compiled else bytes(buf)
+def done(buf: bytearray) -> bytes:
+    """The bytes of a payload written in place."""
+    _writable(buf)
+    return bytes(buf)
+
+
+def _writable(out) -> None:
+    """TypeError unless `out` is a bytearray (the only buffer put_f / put_i write into)."""
+    if type(out) is not bytearray:
+        raise TypeError(f"a payload to write is a bytearray, not {type(out).__name__}")
+
+
+def _readable(data) -> None:
+    """TypeError unless `data` is bytes (a received datagram)."""
+    if type(data) is not bytes:
+        raise TypeError(f"a payload to read is bytes, not {type(data).__name__}")
+
+
+@cython.cfunc
+@cython.exceptval(-1)
+@cython.returns(cython.Py_ssize_t)
+@cython.locals(lay=Layout, k=cython.Py_ssize_t)
+def _field(lay: Layout, k: int) -> int:
+    """Field k's offset, IndexError unless the layout has a field k."""
+    if k < 0 or k >= lay.n:
+        raise IndexError(f"field {k} of {lay.fmt!r}, which has {lay.n}")
+    return lay.off[k]
+
+
+@cython.cfunc
+@cython.exceptval(-1)
+@cython.returns(cython.int)
+@cython.locals(size=cython.Py_ssize_t, p0=cython.Py_ssize_t, plen=cython.Py_ssize_t)
+def _span(size: int, p0: int, plen: int) -> int:
+    """IndexError unless [p0, p0 + plen) lies inside a buffer of `size` bytes."""
+    if p0 < 0 or plen < 0 or p0 > size or plen > size - p0:
+        raise IndexError(f"payload [{p0}, {p0} + {plen}) outside a buffer of {size} bytes")
+    return 0
 
 
 @cython.locals(p=cython.p_char, c=cython.int, at=cython.Py_ssize_t)
-def put_f(out, lay: Layout, k: int, v: float) -> int:
+def put_f(out: bytearray, lay: Layout, k: int, v: float) -> int:
     """Field k ('f' or 'd') of the payload `out` := v."""
+    _writable(out)
+    at = _field(lay, k)
     c = lay.code[k]
-    at = lay.off[k]
+    _span(len(out), at, 8 if c == 100 else 4)
     if cython.compiled:
-        p = cython.cast(cython.p_char, out) + at
+        p = PyByteArray_AS_STRING(out) + at            # noqa: F821 (fields.pxd)
         if c == 102:                                    # 'f'
             PyFloat_Pack4(v, p, 1)     # noqa: F821 (fields.pxd)
         elif c == 100:                                  # 'd'
@@ -104,17 +135,19 @@ def put_f(out, lay: Layout, k: int, v: float) -> int:
 
 @cython.locals(p=cython.p_uchar, c=cython.int, at=cython.Py_ssize_t, n=cython.Py_ssize_t,
                j=cython.Py_ssize_t, u=cython.ulonglong)
-def put_i(out, lay: Layout, k: int, v: int) -> int:
+def put_i(out: bytearray, lay: Layout, k: int, v: int) -> int:
     """Field k (an integer type) of the payload `out` := v (struct.error if out of range;
     compiled, v is a C long long: a 'Q' field up to 2**63 - 1)."""
+    _writable(out)
+    at = _field(lay, k)
     c = lay.code[k]
-    at = lay.off[k]
+    _span(len(out), at, _size(c))
     if cython.compiled:
         n = _int_size(lay, k)
         if not _in_range(c, n, v):
             raise struct.error(f"{chr(c)!r} format requires {_RANGE[chr(c)][0]} <= number <= "
                                f"{_RANGE[chr(c)][1]}")
-        p = cython.cast(cython.p_uchar, cython.cast(cython.p_char, out)) + at
+        p = cython.cast(cython.p_uchar, PyByteArray_AS_STRING(out)) + at  # noqa: F821
         u = cython.cast(cython.ulonglong, v)
         for j in range(n):
             p[j] = (u >> (8 * j)) & 0xFF
@@ -129,13 +162,15 @@ def put_i(out, lay: Layout, k: int, v: int) -> int:
                j=cython.Py_ssize_t)
 def get_f(data: bytes, p0: int, plen: int, lay: Layout, k: int) -> float:
     """Field k ('f' or 'd') of the payload data[p0:p0 + plen] (zero past plen)."""
+    _readable(data)
+    at = _field(lay, k)
     c = lay.code[k]
-    at = lay.off[k]
+    _span(len(data), p0, plen)
     if cython.compiled:
         n = 4 if c == 102 else 8 if c == 100 else 0
         if n == 0:
             raise TypeError(f"field {k} of {lay.fmt!r} is not a float")
-        p = cython.cast(cython.p_char, data) + p0 + at
+        p = PyBytes_AS_STRING(data) + p0 + at          # noqa: F821 (fields.pxd)
         if at + n > plen:                               # a trimmed payload
             tmp = cython.declare(cython.char[8])
             for j in range(n):
@@ -152,11 +187,13 @@ def get_f(data: bytes, p0: int, plen: int, lay: Layout, k: int) -> float:
                j=cython.Py_ssize_t, u=cython.ulonglong)
 def get_i(data: bytes, p0: int, plen: int, lay: Layout, k: int) -> int:
     """Field k (an integer type) of the payload data[p0:p0 + plen] (zero past plen)."""
+    _readable(data)
+    at = _field(lay, k)
     c = lay.code[k]
-    at = lay.off[k]
+    _span(len(data), p0, plen)
     if cython.compiled:
         n = _int_size(lay, k)
-        p = cython.cast(cython.p_uchar, cython.cast(cython.p_char, data)) + p0
+        p = cython.cast(cython.p_uchar, PyBytes_AS_STRING(data)) + p0  # noqa: F821
         u = 0
         for j in range(n):
             if at + j < plen:

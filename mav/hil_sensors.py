@@ -96,7 +96,7 @@ def stamp_all(parts: list, t_us: int, out: list) -> list:
 
 @cython.locals(parts=list, k=cython.Py_ssize_t, i=cython.Py_ssize_t, n=cython.Py_ssize_t,
                size=cython.Py_ssize_t, at=cython.Py_ssize_t, seq=cython.int,
-               sysid=cython.int, compid=cython.int, out=bytes)
+               sysid=cython.int, compid=cython.int, out=bytearray)
 def frames(mav, parts: list) -> bytes:
     """The frames of parts = [message, payload, message, payload, ...] back to back: the
     same bytes as b"".join(wire.frame(mav, m, payload) for each pair), one seq each, built
@@ -117,7 +117,7 @@ def frames(mav, parts: list) -> bytes:
         n = wire.trimmed_len(payload)
         wire.put_frame(out, at, (seq + i) & 0xFF, sysid, compid, parts[2 * i], payload, n)
         at += _HDR2 + n + 2
-    return out if cython.compiled else bytes(out)
+    return bytes(out)
 
 
 # (fields left zero are written as struct writes 0 / 0.0: diff_pressure, the sensor ids, ...)

@@ -2,7 +2,7 @@
 # as C fields, read directly by the compiled encoders and decoders.
 
 from mav cimport crc as _crc
-from mav.fields cimport new_payload
+from mav.fields cimport PyByteArray_AS_STRING, new_payload
 
 
 cdef class FastMsg:
@@ -15,9 +15,9 @@ cdef class FastMsg:
 # (the sensor bundle, mav/hil_sensors.pxd); a payload and a datagram are bytes
 cpdef bytes frame(mav, FastMsg m, bytes payload)
 cdef Py_ssize_t trimmed_len(bytes payload) except -1
-cdef int put_frame(bytes out, Py_ssize_t at, int seq, int sysid, int compid, FastMsg m,
+cdef int put_frame(bytearray out, Py_ssize_t at, int seq, int sysid, int compid, FastMsg m,
                    bytes payload, Py_ssize_t n) except -1
-cdef int seal_at(bytes out, Py_ssize_t at, int seq, int sysid, int compid, FastMsg m,
+cdef int seal_at(bytearray out, Py_ssize_t at, int seq, int sysid, int compid, FastMsg m,
                  Py_ssize_t n) except -1
 cpdef Py_ssize_t frame_end(bytes data, Py_ssize_t i=*) except? -2
 cpdef long msgid_of(bytes data, Py_ssize_t i=*) except? -1

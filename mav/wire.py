@@ -137,7 +137,7 @@ assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
 
 
 # ----------------------------------------------------------------------------------- encoding
-@cython.locals(seq=cython.int, n=cython.Py_ssize_t, out=bytes)
+@cython.locals(seq=cython.int, n=cython.Py_ssize_t, out=bytearray)
 def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     """Frame a packed payload as MAVLink 2, as `mav.send(msg)` would (and advance mav.seq).
 
@@ -145,6 +145,7 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     carries mav's seq/srcSystem/srcComponent, the CRC includes CRC_EXTRA, and if
     `mav.signing.sign_outgoing` the packet is signed with mav's key, link id and timestamp.
     """
+    n = trimmed_len(payload)
     seq = mav.seq
     mav.seq = (seq + 1) & 0xFF
     signing = mav.signing
@@ -158,29 +159,33 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
         signed += hashlib.sha256(signing.secret_key + signed).digest()[:6]
         signing.timestamp += 1
         return signed
-    n = trimmed_len(payload)
     out = new_payload(_HDR2 + n + 2)
     put_frame(out, 0, seq, mav.srcSystem, mav.srcComponent, m, payload, n)
-    return out if cython.compiled else bytes(out)
+    return bytes(out)
 
 
 @cython.locals(n=cython.Py_ssize_t)
 def trimmed_len(payload: bytes) -> int:
-    """The payload's length less its trailing zero bytes (at least one byte stays)."""
+    """The payload's length less its trailing zero bytes (at least one byte stays);
+    ValueError past MAVLink 2's 255 bytes (its length field is one byte)."""
     n = len(payload)
     while n > 1 and payload[n - 1] == 0:
         n -= 1
+    if n > 255:
+        raise ValueError(f"a payload of {n} bytes: a MAVLink 2 frame carries at most 255")
     return n
 
 
 @cython.locals(p=cython.p_uchar, q=cython.p_uchar, k=cython.Py_ssize_t)
-def put_frame(out: bytes, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
+def put_frame(out: bytearray, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
               payload: bytes, n: int) -> int:
     """Write the unsigned MAVLink 2 frame of payload[:n] at out[at:at + n + 12]: header,
-    payload, checksum (compiled: into a new bytes object's own C buffer; interpreted: out is
-    a bytearray)."""
+    payload, checksum (IndexError when that is not inside out and payload)."""
+    if n < 0 or n > len(payload):
+        raise IndexError(f"put_frame: {n} bytes of a {len(payload)}-byte payload")
+    _frame_span(out, at, n)
     if cython.compiled:
-        p = cython.cast(cython.p_uchar, cython.cast(cython.p_char, out)) + at
+        p = cython.cast(cython.p_uchar, PyByteArray_AS_STRING(out)) + at  # noqa: F821
         q = cython.cast(cython.p_uchar, cython.cast(cython.p_char, payload))
         for k in range(n):
             p[_HDR2 + k] = q[k]
@@ -189,13 +194,25 @@ def put_frame(out: bytes, at: int, seq: int, sysid: int, compid: int, m: FastMsg
     return seal_at(out, at, seq, sysid, compid, m, n)
 
 
+@cython.cfunc
+@cython.exceptval(-1)
+@cython.returns(cython.int)
+@cython.locals(at=cython.Py_ssize_t, n=cython.Py_ssize_t)
+def _frame_span(out: bytearray, at: int, n: int) -> int:
+    """IndexError unless an n-byte payload's frame fits at out[at:]."""
+    if at < 0 or n < 0 or n > 255 or at + _HDR2 + n + 2 > len(out):
+        raise IndexError(f"a frame of {n} payload bytes at {at} of a {len(out)}-byte buffer")
+    return 0
+
+
 @cython.locals(p=cython.p_uchar, mid=cython.long, crc=cython.long)
-def seal_at(out: bytes, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
+def seal_at(out: bytearray, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
             n: int) -> int:
     """The header and checksum of the unsigned frame whose n-byte payload is already at
     out[at + 10:at + 10 + n] (a payload written in place: mav/hil.py's ODOMETRY)."""
+    _frame_span(out, at, n)
     if cython.compiled:
-        p = cython.cast(cython.p_uchar, cython.cast(cython.p_char, out)) + at
+        p = cython.cast(cython.p_uchar, PyByteArray_AS_STRING(out)) + at  # noqa: F821
     else:
         p = memoryview(out)[at:]
     p[0] = _MAGIC2

@@ -96,7 +96,7 @@ class SensorFeed:
 
     @cython.locals(end=cython.Py_ssize_t, n=cython.Py_ssize_t, p0=cython.Py_ssize_t,
                    plen=cython.Py_ssize_t, x=cython.double, y=cython.double, z=cython.double,
-                   row=bytes, k=cython.Py_ssize_t)
+                   row=bytearray, k=cython.Py_ssize_t)
     def decode_actuators(self, ans: bytes) -> tuple[int, float, float, float, float]:
         """(t_us, u1..u4) of the answer's HIL_ACTUATOR_CONTROLS (ValueError if it has none,
         as HilSimulatorCodec's); its estimate (if any: the ODOMETRY after it, the checks of
