@@ -26,13 +26,15 @@ build: $(STAMP)
 demo: setup
 	$(VENV)/bin/cosim run scenarios/mambo_seed_track.toml --out runs/demo
 
+# the suite runs in the portable numerics (cosim/numerics.py): its flights are the same bytes
+# on every x86-64 CPU, so it passes on any; tests/test_numerics_levels.py flies native too
 test: setup
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest -m "not slow"
+	$(PY) -m cosim.numerics portable -- $(PY) -m pytest -m "not slow" --durations=25
 
 # the slow checks include a real viewer (tests/viewer): chromium, Playwright, npm packages
 test-slow: setup viewer-setup
-	$(PY) -m pytest -m slow
+	$(PY) -m cosim.numerics portable -- $(PY) -m pytest -m slow
 
 viewer-setup: setup
 	bash tests/viewer/setup.sh

@@ -10,7 +10,8 @@ import sys
 import threading
 from pathlib import Path
 
-from cosim.cli_checks import check_out_dir, check_speed, live_view
+from cosim import cli_checks
+from cosim.cli_checks import add_numerics, check_out_dir, check_speed, enter_numerics, live_view
 from cosim.errors import OutputError, ScenarioError
 from mav.compiled import CompiledError
 
@@ -123,6 +124,7 @@ def _parser() -> argparse.ArgumentParser:
                         "the loop steps on; auto: when the machine has a free core (the same "
                         "flight every way)")
     r.add_argument("--quiet", action="store_true", help="no progress display")
+    add_numerics(r)
 
     v = add("validate", help="check scenario files")
     v.add_argument("scenarios", nargs="+")
@@ -210,6 +212,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--live", action="store_true",
                    help="only the live view's cost (--foxglove): the seed mission's loop "
                         "without it, with it unwatched, with a client on every topic")
+    b.add_argument("--numerics", action="store_true",
+                   help="only what the portable numerics cost: the seed mission and E2, native "
+                        "and portable in fresh processes, alternately (~1.5 minutes)")
     return p
 
 
@@ -223,6 +228,8 @@ def _add_foxglove(p: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:     # the cosim command itself: it may start again with other numerics
+        cli_checks.ENTRY_ARGV = list(sys.argv[1:])
     try:
         return _main(argv)
     except CompiledError as exc:   # COSIM_COMPILED=1 and a module is not built from its source
@@ -332,15 +339,17 @@ def _dispatch(args) -> int:
     if args.cmd == "bench":
         from cosim.studies.bench import main as bench_main
 
-        only = [f"--{k}" for k in ("instructions", "flood", "live") if getattr(args, k)]
+        only = [f"--{k}" for k in ("instructions", "flood", "live", "numerics")
+                if getattr(args, k)]
         if len(only) > 1:
             raise ScenarioError("bench", " ".join(only), "one of --instructions, --flood, "
-                                "--live")
+                                "--live, --numerics")
         if args.json is not None and args.json.is_dir():
             raise ScenarioError("--json", str(args.json), "a file path (this is a folder)")
 
         return bench_main(quick=args.quick, json_path=args.json, flood_only=args.flood,
-                          instructions=args.instructions, live_only=args.live)
+                          instructions=args.instructions, live_only=args.live,
+                          numerics_only=args.numerics)
     raise AssertionError(args.cmd)
 
 
@@ -357,6 +366,7 @@ def _run(args) -> int:
     if args.seed is not None:
         sc = with_set(sc, {"seed": args.seed})
     check_speed(args.speed)
+    sc = enter_numerics(args, sc)
     if args.speed != 1.0 and not args.realtime:
         raise ScenarioError("--speed", args.speed, "only with --realtime")
     if args.png_every < 0:
@@ -408,7 +418,7 @@ def _sweep(args) -> int:
         write_table,
     )
 
-    sc = load_scenario(args.scenario)
+    sc = enter_numerics(args, load_scenario(args.scenario))
     grid = parse_sets(args.set, multi=True)
     check_grid(grid)
     for key, values in grid.items():  # validate every value before starting any run

@@ -8,6 +8,36 @@ from pathlib import Path
 
 from cosim.errors import ScenarioError
 
+# the arguments `cosim` was started with when it runs as the command (cli.main with no argv):
+# such a process may start again with the numerics a run needs; one called from Python may not
+ENTRY_ARGV: list[str] | None = None
+
+
+def add_numerics(p) -> None:
+    p.add_argument("--numerics", choices=("native", "portable"), default=None,
+                   help="portable: the same bits on every x86-64 CPU (OpenCV, numpy, OpenBLAS "
+                        "and libm held to SSE4.2; E2 ~19%% slower); default: the scenario's "
+                        "[run] numerics, else native (cosim/numerics.py)")
+
+
+def enter_numerics(args, sc):
+    """The scenario with the run's numerics (--numerics, else its [run] numerics); the `cosim`
+    command starts itself again with them when its process does not run them. Called before
+    anything is written. From Python (tests, scripts) the process stays as it is and
+    run_scenario refuses portable numerics it does not have."""
+    from cosim import numerics
+
+    if args.numerics is not None and args.numerics != sc.numerics:
+        from cosim.scenario.parse import with_set
+
+        sc = with_set(sc, {"run.numerics": args.numerics})
+    if ENTRY_ARGV is not None and (args.numerics is not None or sc.numerics == "portable"):
+        try:
+            numerics.enter(sc.numerics, ENTRY_ARGV)
+        except numerics.NumericsError as exc:
+            raise ScenarioError("--numerics", sc.numerics, str(exc)) from None
+    return sc
+
 
 @contextlib.contextmanager
 def live_view(args):

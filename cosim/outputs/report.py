@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from cosim import numerics
 from cosim.errors import output_error
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.metrics import COL, compute_metrics, evaluate
@@ -72,6 +73,8 @@ def summarize(res: RunResult) -> dict[str, Any]:
         "versions": versions(),
         # compiled or interpreted, and why (mav/compiled.py; the flight is the same either way)
         "implementation": compiled.describe(),
+        # the CPU code each library ran: "portable" = the same bits on every x86-64 CPU
+        "numerics": numerics.describe(),
         "platform": f"{platform.system()} {platform.machine()}, {sys.implementation.name}",
     }
 

@@ -16,6 +16,7 @@ from typing import Any
 
 from cosim.apps.registry import BUILTIN_APPS, check_app, check_inputs
 from cosim.errors import ScenarioError
+from cosim.numerics import MODES as NUMERICS_MODES
 from cosim.plant.mapping import parse_plant
 from cosim.plant.vehicles import PHYSICAL_RANGES, PRESETS, get_vehicle
 from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
@@ -31,7 +32,7 @@ from cosim.world.wind import parse_wind
 # --------------------------------------------------------------------------- parsing
 NAME_OK = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,79}")
 TOP_KEYS = {"name", "description", "seed", "vehicle", "timing", "world", "camera", "app",
-            "sensors", "wind", "faults", "onboard", "criteria"}
+            "sensors", "wind", "faults", "onboard", "criteria", "run"}
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -131,6 +132,11 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
 
     camera_table = table(raw, "camera", "") if "camera" in raw else None
 
+    # how the run computes: the numerics it needs of its process (cosim/numerics.py)
+    rn = table(raw, "run", "")
+    no_unknown(rn, {"numerics"}, "run")
+    numerics = string(rn, "numerics", "run", "native", NUMERICS_MODES)
+
     # app
     a = table(raw, "app", "")
     no_unknown(a, {"name", "params"}, "app")
@@ -227,6 +233,7 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         wind_ned_mps=wind, criteria=criteria, source=source, raw=raw, world_table=world_table,
         wind=wind_spec,
         faults=faults, onboard_params=onboard_params, plant=plant, sensors=sensors,
+        numerics=numerics,
     )
 
 

@@ -90,3 +90,5 @@ class Scenario:
     plant: Any = None                         # cosim.plant.mapping.PlantSpec ([vehicle] fmu
                                               # or fmi = 3); None: the FMI 2.0 plant
     sensors: Any = None                       # cosim.sensors.spec.SensorsSpec ([sensors])
+    numerics: str = "native"                  # [run] numerics: "portable" = the same bits on
+                                              # every x86-64 CPU (cosim/numerics.py)

@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from cosim.errors import ComponentError
+from cosim import numerics
+from cosim.errors import ComponentError, ScenarioError
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.tlog import Tlog
 from cosim.plant.fmu import Y_QW, Y_QZ, Y_X, Y_Z, Plant
@@ -221,6 +222,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         raise ValueError(f"mode: got {opts.mode!r}; allowed: mil, sil")
     if opts.hil_transport not in ("udp", "unix"):
         raise ValueError(f"hil_transport: got {opts.hil_transport!r}; allowed: udp, unix")
+    try:                   # portable numerics are the process's, from its start
+        numerics.check(sc.numerics)
+    except numerics.NumericsError as exc:
+        raise ScenarioError("run.numerics", sc.numerics, str(exc)) from None
     if opts.out_dir is not None:      # a run never clears what it reads (issue 31)
         from cosim.apps.registry import app_inputs
 

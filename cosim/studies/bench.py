@@ -308,6 +308,10 @@ def run(quick: bool = False) -> dict[str, Any]:
     # issue 14 item 9: SIL under a UDP flood, lockstep and real time (cosim/studies/bench_flood)
     res["flood"] = bench_flood(**(QUICK_FLOOD if quick else {}))
     res["paper2"] = bench_paper2(quick)     # issue 29: E2-E4, the front-camera tick
+    from cosim.studies.bench_numerics import bench_numerics
+
+    if not quick:                  # issue 39: what portable costs (--numerics alone: 1.5 min)
+        res["numerics"] = bench_numerics(3)
     return res
 
 
@@ -399,11 +403,22 @@ def format_report(res: dict[str, Any]) -> str:
     lines.append(f"  => at best {f['max real-time factor']:.0f}x real time with no glue at all")
     lines += format_flood(res["flood"])
     lines += format_paper2(res["paper2"])
+    if "numerics" in res:
+        from cosim.studies.bench_numerics import format_numerics
+
+        lines += format_numerics(res["numerics"])
     return "\n".join(lines)
 
 
 def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = False,
-         instructions: bool = False, live_only: bool = False) -> int:
+         instructions: bool = False, live_only: bool = False,
+         numerics_only: bool = False) -> int:
+    if numerics_only:  # what the portable numerics cost (bench_numerics.py)
+        from cosim.studies.bench_numerics import bench_numerics, format_numerics
+
+        res = {"machine": machine(), "numerics": bench_numerics(1 if quick else 3)}
+        print("\n".join(format_numerics(res["numerics"])))
+        return _write(res, json_path or Path("runs") / "bench_numerics.json")
     if live_only:      # what the live view costs the loop (bench_live.py)
         from cosim.studies.bench_live import bench_live, format_live
 

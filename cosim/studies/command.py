@@ -7,6 +7,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from cosim.cli_checks import add_numerics, enter_numerics
 from cosim.errors import ScenarioError
 
 MONTECARLO_EXAMPLES = """examples:
@@ -39,6 +40,7 @@ def add_study_options(p: argparse.ArgumentParser, *, default_executor: str) -> N
     p.add_argument("--limit", type=int, default=None, metavar="K",
                    help="run at most K more runs, then stop (a study in chunks)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_numerics(p)
 
 
 def add_montecarlo(add) -> None:
@@ -85,6 +87,7 @@ def montecarlo(args) -> int:
 
     sc = load_scenario(args.scenario)
     dists = parse_varies(args.vary)
+    sc = enter_numerics(args, sc)
     sets = {k: v[0] for k, v in parse_sets(args.set, multi=False).items()}
     out = args.out or Path("runs") / f"mc-{sc.name}"
     jobs, manifest = montecarlo_jobs(sc, dists, args.runs, args.seed, sets, out,
@@ -97,7 +100,7 @@ def sweep(args) -> int:
     from cosim.studies.deps import load_scenario, parse_sets
     from cosim.studies.study import sweep_jobs
 
-    sc = load_scenario(args.scenario)
+    sc = enter_numerics(args, load_scenario(args.scenario))
     out = args.out or Path("runs") / f"sweep-{sc.name}"
     jobs, manifest = sweep_jobs(sc, parse_sets(args.set, multi=True), out, mode=args.mode,
                                 keep_runs=args.keep_runs, mcap=_mcap(args))

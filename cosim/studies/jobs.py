@@ -97,6 +97,8 @@ def run_job(job: Job) -> dict[str, Any]:
         # why a run that ended well did not pass (a metric column of text)
         row["failed_criteria"] = " ".join(n for n, c in summary.get("criteria", {}).items()
                                           if not c["passed"])
+        # the worker's numerics: "portable" runs give the same bits on any x86-64 CPU
+        row["numerics"] = summary["numerics"]["mode"]
     except Exception as exc:  # a crashed run is a row, the study goes on
         tb = traceback.extract_tb(exc.__traceback__)
         where = f" (at {Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""

@@ -121,6 +121,10 @@ def build_report(rows: list[dict[str, str]], manifest: dict[str, Any]) -> dict[s
                       "error": r["error"], "replay": replay_command(manifest, r)})
     exits: dict[str, int] = {}
     failed_criteria: dict[str, int] = {}
+    numerics: dict[str, int] = {}
+    for r in rows:
+        if r.get("numerics"):
+            numerics[r["numerics"]] = numerics.get(r["numerics"], 0) + 1
     for r in rows:
         exits[r["exit_reason"] or "(raised)"] = exits.get(r["exit_reason"] or "(raised)", 0) + 1
         for c in r.get("failed_criteria", "").split():
@@ -138,6 +142,8 @@ def build_report(rows: list[dict[str, str]], manifest: dict[str, Any]) -> dict[s
             "success": {"passed": k, "runs": n, "rate": k / n if n else None,
                         "wilson95": [lo, hi]},
             "exit_reasons": exits, "failed_criteria": failed_criteria, "main_metric": main,
+            "numerics": numerics,
+            "portable": bool(n) and numerics.get("portable", 0) == n,
             "metrics": stats, "worst": worst, "worst_by_metric": by_metric}
 
 
@@ -160,6 +166,13 @@ def markdown(rep: dict[str, Any]) -> str:
                   f"(Wilson 95 % interval {100 * lo:.1f} % to {100 * hi:.1f} %)", ""]
     lines += ["exit reasons: " + ", ".join(f"{k} {v}" for k, v in
                                            sorted(rep["exit_reasons"].items())), ""]
+    nm = rep.get("numerics") or {}
+    if rep.get("portable"):
+        lines += ["numerics: portable in every run (the same bits on any x86-64 CPU)", ""]
+    elif nm:
+        lines += ["numerics: " + ", ".join(f"{k} in {v}" for k, v in sorted(nm.items())) +
+                  " runs; native runs can differ on another kind of CPU (`--numerics "
+                  "portable`)", ""]
     if rep.get("failed_criteria"):
         lines += ["failed criteria (runs): " + ", ".join(
             f"{k} {v}" for k, v in sorted(rep["failed_criteria"].items())), ""]
