@@ -104,7 +104,9 @@ def _opencv_off(which: str = "above SSE4.2") -> list[str]:
     only those it has (OpenCV warns about the others)."""
     import cv2
 
-    return [n for i, n in OPENCV_ABOVE_SSE42.items() if cv2.checkHardwareSupport(i)
+    masked = set(initial_environ().get("OPENCV_CPU_DISABLE", "").replace(";", ",").split(","))
+    return [n for i, n in OPENCV_ABOVE_SSE42.items()      # this CPU's, even if masked here
+            if (cv2.checkHardwareSupport(i) or n in masked)
             and (which == "above SSE4.2" or "512" in n)]
 
 
@@ -153,14 +155,15 @@ def native_env(environ: dict[str, str] | None = None) -> dict[str, str]:
 
 
 def emulation_env(level: str, environ: dict[str, str] | None = None) -> dict[str, str]:
-    """`environ` as this process's libraries would see a CPU of `level` (LEVELS); 'native'
-    changes nothing. Only features this CPU has can be taken away."""
-    if level == "native":
-        return dict(os.environ if environ is None else environ)
-    if level not in LEVELS:
+    """`environ` as this process's libraries would see a CPU of `level` (LEVELS; 'native':
+    this CPU as it is), without any numerics the caller was started with. Only features this
+    CPU has can be taken away."""
+    if level != "native" and level not in LEVELS:
         raise ValueError(f"level {level!r}: one of native, {', '.join(LEVELS)}")
+    env = native_env(environ)           # from this CPU as it is, whatever the caller runs
+    if level == "native":
+        return env
     lv = LEVELS[level]
-    env = dict(os.environ if environ is None else environ)
     env["GLIBC_TUNABLES"] = _with_hwcaps_off(env.get("GLIBC_TUNABLES", ""), lv["glibc"])
     env["OPENCV_CPU_DISABLE"] = ",".join(_opencv_off(lv["opencv"]))
     env["OPENCV_IPP"] = lv["ipp"]

@@ -172,5 +172,5 @@ def test_the_launcher_refuses_what_it_does_not_know():
                        capture_output=True, text=True, check=False)
     assert p.returncode == 2 and "baseline" in p.stderr
     p = subprocess.run([PY, "-m", "cosim.numerics", "portable"], capture_output=True,
-                       text=True, check=True)
+                       text=True, check=True, env=numerics.native_env())
     assert "export GLIBC_TUNABLES=" in p.stdout and "OPENBLAS_CORETYPE=Nehalem" in p.stdout
