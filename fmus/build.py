@@ -34,10 +34,12 @@ import sys
 import tempfile
 import zipfile
 
+from mav.compiled import build_root
+
 PACKAGE_DIR = pathlib.Path(__file__).resolve().parent
 SOURCE_DIR = PACKAGE_DIR / "quadrotor"
 REPO_ROOT = PACKAGE_DIR.parent
-BUILD_DIR = REPO_ROOT / "build"
+BUILD_DIR = build_root()      # <checkout>/build, or the user's cache for an installed package
 MODEL_IDENTIFIER = "Quadrotor"
 C_SOURCES = ("model.c", "fmi2.c")
 HEADERS = ("config.h",)
@@ -192,8 +194,8 @@ def build(force: bool = False, out_dir: pathlib.Path | None = None,
 
 
 def fmu_path(build_if_needed: bool = True, fmi: int = 2) -> pathlib.Path:
-    """Path of ``<repo>/build/Quadrotor.fmu`` (`fmi` 3: ``Quadrotor3.fmu``), built (or
-    rebuilt) first if `build_if_needed`."""
+    """Path of ``<build>/Quadrotor.fmu`` (`fmi` 3: ``Quadrotor3.fmu``; ``<build>``:
+    mav.compiled.build_root), built (or rebuilt) first if `build_if_needed`."""
     if build_if_needed:
         return build(fmi=fmi)
     _check_fmi(fmi)

@@ -34,7 +34,7 @@ import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from mav.compiled import MARKER, compiled_modules, embedded_hash, source_hash
+from mav.compiled import MARKER, build_root, compiled_modules, embedded_hash, source_hash
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 CFLAGS = ("-O2", "-shared", "-fPIC", "-Wall", "-Wextra", "-Wno-unused-parameter",
@@ -152,7 +152,7 @@ def build_modules(modules: dict[str, tuple[Path, Path]], *, force: bool = False,
     output is echoed; COSIM_WERROR=1 (CI) turns warnings in hand-written C into errors."""
     tool = toolchain_hash()
     werror = os.environ.get("COSIM_WERROR") == "1"
-    build_dir = build_dir or PACKAGE_DIR.parent / "build" / "cython"
+    build_dir = build_dir or build_root() / "cython"
     todo = {n: v for n, v in modules.items() if force or not up_to_date(v[0], v[1], tool)}
     with ThreadPoolExecutor(max_workers=jobs or os.cpu_count() or 1) as pool:
         futures = {n: pool.submit(compile_module, n, src, so, build_dir, tool, werror)

@@ -34,7 +34,21 @@ import sys
 from pathlib import Path
 
 ENV = "COSIM_COMPILED"
-REBUILD = "make build"         # or: python -m mav.build && python -m cosim.build
+ROOT = Path(__file__).resolve().parent.parent    # the folder that holds the packages
+# a source checkout (pyproject.toml beside the packages), or an installed package
+CHECKOUT = (ROOT / "pyproject.toml").is_file()
+REBUILD = "make build" if CHECKOUT else "python -m mav.build && python -m cosim.build"
+
+
+def build_root() -> Path:
+    """Where builds (the FMU, Cython's C) are made: ``COSIM_BUILD_DIR`` if set, else
+    ``<checkout>/build``, else (an installed package, whose site-packages is no work folder)
+    the user's cache, ``$XDG_CACHE_HOME/cosim`` or ``~/.cache/cosim``."""
+    if os.environ.get("COSIM_BUILD_DIR"):
+        return Path(os.environ["COSIM_BUILD_DIR"])
+    if CHECKOUT:
+        return ROOT / "build"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "cosim"
 MARKER = b"COSIM-SOURCE-SHA256:"
 SUFFIX = importlib.machinery.EXTENSION_SUFFIXES[0]   # e.g. .cpython-311-x86_64-linux-gnu.so
 

@@ -441,3 +441,10 @@ def test_bebop2_parameters_run_in_the_fmu(make):
         inst.fmu.doStep(k * 0.005, 0.005)
     x, y, z = inst.get("x", "y", "z")
     assert abs(z + 1.0) < 1e-6 and abs(x) < 1e-9 and abs(y) < 1e-9
+
+
+def test_builds_go_where_cosim_build_dir_says(monkeypatch, tmp_path):
+    from mav import compiled
+    assert compiled.CHECKOUT and compiled.build_root() == Path(fb.REPO_ROOT) / "build"
+    monkeypatch.setenv("COSIM_BUILD_DIR", str(tmp_path))
+    assert compiled.build_root() == tmp_path
