@@ -220,19 +220,6 @@ def encode_distance(mav, t_us: int, min_cm: int, max_cm: int, cur_cm: int,
     return stamped(mav, DISTANCE_SENSOR, t_us, distance_rest(min_cm, max_cm, cur_cm, quality))
 
 
-def encode_gps(mav, t_us: int, lat_e7: int, lon_e7: int, alt_mm: int, eph_cm: int,
-               vn_cms: int, ve_cms: int, vd_cms: int) -> bytes:
-    return stamped(mav, HIL_GPS, t_us, gps_rest(lat_e7, lon_e7, alt_mm, eph_cm, vn_cms, ve_cms,
-                                                vd_cms))
-
-
-def encode_truth(mav, t_us: int, q: tuple, pqr: tuple, lat_e7: int, lon_e7: int, alt_mm: int,
-                 v_cms: tuple) -> bytes:
-    return wire.frame(mav, HIL_STATE_QUATERNION, truth_payload(
-        t_us, q[0], q[1], q[2], q[3], pqr[0], pqr[1], pqr[2], lat_e7, lon_e7, alt_mm, v_cms[0],
-        v_cms[1], v_cms[2]))
-
-
 class Payload:
     """One received message's payload read in place: field k of its wire order (arrays
     flattened, as pymavlink's tuple) as a float, `f(k)`, or an integer, `i(k)` (zero past a

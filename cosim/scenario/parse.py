@@ -10,7 +10,6 @@ from __future__ import annotations
 import copy
 import re
 import tomllib
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -273,7 +272,3 @@ def with_set(sc: Scenario, assignments: dict[str, Any]) -> Scenario:
                 raise ScenarioError(path, value, "a path through tables of the scenario")
         node[keys[-1]] = value
     return parse_scenario(raw, source=sc.source, base_dir=Path(sc.source).parent)
-
-
-def with_seed(sc: Scenario, seed: int) -> Scenario:
-    return replace(sc, seed=seed)
