@@ -1,6 +1,7 @@
 # Types Cython reads beside mav/cascade.py (which stays plain Python): the cascade's state as C
 # fields of the object; `update`'s arguments and locals are typed in the .py (annotations and
 # @cython.locals).
+from mav.rotations cimport euler_from_quat, tilt_cos
 from mav.types cimport Setpoint, VehicleState
 
 

@@ -38,14 +38,13 @@ from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 import cython
-from cython.cimports.libc.math import asin as _asin
-from cython.cimports.libc.math import atan2 as _atan2
 from cython.cimports.libc.math import cos as _cos
 from cython.cimports.libc.math import sin as _sin
 from cython.cimports.libc.math import sqrt as _sqrt
 
 from mav.airframe import Airframe
 from mav.mixer import inverse4, mixer_matrix
+from mav.rotations import euler_from_quat, tilt_cos
 from mav.types import Setpoint, VehicleState
 
 # (compiled: C doubles and C's libm, the functions Python's math module calls; the types of
@@ -267,7 +266,7 @@ class QuadCascade:
                    e_max=f64, v_max=f64, tilt_max=f64, weight=f64, inv_g=f64, m0t=f64, m0m=f64,
                    m0l=f64, m1t=f64, m1m=f64, m1l=f64, m2t=f64, m2m=f64, m2l=f64, m3t=f64,
                    m3m=f64, m3l=f64, my=f64, t_max=f64, c_u=f64, arm_a=f64, dt=f64, qw=f64,
-                   qx=f64, qy=f64, qz=f64, r33=f64, roll=f64, sp_=f64, pitch=f64, yaw=f64, cy=f64,
+                   qx=f64, qy=f64, qz=f64, r33=f64, roll=f64, pitch=f64, yaw=f64, cy=f64,
                    sy=f64, vx=f64, vy=f64, vxb=f64, vyb=f64, fx=f64, fy=f64, fxb=f64, fyb=f64,
                    v2=f64, f=f64, px=f64, py=f64, ex=f64, ey=f64, exb=f64, eyb=f64, vcx=f64,
                    vcy=f64, i_n=f64, i_e=f64, ixb=f64, iyb=f64, pitch_ref=f64, roll_ref=f64,
@@ -297,11 +296,8 @@ class QuadCascade:
 
         # attitude (ZYX Euler) from the quaternion
         qw, qx, qy, qz = s.qw, s.qx, s.qy, s.qz
-        r33 = 1.0 - 2.0 * (qx * qx + qy * qy)
-        roll = _atan2(2.0 * (qw * qx + qy * qz), r33)
-        sp_ = 2.0 * (qw * qy - qz * qx)
-        pitch = _asin(1.0 if sp_ > 1.0 else (-1.0 if sp_ < -1.0 else sp_))
-        yaw = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        roll, pitch, yaw = euler_from_quat(qw, qx, qy, qz)
+        r33 = tilt_cos(qw, qx, qy, qz)
         cy = _cos(yaw)
         sy = _sin(yaw)
 

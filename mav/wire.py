@@ -25,8 +25,6 @@ import math
 import struct
 
 import cython
-from cython.cimports.libc.math import asin as _asin
-from cython.cimports.libc.math import atan2 as _atan2
 from cython.cimports.libc.math import floor as _floor
 from cython.cimports.libc.math import fmod as _fmod
 from pymavlink.dialects.v20 import common as mavlink2
@@ -487,20 +485,3 @@ def clamp_int(v: float, lo: int, hi: int) -> int:
     if v <= lo:
         return lo
     return int(round(v))
-
-
-@cython.locals(qw=cython.double, qx=cython.double, qy=cython.double, qz=cython.double,
-               roll=cython.double, sp=cython.double, pitch=cython.double, yaw=cython.double)
-def euler_from_quat(qw: float, qx: float, qy: float, qz: float) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) in rad, ZYX (aerospace) from the body->world quaternion (compiled:
-    C doubles and libm's atan2 and asin, which Python's math calls)."""
-    roll = _atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
-    sp = 2.0 * (qw * qy - qz * qx)
-    pitch = _asin(sp if -1.0 < sp < 1.0 else (1.0 if sp >= 1.0 else -1.0))
-    yaw = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-    return roll, pitch, yaw
-
-
-def yaw_from_quat(qw: float, qx: float, qy: float, qz: float) -> float:
-    """Heading (rad, ZYX yaw) of the body->world quaternion."""
-    return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))

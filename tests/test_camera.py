@@ -9,10 +9,10 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 from cosim.errors import ScenarioError
-from cosim.frames import quat_from_euler
 from cosim.sensors.camera import Renderer, save_png, save_video
 from cosim.sensors.down import CameraConfig, DownwardCamera, project_floor_point
 from cosim.world.floor import World
+from mav.rotations import quat_from_euler
 
 ARENA = {"n_min": 3.0, "n_max": 7.0, "e_min": 3.0, "e_max": 7.0}
 P0 = np.array([5.0, 5.0, -1.1])        # body CoG 1.1 m above the floor: camera at 1.0 m

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.frames import R_from_quat
 from cosim.scenario.parse import load_scenario, parse_scenario
 from cosim.sensors import blur
 from cosim.sensors.camera import make_camera, parse_camera
@@ -23,6 +22,7 @@ from cosim.sensors.stream import PRESETS, FrameStream, StreamSpec
 from cosim.sim.master import run_scenario
 from cosim.sim.options import RunOptions
 from cosim.world.floor import World
+from mav.rotations import R_from_quat
 
 ROOT = Path(__file__).resolve().parents[1]
 H_US = 5000

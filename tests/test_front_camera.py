@@ -23,12 +23,12 @@ from cosim.sensors.front import (
     camera_pose,
     project,
 )
-from cosim.sensors.view import quat_from_euler
 from cosim.sim.exits import ExitReason
 from cosim.sim.master import run_scenario
 from cosim.sim.options import RunOptions
 from cosim.world.floor import World
 from cosim.world.textures import KINDS, TextureSpec, make_texture, palette_ok
+from mav.rotations import quat_from_euler
 
 ROOT = Path(__file__).resolve().parents[1]
 HALF = {"width": 428, "height": 240}

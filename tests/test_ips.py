@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from cosim.apps.ips import ImageProcessor, IPSParams
-from cosim.frames import quat_from_euler
 from cosim.sensors.down import DownwardCamera
 from cosim.world.floor import load_world
+from mav.rotations import quat_from_euler
 
 FLOOR = (180, 180, 180)
 RED = (255, 0, 0)

@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from test_onboard_rig import Rig
 
 from mav import wire
-from mav.onboard.defs import rotate_body_to_world
+from mav.rotations import rotate_body_to_world
 
 M = mavlink2
 G = 9.81

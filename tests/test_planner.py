@@ -9,9 +9,9 @@ import pytest
 
 from cosim.apps.ips import ImageProcessor, IPSResult
 from cosim.apps.planner import Action, MissionLogic, MissionState, PlannerParams
-from cosim.frames import quat_from_euler
 from cosim.sensors.down import DownwardCamera
 from cosim.world.floor import load_world
+from mav.rotations import quat_from_euler
 
 S = MissionState
 Z = -1.1           # hover height (NED) of the released preset

@@ -22,8 +22,6 @@ from cosim.plant.mapped import (
     MappedPlant,
     attitude_to_ned_frd,
     body_swap,
-    quat_from_euler,
-    rotate_inv,
     world_swap,
 )
 from cosim.plant.mapping import PlantSpec
@@ -31,6 +29,7 @@ from cosim.plant.vehicles import MAMBO
 from cosim.scenario.parse import load_scenario, parse_scenario
 from cosim.sim.master import RunOptions, run_scenario
 from fmus import build as fb
+from mav.rotations import quat_from_euler, rotate_world_to_body
 
 ROOT = Path(__file__).resolve().parent.parent
 SCEN = ROOT / "scenarios"
@@ -132,7 +131,7 @@ def test_frame_conversions():
     assert world_swap(world_swap((1.0, 2.0, 3.0), "ENU"), "ENU") == (1.0, 2.0, 3.0)
     assert body_swap((1.0, 2.0, 3.0), "FLU") == (1.0, -2.0, -3.0)
     # gravity seen from a body rolled 90 degrees right lies along its +y (right) axis
-    g_b = rotate_inv(quat_from_euler(math.pi / 2, 0.0, 0.0), (0.0, 0.0, 9.81))
+    g_b = rotate_world_to_body(quat_from_euler(math.pi / 2, 0.0, 0.0), (0.0, 0.0, 9.81))
     assert np.allclose(g_b, (0.0, 9.81, 0.0))
 
 

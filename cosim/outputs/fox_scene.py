@@ -47,7 +47,7 @@ from foxglove.messages import (
     Vector3,
 )
 
-from cosim.frames import quat_from_euler, quat_from_R
+from mav.rotations import quat_from_euler, quat_from_R
 
 MAP, WORLD, BODY, CAMERA = "map", "world", "body", "camera"
 FLU = "_flu"                                # + body: the body frame z up (x fwd, y left)

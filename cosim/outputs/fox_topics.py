@@ -36,10 +36,10 @@ from foxglove.messages import (
     Vector3,
 )
 
-from cosim.frames import R_from_quat, euler_from_quat
 from cosim.outputs import fox_scene as fs
 from cosim.sim.estimate import ESTIMATE_COLUMNS
 from cosim.sim.recorder import COL
+from mav.rotations import R_from_quat, euler_from_quat
 
 NUM, INT, STR = "number", "integer", "string"
 # the JSON topics' fields; a number may be missing (not finite), the fields in REQUIRED not
@@ -145,7 +145,7 @@ class Topics:
         j = self.json
         ch = j["/vehicle/truth"]
         if ch.has_sinks():
-            roll, pitch, yaw = (math.degrees(a) for a in euler_from_quat(q))
+            roll, pitch, yaw = (math.degrees(a) for a in euler_from_quat(*q))
             ch.log(_finite({"t": t, "x": x, "y": y, "z": z, "vx": float(r[c["vx"]]),
                             "vy": float(r[c["vy"]]), "vz": float(r[c["vz"]]),
                             "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw,

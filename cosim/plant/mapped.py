@@ -29,7 +29,7 @@ import shutil
 from cosim.errors import ComponentError
 from cosim.plant.fmu import OUTPUT_NAMES, Y_ON_GROUND, FmuPlant
 from cosim.plant.mapping import RATE, PlantMap, PlantSpec, own_map, read_description
-from mav.estimator.core import quat_from_euler  # body -> world, z-y-x Euler angles (rad)
+from mav.rotations import quat_from_euler, quat_mul, rotate_world_to_body
 
 GROUND_EPS_M = 0.01      # m: without an on_ground output, "on the ground" is z_NED > -this
 _S = math.sqrt(0.5)
@@ -38,24 +38,6 @@ _Q_FRD_TO_FLU = (0.0, 1.0, 0.0, 0.0)  # pi about x: FRD <-> FLU
 
 
 # ------------------------------------------------------------------ frames (plain functions)
-def qmul(a, b) -> tuple[float, float, float, float]:
-    """Hamilton product a (x) b of scalar-first quaternions."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
-
-
-def rotate_inv(q, v) -> tuple[float, float, float]:
-    """R(q)^T v: a world vector in body axes."""
-    w, x, y, z = q
-    r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
-    return (r00 * v[0] + r10 * v[1] + r20 * v[2], r01 * v[0] + r11 * v[1] + r21 * v[2],
-            r02 * v[0] + r12 * v[1] + r22 * v[2])
-
-
 def world_swap(v, world: str) -> tuple[float, float, float]:
     """A world vector between ENU and NED coordinates (the map is its own inverse)."""
     return (v[0], v[1], v[2]) if world == "NED" else (v[1], v[0], -v[2])
@@ -69,9 +51,9 @@ def body_swap(v, body: str) -> tuple[float, float, float]:
 def attitude_to_ned_frd(q, world: str, body: str) -> tuple[float, float, float, float]:
     """The attitude of a body -> world quaternion given in (world, body) frames, in NED/FRD."""
     if world == "ENU":
-        q = qmul(_Q_ENU_TO_NED, q)
+        q = quat_mul(_Q_ENU_TO_NED, q)
     if body == "FLU":
-        q = qmul(q, _Q_FRD_TO_FLU)
+        q = quat_mul(q, _Q_FRD_TO_FLU)
     return q
 
 
@@ -280,13 +262,13 @@ class MappedPlant(FmuPlant):
             acc = body_swap((o["ax"], o["ay"], o["az"]), m.body)
         else:                 # kinematic, world -> specific force in body axes
             a = world_swap((o["ax"], o["ay"], o["az"]), m.world)
-            acc = rotate_inv(q, (a[0], a[1], a[2] - self.vehicle.g))
+            acc = rotate_world_to_body(q, (a[0], a[1], a[2] - self.vehicle.g))
         if self._offset:      # the FMU's origin -> the start pose
             c, s = self._cy, self._sy
             n0, e0, _ = self._start
             p = (n0 + c * p[0] - s * p[1], e0 + s * p[0] + c * p[1], p[2])
             vel = (c * vel[0] - s * vel[1], s * vel[0] + c * vel[1], vel[2])
-            q = qmul(self._q_yaw, q)
+            q = quat_mul(self._q_yaw, q)
         # q and -q are one attitude: keep the sign continuous (Euler angles wrapping at 180
         # degrees, the frame products), starting with qw >= 0, as the FMU integrates it
         qp = y[6:10]

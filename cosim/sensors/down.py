@@ -41,11 +41,11 @@ import cv2
 import numpy as np
 
 from cosim.errors import ScenarioError
-from cosim.frames import R_from_quat
 from cosim.scenario.validate import integer, no_unknown, number, string
 from cosim.sensors.noise import FrameNoise
 from cosim.sensors.stream import StreamSpec
 from cosim.world.floor import World
+from mav.rotations import R_from_quat
 
 # Camera axes in body FRD: columns are x_C (image right), y_C (image down), z_C (optical axis).
 R_BC_DOWN = np.array([[0.0, -1.0, 0.0],

@@ -51,7 +51,6 @@ import cv2
 import numpy as np
 
 from cosim import cvthreads
-from cosim.frames import R_from_quat
 from cosim.sensors import blur
 from cosim.sensors.noise import FrameNoise
 from cosim.sensors.pinhole import (
@@ -66,6 +65,7 @@ from cosim.sensors.pinhole import (
 )
 from cosim.sensors.raycast import ReferenceRenderer
 from cosim.sensors.tiles import PAD, Planner, Tile, tile_set
+from mav.rotations import R_from_quat
 
 __all__ = ["R_BC_FRONT", "FrontCamera", "FrontCameraConfig", "ReferenceRenderer", "camera_pose",
            "project", "rpy_matrix", "world_surfaces", "yaw_of"]

@@ -12,10 +12,10 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import ScenarioError
-from cosim.frames import R_from_quat
 from cosim.scenario.validate import boolean, integer, no_unknown, number, rgb
 from cosim.sensors.stream import StreamSpec
 from cosim.world.surfaces import Surface, scene_surfaces
+from mav.rotations import R_from_quat
 
 # Camera axes in the rig frame (= body FRD for a zero mount rotation): columns are x_C (image
 # right) = rig y, y_C (image down) = rig z, z_C (optical axis) = rig x.

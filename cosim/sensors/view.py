@@ -12,6 +12,7 @@ import numpy as np
 
 from cosim.errors import OutputError, ScenarioError
 from cosim.sensors.camera import KINDS, make_camera, save_png
+from mav.rotations import quat_from_euler
 
 
 def _numbers(text: str, n: int, flag: str) -> list[float]:
@@ -22,15 +23,6 @@ def _numbers(text: str, n: int, flag: str) -> list[float]:
     if len(vals) != n or not all(math.isfinite(v) for v in vals):
         raise ScenarioError(flag, text, f"{n} comma-separated finite numbers")
     return vals
-
-
-def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """[w, x, y, z] body->world from ZYX Euler angles (rad)."""
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
 
 def save_depth_png(depth: np.ndarray, path: str | Path) -> Path:

@@ -2,3 +2,4 @@
 # into mav/wire.py's compiled module (the answer split, per tick).
 from mav cimport wire
 from mav.fields cimport Layout, done, get_f, get_i, new_payload, put_f
+from mav.rotations cimport euler_from_quat

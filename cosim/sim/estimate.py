@@ -23,6 +23,7 @@ from cosim.sensors.suite import SensorSuite
 from cosim.sim.recorder import CHUNK, SeriesSpool
 from mav import wire
 from mav.fields import Layout, done, get_f, get_i, new_payload, put_f
+from mav.rotations import euler_from_quat
 
 ESTIMATE_COLUMNS = ("est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_roll",
                     "est_pitch", "est_yaw", "est_lost")
@@ -120,7 +121,7 @@ class SensorFeed:
         y = get_f(ans, p0, plen, _ODO_L, 2) + self.home[1]
         z = get_f(ans, p0, plen, _ODO_L, 3)
         est[0], est[1], est[2] = x, y, z
-        roll, pitch, yaw = wire.euler_from_quat(
+        roll, pitch, yaw = euler_from_quat(
             get_f(ans, p0, plen, _ODO_L, 4), get_f(ans, p0, plen, _ODO_L, 5),
             get_f(ans, p0, plen, _ODO_L, 6), get_f(ans, p0, plen, _ODO_L, 7))
         put_f(row, _ROW_L, 0, x)

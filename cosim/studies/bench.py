@@ -200,7 +200,7 @@ def bench_front(n: int, repeats: int) -> dict[str, Any]:
 
     from cosim.scenario.parse import load_scenario
     from cosim.sensors.front import FrontCamera, FrontCameraConfig
-    from cosim.sensors.view import quat_from_euler
+    from mav.rotations import quat_from_euler
 
     sc = load_scenario(ROOT / "scenarios" / "bebop2_room_e2.toml")
     poses = [((4.0 * i / n, 0.3 * math.sin(0.1 * i), -1.0 - 0.2 * math.sin(0.05 * i)),

@@ -3,5 +3,5 @@
 from mav cimport hil_sensors as hs
 from mav.estimator.template cimport TemplateEstimator
 from mav.hil cimport odometry_of
+from mav.rotations cimport quat_from_euler
 
-cpdef tuple quat_from_euler(double roll, double pitch, double yaw)

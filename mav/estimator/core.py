@@ -6,26 +6,14 @@ ESTIMATOR_STATUS's flags. Its own module so the per-tick part is compiled (mav/_
 from __future__ import annotations
 
 import cython
-from cython.cimports.libc.math import cos as _cos
-from cython.cimports.libc.math import sin as _sin
 from pymavlink.dialects.v20 import common as M
 
 from mav import hil_sensors as hs
 from mav.estimator.template import CAL_TICKS, TemplateEstimator
 from mav.hil import odometry_of
+from mav.rotations import quat_from_euler
 
 FRAME_LOCAL_NED = 1
-
-
-@cython.locals(roll=cython.double, pitch=cython.double, yaw=cython.double, cr=cython.double,
-               sr=cython.double, cp=cython.double, sp=cython.double, cy=cython.double,
-               sy=cython.double)
-def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    cr, sr = _cos(0.5 * roll), _sin(0.5 * roll)
-    cp, sp = _cos(0.5 * pitch), _sin(0.5 * pitch)
-    cy, sy = _cos(0.5 * yaw), _sin(0.5 * yaw)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
 
 class Estimator:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 
-from mav import wire
 from mav.onboard.defs import (
     AIRBORNE_AGL_M,
     IN_AIR,
@@ -29,6 +28,7 @@ from mav.onboard.defs import (
 )
 from mav.onboard.links import Outbox
 from mav.onboard.status import VehicleStatus
+from mav.rotations import yaw_from_quat
 
 # the modes that need a local position (PX4's mode requirements): denied while it is lost
 NEEDS_POSITION = frozenset((POSCTL, TAKEOFF, LOITER, MISSION, RTL, OFFBOARD))
@@ -48,7 +48,7 @@ class Commander:
     def heading(self) -> float:
         """Heading (rad) of the current state; computed on demand, not every tick."""
         s = self.vs.state
-        return wire.yaw_from_quat(s.qw, s.qx, s.qy, s.qz)
+        return yaw_from_quat(s.qw, s.qx, s.qy, s.qz)
 
     def hold_here(self) -> None:
         sp = self.vs.sp

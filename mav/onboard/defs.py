@@ -164,17 +164,6 @@ def text_of(s) -> str:
     return str(s).split("\x00", 1)[0]
 
 
-def rotate_body_to_world(qw: float, qx: float, qy: float, qz: float, bx: float, by: float,
-                          bz: float) -> tuple[float, float, float]:
-    """v_W = R_WB(q) v_B for the body->world quaternion q."""
-    tx = 2.0 * (qy * bz - qz * by)
-    ty = 2.0 * (qz * bx - qx * bz)
-    tz = 2.0 * (qx * by - qy * bx)
-    return (bx + qw * tx + qy * tz - qz * ty,
-            by + qw * ty + qz * tx - qx * tz,
-            bz + qw * tz + qx * ty - qy * tx)
-
-
 # ==================================================================================================
 # Appended for issue 13 item 4 (telemetry a ground station expects) and items 2 and 7
 # (setpoints, parameter answers); kept at the end so the tables above stay as they were.

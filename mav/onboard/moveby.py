@@ -40,8 +40,8 @@ from __future__ import annotations
 
 import math
 
-from mav import wire
 from mav.onboard.defs import NAN, wrap_pi
+from mav.rotations import yaw_from_quat
 
 MB_ARRIVE_M = 0.0005     # m, the reference is at its target within this, once slowed down
 
@@ -76,7 +76,7 @@ class MoveBy:
     def start(self, s, dx: float, dy: float, dz: float, dpsi: float, own: dict) -> None:
         """A new move from the state `s` (VehicleState) at reception: offsets (m) forward,
         right and down in the heading frame, heading change (rad); `own` the parameters."""
-        yaw = wire.yaw_from_quat(s.qw, s.qx, s.qy, s.qz)
+        yaw = yaw_from_quat(s.qw, s.qx, s.qy, s.qz)
         c, sn = math.cos(yaw), math.sin(yaw)
         ex, ey = c * dx - sn * dy, sn * dx + c * dy
         self.tx, self.ty, self.tz = s.x + ex, s.y + ey, s.z + dz

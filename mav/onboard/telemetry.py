@@ -34,11 +34,11 @@ from mav.onboard.defs import (
     SENSORS_HEALTH,
     M,
     px4_custom_mode,
-    rotate_body_to_world,
 )
 from mav.onboard.links import Chan, Outbox
 from mav.onboard.parameters import Parameters
 from mav.onboard.status import VehicleStatus
+from mav.rotations import euler_from_quat, rotate_body_to_world
 
 # GPS_RAW_INT: the position is the estimate's (there is no receiver model); the rest is what a
 # healthy receiver reports, so a ground station's GPS indicator shows a 3-D fix
@@ -196,7 +196,7 @@ class Telemetry:
 
     def emit_attitude(self, ch: Chan) -> None:
         s = self.vs.state
-        roll, pitch, yaw = wire.euler_from_quat(s.qw, s.qx, s.qy, s.qz)
+        roll, pitch, yaw = euler_from_quat(s.qw, s.qx, s.qy, s.qz)
         ch.send(wire.encode_attitude(ch.mav, self._time_boot_ms(), roll, pitch, yaw,
                                      s.p, s.q, s.r))
 

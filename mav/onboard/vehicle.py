@@ -48,7 +48,6 @@ from mav.onboard.defs import (
     STREAMS,
     TAKEOFF,
     hz_to_us,
-    rotate_body_to_world,
 )
 from mav.onboard.failsafe import Failsafe
 from mav.onboard.inject import battery_failure
@@ -60,6 +59,7 @@ from mav.onboard.offboard import Offboard
 from mav.onboard.parameters import Parameters
 from mav.onboard.status import VehicleStatus
 from mav.onboard.telemetry import Telemetry
+from mav.rotations import rotate_body_to_world
 from mav.types import Setpoint, VehicleState
 
 M = mavlink2
