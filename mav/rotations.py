@@ -11,8 +11,12 @@ Conventions (ARCHITECTURE.md "Frames"):
   radians: positive roll = right side down, positive pitch = nose up, positive yaw = nose
   from North towards East.
 
-The scalar functions take unit quaternions (the state's); ``R_from_quat`` normalises and
-refuses a zero quaternion. Tested against scipy's ``Rotation`` and at gimbal lock
+A quaternion need not be of unit norm: the Euler angles, the yaw and ``tilt_cos`` are those of
+the rotation ``q / |q|`` (every term is scaled by ``|q|^2`` and divided by it; for a quaternion
+whose squared norm rounds to 1.0 that division is exact, so a unit quaternion gives the same
+bits as the unit-only formulas did). ``rotate_body_to_world`` and ``rotate_world_to_body`` are
+for unit quaternions (the state's); ``R_from_quat`` normalises and refuses a zero quaternion.
+Tested against scipy's ``Rotation`` for unit and non-unit quaternions and at gimbal lock
 (tests/test_rotations.py).
 """
 
@@ -44,33 +48,43 @@ def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float
             cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
 
-@cython.locals(s=cython.double)
+@cython.locals(n2=cython.double, s=cython.double)
 def euler_from_quat(qw: float, qx: float, qy: float, qz: float) -> tuple[float, float, float]:
     """(roll, pitch, yaw) in rad of the rotation of ``q_WB``: pitch in [-pi/2, pi/2], roll and
     yaw in [-pi, pi]. At gimbal lock (pitch +-pi/2) roll and yaw share one degree of freedom:
-    roll is 0 and yaw holds the turn (scipy's choice too). NaN in, NaN out."""
+    roll is 0 and yaw holds the turn (scipy's choice too). A zero quaternion gives (0, 0, 0);
+    NaN in, NaN out."""
+    n2 = qw * qw + qx * qx + qy * qy + qz * qz
     s = 2.0 * (qw * qy - qz * qx)
+    if n2 > 0.0:
+        s = s / n2
     if s > 0.99999999 or s < -0.99999999:
         # near gimbal lock s says too little (a few ulps of rounding are all of 1 - |s|):
-        # cos(pitch) from the yaw terms; within 3e-8 of the lock roll and yaw turn about
+        # n2 cos(pitch) from the yaw terms; within 3e-8 of the lock roll and yaw turn about
         # the same axis and their terms are rounding noise, so roll is 0 and yaw holds the turn
         # (R[0][1] = -sin(yaw), R[1][1] = cos(yaw)), an error below 3e-8
-        if not _hypot(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)) > 3e-8:
+        if not _hypot(2.0 * (qw * qz + qx * qy), n2 - 2.0 * (qy * qy + qz * qz)) > 3e-8 * n2:
             return (0.0, _asin(1.0 if s > 0.0 else -1.0),
-                    _atan2(2.0 * (qw * qz - qx * qy), 1.0 - 2.0 * (qx * qx + qz * qz)))
-    return (_atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy)),
+                    _atan2(2.0 * (qw * qz - qx * qy), n2 - 2.0 * (qx * qx + qz * qz)))
+    return (_atan2(2.0 * (qw * qx + qy * qz), n2 - 2.0 * (qx * qx + qy * qy)),
             _asin(1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)),
-            _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)))
+            _atan2(2.0 * (qw * qz + qx * qy), n2 - 2.0 * (qy * qy + qz * qz)))
 
 
+@cython.locals(n2=cython.double)
 def yaw_from_quat(qw: float, qx: float, qy: float, qz: float) -> float:
     """Yaw (rad, ZYX, [-pi, pi]) of ``q_WB``: the heading of the body x axis from North."""
-    return _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    n2 = qw * qw + qx * qx + qy * qy + qz * qz
+    return _atan2(2.0 * (qw * qz + qx * qy), n2 - 2.0 * (qy * qy + qz * qz))
 
 
+@cython.locals(n2=cython.double, c=cython.double)
 def tilt_cos(qw: float, qx: float, qy: float, qz: float) -> float:
-    """cos(roll) cos(pitch) of ``q_WB``: R_WB[2][2], how much of the body's thrust is vertical."""
-    return 1.0 - 2.0 * (qx * qx + qy * qy)
+    """cos(roll) cos(pitch) of ``q_WB``: R_WB[2][2], how much of the body's thrust is vertical
+    (0 for a zero quaternion)."""
+    n2 = qw * qw + qx * qx + qy * qy + qz * qz
+    c = n2 - 2.0 * (qx * qx + qy * qy)
+    return c / n2 if n2 > 0.0 else c
 
 
 def quat_mul(a, b) -> tuple[float, float, float, float]:
