@@ -339,3 +339,22 @@ def test_the_documented_200_run_monte_carlo_of_the_seed_mission(tmp_path):
     assert lo <= rep["success"]["rate"] <= hi
     assert {"report_hist.png", "report_vs_params.png"} <= {p.name for p in out.iterdir()}
     assert len(rep["worst"]) == 5 and all("--seed" in w["replay"] for w in rep["worst"])
+
+
+def test_local_workers_run_this_process_numerics(monkeypatch):
+    """Dask's nanny starts a worker with OMP/MKL/OPENBLAS_NUM_THREADS=1 where this process has
+    none set; a study's workers keep this process's environment (their BLAS sums as the serial
+    engine's) and its numerics mode, which check_workers compares."""
+    from dask.distributed import Client
+
+    from cosim import numerics
+    from cosim.studies import engine
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)   # neither changes the mode
+    monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
+    with engine.local_cluster(1) as cluster, Client(cluster) as client:
+        engine.check_workers(client)
+        (info,) = client.run(engine.worker_info).values()
+    assert info["threads"] == {k: os.environ.get(k) for k in engine.THREAD_VARIABLES}
+    assert info["threads"]["OMP_NUM_THREADS"] is None      # Dask's default would be "1"
+    assert info["numerics"] == numerics.mode()

@@ -150,23 +150,41 @@ def _pool(jobs, fn, *, workers, **_) -> Iterator[dict[str, Any]]:
                 f.cancel()
 
 
-def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
+# the variables Dask's nanny sets in a worker that change how its libraries compute
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+
+def local_cluster(n: int):
+    """A LocalCluster of `n` single-threaded worker processes that run this process's
+    numerics."""
     import dask
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import LocalCluster
+
+    # The workers' numerics are this process's (cosim/numerics.py): Dask's nanny would set
+    # OMP/MKL/OPENBLAS_NUM_THREADS=1 in each worker before it starts, so a worker's BLAS
+    # would sum in another order than the serial engine's, and a portable study could get
+    # native workers or the reverse; they inherit this environment instead.
+    spawn = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ").items()
+             if k not in THREAD_VARIABLES}
+    # worker-saturation 1.0: a worker holds only the task it runs (none queued behind it), so
+    # a job that kills its worker does not take queued innocent jobs with it. No statistical
+    # profiler in the workers: it feeds the dashboard (none here) and keeps a call tree per
+    # second of work, 1000 of them, tens of MB per worker (issue 15).
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1,
+                          "distributed.scheduler.worker-saturation": 1.0,
+                          "distributed.worker.profile.enabled": False,
+                          "distributed.nanny.pre-spawn-environ": spawn}):
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                            dashboard_address=None, silence_logs=logging.ERROR)
+
+
+def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
+    from dask.distributed import Client, as_completed
 
     addr = scheduler_address(scheduler)
     cluster = None
     if addr is None:
-        n = workers or os.cpu_count() or 1
-        # worker-saturation 1.0: a worker holds only the task it runs (none queued behind
-        # it), so a job that kills its worker does not take queued innocent jobs with it.
-        # No statistical profiler in the workers: it feeds the dashboard (none here) and keeps
-        # a call tree per second of work, 1000 of them, tens of MB per worker (issue 15).
-        with dask.config.set({"distributed.scheduler.allowed-failures": 1,
-                              "distributed.scheduler.worker-saturation": 1.0,
-                              "distributed.worker.profile.enabled": False}):
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+        cluster = local_cluster(workers or os.cpu_count() or 1)
         client = Client(cluster)
     else:
         try:
@@ -202,26 +220,36 @@ def lost_row(job: Job, exc: BaseException) -> dict[str, Any]:
             "error": f"{type(exc).__name__}: {exc}"}
 
 
-def worker_info() -> dict[str, str]:
-    """What a worker has: its cosim install and FMU (built there if needed)."""
+def worker_info() -> dict[str, Any]:
+    """What a worker has: its cosim install and FMU (built there if needed), and its numerics
+    (the mode, and the thread counts its BLAS was started with)."""
     import cosim
+    from cosim import numerics
     from fmus.build import fmu_path, source_hash
 
     return {"cosim": str(Path(cosim.__file__).parent), "fmu_source": source_hash(),
-            "fmu": str(fmu_path())}
+            "fmu": str(fmu_path()), "numerics": numerics.mode(),
+            "threads": {k: os.environ.get(k) for k in THREAD_VARIABLES}}
 
 
 def check_workers(client) -> None:
-    """Every worker must run the same model: compare its FMU source hash with ours."""
+    """Every worker must run the same model and the same numerics as this process: compare
+    its FMU source hash and its numerics mode with ours."""
+    from cosim import numerics
     from fmus.build import source_hash
 
     client.wait_for_workers(1, timeout=120)
-    ours = source_hash()
+    ours, mode = source_hash(), numerics.mode()
     for addr, info in client.run(worker_info).items():
         if info["fmu_source"] != ours:
             raise ScenarioError("--scheduler", addr,
                                 f"workers with the same cosim install (its FMU source "
                                 f"{info['fmu_source'][:12]} != ours {ours[:12]}, {info['cosim']})")
+        if info["numerics"] != mode:
+            raise ScenarioError("--scheduler", addr,
+                                f"workers with this process's numerics ({mode}; this worker "
+                                f"runs {info['numerics']}: start it with `python -m "
+                                f"cosim.numerics {mode} -- dask worker ...`)")
 
 
 def _bar(total: int, skipped: int, progress: bool):
