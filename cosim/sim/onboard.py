@@ -15,7 +15,6 @@ from cosim.outputs.tlog import Tlog, tap
 from cosim.plant.vehicles import get_vehicle
 from cosim.scenario.records import Scenario
 from cosim.sim.options import RunOptions
-from mav.airframe import Airframe
 from mav.links import SpinPolicy, UdpLink, UnixLink, memory_link, memory_pair
 
 
@@ -65,7 +64,7 @@ class OnboardHandle:
             if opts.external_links:
                 self._own = (api_v, gcs_v)
             if sc.vehicle != get_vehicle(vname):   # the flight stack flies the changed plant
-                self.onboard.set_airframe(Airframe(name=vname, **sc.vehicle.fmu_parameters()))
+                self.onboard.set_airframe(sc.vehicle.airframe())
             self.hil = hil_m
             self._hil_v = hil_v                  # the vehicle's end: datagrams still queued
             self.api = tap(api_app, tlog)
