@@ -34,8 +34,7 @@ so a tick does no dict look-ups and allocates nothing but floats.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Protocol
 
 import cython
 from cython.cimports.libc.math import cos as _cos
@@ -44,6 +43,7 @@ from cython.cimports.libc.math import sqrt as _sqrt
 
 from mav.airframe import Airframe
 from mav.mixer import inverse4, mixer_matrix
+from mav.params import ParamSpec
 from mav.rotations import euler_from_quat, tilt_cos
 from mav.types import Setpoint, VehicleState
 
@@ -52,18 +52,6 @@ from mav.types import Setpoint, VehicleState
 f64 = cython.typedef(cython.double)       # the controller's arithmetic: C doubles
 _PI = cython.declare(cython.double, math.pi)
 _TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """One tunable parameter, MAVLink style (PARAM_VALUE carries it as a float)."""
-
-    name: str       # <= 16 characters, MAVLink param id style ("MC_XY_P")
-    default: float  # in `unit`
-    min: float      # in `unit`, inclusive
-    max: float      # in `unit`, inclusive
-    unit: str       # e.g. "rad/m", "deg", "m/s"
-    doc: str        # one line
-
 
 class Controller(Protocol):
     dt: float  # s, control period
@@ -79,58 +67,70 @@ class Controller(Protocol):
     def update(self, s: VehicleState, sp: Setpoint, out: list[float]) -> None: ...
 
 
-class Gains(NamedTuple):
-    """The hot path's gains and constants, absolute units (rebuilt by `set_param`; a
-    NamedTuple so `update` unpacks it as fast as a plain tuple)."""
+class Gains:
+    """The hot path's gains and constants, absolute units, each by its name: built from
+    keywords (a missing or unknown name raises), read by `update` as `g.<name>` (compiled:
+    C fields, cascade.pxd). Rebuilt by `set_param`."""
 
-    pitch_kp: float      # N m/rad
-    pitch_ki: float      # N m/(rad s)
-    pitch_kd: float      # N m s/rad
-    roll_kp: float       # N m/rad
-    roll_ki: float       # N m/(rad s)
-    roll_kd: float       # N m s/rad
-    att_i_lim: float     # N m, roll/pitch integrator limit
-    att_kb: float        # 1, back-calculation gain per tick
-    k_psi: float         # 1/s, heading -> yaw rate
-    k_r: float           # N m s/rad, yaw rate -> torque
-    yawrate_max: float   # rad/s
-    k_z: float           # 1/s, altitude -> climb rate
-    k_vz: float          # N s/m, climb rate -> thrust
-    ki_z_pos: float      # N/(m s), altitude-error integral (position mode)
-    ki_z_vpos: float     # N/m, velocity-error integral (position mode)
-    ki_z_vel: float      # N/m, velocity-error integral (velocity mode)
-    z_i_lim: float       # N, altitude integrator limit
-    vz_max: float        # m/s, climb/descent rate limit
-    thrust_max_total: float  # N
-    k_xy: float          # 1/s, position -> horizontal velocity
-    k_vxy: float         # rad s/m, velocity error -> tilt
-    c_drag: float        # rad s/m, drag feed-forward tilt per m/s
-    ki_vxy: float        # rad/m, horizontal velocity-error integral -> tilt (wind, PX4's
-                         # MPC_XY_VEL_I_ACC), integrated in the world frame
-    xy_i_lim: float      # rad, tilt the horizontal integrator may hold
-    xy_err_max: float    # m, per-axis position error saturation
-    vxy_max: float       # m/s, horizontal speed limit
-    tilt_max: float      # rad
-    weight: float        # N
-    inv_g: float         # s^2/m, 1 / g (acceleration feed-forward -> tilt)
-    m0t: float           # inverse mixer A^-1 entries: rotor 1 from thrust, pitch, roll (1/m)
-    m0m: float
-    m0l: float
-    m1t: float           # rotor 2
-    m1m: float
-    m1l: float
-    m2t: float           # rotor 3
-    m2m: float
-    m2l: float
-    m3t: float           # rotor 4
-    m3m: float
-    m3l: float
-    my: float            # rotor 1 from yaw torque, 1/m (rotors 1, 2: +; 3, 4: -)
-    t_max: float         # N, one rotor at omega_max
-    c_u: float           # 1/N, u^2 per newton: 1/(k_thrust omega_max^2)
-    arm_a: float         # m, rotor offset along x and y (pitch/roll torque per N)
-    dt: float            # s, control period
-    integ: bool          # a yaw-rate setpoint integrates a heading reference
+    __slots__ = (
+        "pitch_kp",            # N m/rad
+        "pitch_ki",            # N m/(rad s)
+        "pitch_kd",            # N m s/rad
+        "roll_kp",             # N m/rad
+        "roll_ki",             # N m/(rad s)
+        "roll_kd",             # N m s/rad
+        "att_i_lim",           # N m, roll/pitch integrator limit
+        "att_kb",              # 1, back-calculation gain per tick
+        "k_psi",               # 1/s, heading -> yaw rate
+        "k_r",                 # N m s/rad, yaw rate -> torque
+        "yawrate_max",         # rad/s
+        "k_z",                 # 1/s, altitude -> climb rate
+        "k_vz",                # N s/m, climb rate -> thrust
+        "ki_z_pos",            # N/(m s), altitude-error integral (position mode)
+        "ki_z_vpos",           # N/m, velocity-error integral (position mode)
+        "ki_z_vel",            # N/m, velocity-error integral (velocity mode)
+        "z_i_lim",             # N, altitude integrator limit
+        "vz_max",              # m/s, climb/descent rate limit
+        "thrust_max_total",    # N
+        "k_xy",                # 1/s, position -> horizontal velocity
+        "k_vxy",               # rad s/m, velocity error -> tilt
+        "c_drag",              # rad s/m, drag feed-forward tilt per m/s
+        "ki_vxy",              # rad/m, horizontal velocity-error integral -> tilt (wind, PX4's
+                               # MPC_XY_VEL_I_ACC), integrated in the world frame
+        "xy_i_lim",            # rad, tilt the horizontal integrator may hold
+        "xy_err_max",          # m, per-axis position error saturation
+        "vxy_max",             # m/s, horizontal speed limit
+        "tilt_max",            # rad
+        "weight",              # N
+        "inv_g",               # s^2/m, 1 / g (acceleration feed-forward -> tilt)
+        "m0t",                 # inverse mixer A^-1: rotor 1 from thrust, pitch, roll (1/m)
+        "m0m",
+        "m0l",
+        "m1t",                 # rotor 2
+        "m1m",
+        "m1l",
+        "m2t",                 # rotor 3
+        "m2m",
+        "m2l",
+        "m3t",                 # rotor 4
+        "m3m",
+        "m3l",
+        "my",                  # rotor 1 from yaw torque, 1/m (rotors 1, 2: +; 3, 4: -)
+        "t_max",               # N, one rotor at omega_max
+        "c_u",                 # 1/N, u^2 per newton: 1/(k_thrust omega_max^2)
+        "arm_a",               # m, rotor offset along x and y (pitch/roll torque per N)
+        "dt",                  # s, control period
+        "integ",               # a yaw-rate setpoint integrates a heading reference
+    )
+
+    def __init__(self, **values) -> None:
+        names = Gains.__slots__
+        missing = [n for n in names if n not in values]
+        unknown = [n for n in values if n not in names]
+        if missing or unknown:
+            raise TypeError(f"Gains: missing {missing}, unknown {unknown}")
+        for n in names:
+            setattr(self, n, values[n])
 
 
 class QuadCascade:
@@ -234,20 +234,11 @@ class QuadCascade:
         t_max = v.thrust_max
         Ai = self._Ainv
         self._g = Gains(
-            g["pitch_kp"], g["pitch_ki"], g["pitch_kd"],
-            g["roll_kp"], g["roll_ki"], g["roll_kd"],
-            g["att_i_lim"], g["att_kb"],
-            g["k_psi"], g["k_r"], g["yawrate_max"],
-            g["k_z"], g["k_vz"], g["ki_z_pos"], g["ki_z_vpos"], g["ki_z_vel"], g["z_i_lim"],
-            g["vz_max"], g["thrust_max_total"],
-            g["k_xy"], g["k_vxy"], g["c_drag"], g.get("ki_vxy", 0.0), g.get("xy_i_lim", 0.0),
-            g["xy_err_max"], g["vxy_max"], g["tilt_max"],
-            v.weight, 1.0 / v.g,
-            Ai[0][0], Ai[0][2], Ai[0][3], Ai[1][0], Ai[1][2], Ai[1][3],
-            Ai[2][0], Ai[2][2], Ai[2][3], Ai[3][0], Ai[3][2], Ai[3][3],
-            Ai[0][1],
-            t_max, 1.0 / (v.k_thrust * v.omega_max * v.omega_max),
-            self._A[2][0], self.dt, self.YAW_RATE_INTEGRATES,
+            **g, weight=v.weight, inv_g=1.0 / v.g,
+            m0t=Ai[0][0], m0m=Ai[0][2], m0l=Ai[0][3], m1t=Ai[1][0], m1m=Ai[1][2], m1l=Ai[1][3],
+            m2t=Ai[2][0], m2m=Ai[2][2], m2l=Ai[2][3], m3t=Ai[3][0], m3m=Ai[3][2], m3l=Ai[3][3],
+            my=Ai[0][1], t_max=t_max, c_u=1.0 / (v.k_thrust * v.omega_max * v.omega_max),
+            arm_a=self._A[2][0], dt=self.dt, integ=self.YAW_RATE_INTEGRATES,
         )
 
     # ---------------------------------------------------------------- state
@@ -259,23 +250,16 @@ class QuadCascade:
         self._n = 0
 
     # ---------------------------------------------------------------- hot path
-    @cython.locals(s=VehicleState, sp=Setpoint, out=list, kp_p=f64, ki_p=f64, kd_p=f64, kp_r=f64,
-                   ki_r=f64, kd_r=f64, i_lim=f64, kb=f64, k_psi=f64, k_r=f64, r_max=f64, k_z=f64,
-                   k_vz=f64, ki_zp=f64, ki_zvp=f64, ki_zv=f64, zi_lim=f64, vz_max=f64,
-                   t_tot_max=f64, k_xy=f64, k_vxy=f64, c_drag=f64, ki_vxy=f64, xy_i_lim=f64,
-                   e_max=f64, v_max=f64, tilt_max=f64, weight=f64, inv_g=f64, m0t=f64, m0m=f64,
-                   m0l=f64, m1t=f64, m1m=f64, m1l=f64, m2t=f64, m2m=f64, m2l=f64, m3t=f64,
-                   m3m=f64, m3l=f64, my=f64, t_max=f64, c_u=f64, arm_a=f64, dt=f64, qw=f64,
-                   qx=f64, qy=f64, qz=f64, r33=f64, roll=f64, pitch=f64, yaw=f64, cy=f64,
-                   sy=f64, vx=f64, vy=f64, vxb=f64, vyb=f64, fx=f64, fy=f64, fxb=f64, fyb=f64,
-                   v2=f64, f=f64, px=f64, py=f64, ex=f64, ey=f64, exb=f64, eyb=f64, vcx=f64,
-                   vcy=f64, i_n=f64, i_e=f64, ixb=f64, iyb=f64, pitch_ref=f64, roll_ref=f64,
-                   ax=f64, ay=f64, t2=f64, evx=f64, evy=f64, i2=f64, vz=f64, fz=f64, zr=f64,
-                   ez=f64, vzc=f64, i_z=f64, thrust=f64, e_p=f64, e_r=f64, i_p=f64, i_r=f64,
-                   tq_m=f64, tq_l=f64, yr=f64, rr=f64, yref=f64, r_ff=f64, e_psi=f64, rc=f64,
-                   tq_n=f64, b1=f64, b2=f64, b3=f64, b4=f64, d=f64, h=f64, di=f64,
-                   tilt_sat=cython.bint, pos_mode=cython.bint, limited=cython.bint,
-                   t_sat=cython.int, n=cython.long)
+    @cython.locals(s=VehicleState, sp=Setpoint, out=list, g=Gains, qw=f64, qx=f64, qy=f64, qz=f64,
+                   r33=f64, roll=f64, pitch=f64, yaw=f64, cy=f64, sy=f64, vx=f64, vy=f64, vxb=f64,
+                   vyb=f64, fx=f64, fy=f64, fxb=f64, fyb=f64, v2=f64, f=f64, px=f64, py=f64,
+                   ex=f64, ey=f64, exb=f64, eyb=f64, vcx=f64, vcy=f64, i_n=f64, i_e=f64, ixb=f64,
+                   iyb=f64, pitch_ref=f64, roll_ref=f64, ax=f64, ay=f64, t2=f64, evx=f64, evy=f64,
+                   i2=f64, vz=f64, fz=f64, zr=f64, ez=f64, vzc=f64, i_z=f64, thrust=f64, e_p=f64,
+                   e_r=f64, i_p=f64, i_r=f64, tq_m=f64, tq_l=f64, yr=f64, rr=f64, yref=f64,
+                   r_ff=f64, e_psi=f64, rc=f64, tq_n=f64, b1=f64, b2=f64, b3=f64, b4=f64, d=f64,
+                   h=f64, di=f64, r_max=f64, i_lim=f64, tilt_sat=cython.bint,
+                   pos_mode=cython.bint, limited=cython.bint, t_sat=cython.int, n=cython.long)
     def update(self, s: VehicleState, sp: Setpoint, out: list[float]) -> None:
         """One control tick: state estimate + setpoint -> motor commands u1..u4 in out[0:4].
 
@@ -286,13 +270,7 @@ class QuadCascade:
             if self._n:
                 self.reset()
             return
-        (kp_p, ki_p, kd_p, kp_r, ki_r, kd_r, i_lim, kb,
-         k_psi, k_r, r_max,
-         k_z, k_vz, ki_zp, ki_zvp, ki_zv, zi_lim, vz_max, t_tot_max,
-         k_xy, k_vxy, c_drag, ki_vxy, xy_i_lim, e_max, v_max, tilt_max,
-         weight, inv_g,
-         m0t, m0m, m0l, m1t, m1m, m1l, m2t, m2m, m2l, m3t, m3m, m3l, my,
-         t_max, c_u, arm_a, dt, integ) = self._g
+        g = self._g
 
         # attitude (ZYX Euler) from the quaternion
         qw, qx, qy, qz = s.qw, s.qx, s.qy, s.qz
@@ -317,8 +295,8 @@ class QuadCascade:
         fxb = cy * fx + sy * fy
         fyb = cy * fy - sy * fx
         v2 = fxb * fxb + fyb * fyb
-        if v2 > v_max * v_max:  # the feed-forward alone may not exceed the speed limit
-            f = v_max / _sqrt(v2)
+        if v2 > g.vxy_max * g.vxy_max:  # the feed-forward alone may not exceed the speed limit
+            f = g.vxy_max / _sqrt(v2)
             fxb *= f
             fyb *= f
         px, py = sp.x, sp.y
@@ -327,22 +305,22 @@ class QuadCascade:
             ey = py - s.y
             exb = cy * ex + sy * ey
             eyb = cy * ey - sy * ex
-            if exb > e_max:
-                exb = e_max
-            elif exb < -e_max:
-                exb = -e_max
-            if eyb > e_max:
-                eyb = e_max
-            elif eyb < -e_max:
-                eyb = -e_max
-            vcx = k_xy * exb + fxb
-            vcy = k_xy * eyb + fyb
+            if exb > g.xy_err_max:
+                exb = g.xy_err_max
+            elif exb < -g.xy_err_max:
+                exb = -g.xy_err_max
+            if eyb > g.xy_err_max:
+                eyb = g.xy_err_max
+            elif eyb < -g.xy_err_max:
+                eyb = -g.xy_err_max
+            vcx = g.k_xy * exb + fxb
+            vcy = g.k_xy * eyb + fyb
         else:
             vcx = fxb
             vcy = fyb
         v2 = vcx * vcx + vcy * vcy
-        if v2 > v_max * v_max:
-            f = v_max / _sqrt(v2)
+        if v2 > g.vxy_max * g.vxy_max:
+            f = g.vxy_max / _sqrt(v2)
             vcx *= f
             vcy *= f
         # forward acceleration needs nose down (negative pitch); rightward needs roll right.
@@ -350,26 +328,26 @@ class QuadCascade:
         i_n, i_e = self._i_n, self._i_e
         ixb = cy * i_n + sy * i_e
         iyb = cy * i_e - sy * i_n
-        pitch_ref = -(k_vxy * (vcx - vxb) + c_drag * fxb + ixb)
-        roll_ref = k_vxy * (vcy - vyb) + c_drag * fyb + iyb
+        pitch_ref = -(g.k_vxy * (vcx - vxb) + g.c_drag * fxb + ixb)
+        roll_ref = g.k_vxy * (vcy - vyb) + g.c_drag * fyb + iyb
         ax = sp.ax
         if ax == ax:            # acceleration feed-forward: the tilt it takes, a / g
             ay = sp.ay
-            pitch_ref -= (cy * ax + sy * ay) * inv_g
-            roll_ref += (cy * ay - sy * ax) * inv_g
+            pitch_ref -= (cy * ax + sy * ay) * g.inv_g
+            roll_ref += (cy * ay - sy * ax) * g.inv_g
         t2 = pitch_ref * pitch_ref + roll_ref * roll_ref
-        tilt_sat = t2 > tilt_max * tilt_max
+        tilt_sat = t2 > g.tilt_max * g.tilt_max
         if tilt_sat:
-            f = tilt_max / _sqrt(t2)
+            f = g.tilt_max / _sqrt(t2)
             pitch_ref *= f
             roll_ref *= f
-        if ki_vxy > 0.0 and not tilt_sat:   # anti-windup: frozen while the tilt saturates
+        if g.ki_vxy > 0.0 and not tilt_sat:   # anti-windup: frozen while the tilt saturates
             evx, evy = vcx - vxb, vcy - vyb
-            i_n += ki_vxy * dt * (cy * evx - sy * evy)
-            i_e += ki_vxy * dt * (sy * evx + cy * evy)
+            i_n += g.ki_vxy * g.dt * (cy * evx - sy * evy)
+            i_e += g.ki_vxy * g.dt * (sy * evx + cy * evy)
             i2 = i_n * i_n + i_e * i_e
-            if i2 > xy_i_lim * xy_i_lim:
-                f = xy_i_lim / _sqrt(i2)
+            if i2 > g.xy_i_lim * g.xy_i_lim:
+                f = g.xy_i_lim / _sqrt(i2)
                 i_n *= f
                 i_e *= f
             self._i_n, self._i_e = i_n, i_e
@@ -383,26 +361,26 @@ class QuadCascade:
         pos_mode = zr == zr
         if pos_mode:
             ez = zr - s.z
-            vzc = k_z * ez + fz
+            vzc = g.k_z * ez + fz
         else:
             ez = 0.0
             vzc = fz
         limited = False
-        if vzc > vz_max:
-            vzc = vz_max
+        if vzc > g.vz_max:
+            vzc = g.vz_max
             limited = True
-        elif vzc < -vz_max:
-            vzc = -vz_max
+        elif vzc < -g.vz_max:
+            vzc = -g.vz_max
             limited = True
         i_z = self._i_z
-        thrust = weight + k_vz * (vz - vzc) + i_z
+        thrust = g.weight + g.k_vz * (vz - vzc) + i_z
         if r33 > 0.5:  # tilt compensation (the template has none), capped at 60 deg
             thrust /= r33
         else:
             thrust *= 2.0
         t_sat = 0
-        if thrust > t_tot_max:
-            thrust = t_tot_max
+        if thrust > g.thrust_max_total:
+            thrust = g.thrust_max_total
             t_sat = 1
         elif thrust < 0.0:
             thrust = 0.0
@@ -413,8 +391,8 @@ class QuadCascade:
         e_r = roll_ref - roll
         i_p = self._i_p
         i_r = self._i_r
-        tq_m = kp_p * e_p + i_p - kd_p * s.q
-        tq_l = kp_r * e_r + i_r - kd_r * s.p
+        tq_m = g.pitch_kp * e_p + i_p - g.pitch_kd * s.q
+        tq_l = g.roll_kp * e_r + i_r - g.roll_kd * s.p
 
         # ---- heading
         yr = sp.yaw
@@ -424,9 +402,10 @@ class QuadCascade:
             r_ff = 0.0
         elif rr == rr:
             # limited first, so the integrated heading reference cannot run away
+            r_max = g.yawrate_max
             r_ff = r_max if rr > r_max else (-r_max if rr < -r_max else rr)
-            if integ:
-                yref = self._yaw_ref + r_ff * dt
+            if g.integ:
+                yref = self._yaw_ref + r_ff * g.dt
                 if yref > _PI or yref < -_PI:
                     yref = (yref + _PI) % _TWO_PI - _PI
             else:
@@ -438,29 +417,29 @@ class QuadCascade:
         e_psi = yref - yaw
         if e_psi > _PI or e_psi < -_PI:
             e_psi = (e_psi + _PI) % _TWO_PI - _PI
-        rc = k_psi * e_psi + r_ff
-        if rc > r_max:
-            rc = r_max
-        elif rc < -r_max:
-            rc = -r_max
-        tq_n = k_r * (rc - s.r)
+        rc = g.k_psi * e_psi + r_ff
+        if rc > g.yawrate_max:
+            rc = g.yawrate_max
+        elif rc < -g.yawrate_max:
+            rc = -g.yawrate_max
+        tq_n = g.k_r * (rc - s.r)
 
         # ---- mixer: thrust, pitch, roll first; yaw gets the remaining headroom
-        b1 = m0t * thrust + m0m * tq_m + m0l * tq_l
-        b2 = m1t * thrust + m1m * tq_m + m1l * tq_l
-        b3 = m2t * thrust + m2m * tq_m + m2l * tq_l
-        b4 = m3t * thrust + m3m * tq_m + m3l * tq_l
-        b1 = t_max if b1 > t_max else (b1 if b1 > 0.0 else 0.0)  # NaN -> 0
-        b2 = t_max if b2 > t_max else (b2 if b2 > 0.0 else 0.0)  # NaN -> 0
-        b3 = t_max if b3 > t_max else (b3 if b3 > 0.0 else 0.0)  # NaN -> 0
-        b4 = t_max if b4 > t_max else (b4 if b4 > 0.0 else 0.0)  # NaN -> 0
-        d = my * tq_n  # rotors 1, 2 get +d, rotors 3, 4 get -d
+        b1 = g.m0t * thrust + g.m0m * tq_m + g.m0l * tq_l
+        b2 = g.m1t * thrust + g.m1m * tq_m + g.m1l * tq_l
+        b3 = g.m2t * thrust + g.m2m * tq_m + g.m2l * tq_l
+        b4 = g.m3t * thrust + g.m3m * tq_m + g.m3l * tq_l
+        b1 = g.t_max if b1 > g.t_max else (b1 if b1 > 0.0 else 0.0)  # NaN -> 0
+        b2 = g.t_max if b2 > g.t_max else (b2 if b2 > 0.0 else 0.0)  # NaN -> 0
+        b3 = g.t_max if b3 > g.t_max else (b3 if b3 > 0.0 else 0.0)  # NaN -> 0
+        b4 = g.t_max if b4 > g.t_max else (b4 if b4 > 0.0 else 0.0)  # NaN -> 0
+        d = g.my * tq_n  # rotors 1, 2 get +d, rotors 3, 4 get -d
         if d > 0.0:
-            h = min(t_max - b1, t_max - b2, b3, b4)
+            h = min(g.t_max - b1, g.t_max - b2, b3, b4)
             if d > h:
                 d = h
         elif d < 0.0:
-            h = min(b1, b2, t_max - b3, t_max - b4)
+            h = min(b1, b2, g.t_max - b3, g.t_max - b4)
             if -d > h:
                 d = -h
         else:
@@ -469,14 +448,15 @@ class QuadCascade:
         b2 += d
         b3 -= d
         b4 -= d
-        out[0] = _sqrt(b1 * c_u)
-        out[1] = _sqrt(b2 * c_u)
-        out[2] = _sqrt(b3 * c_u)
-        out[3] = _sqrt(b4 * c_u)
+        out[0] = _sqrt(b1 * g.c_u)
+        out[1] = _sqrt(b2 * g.c_u)
+        out[2] = _sqrt(b3 * g.c_u)
+        out[3] = _sqrt(b4 * g.c_u)
 
         # ---- integrators (forward Euler; back-calculation on the achieved torque)
-        i_p += dt * ki_p * e_p + kb * (arm_a * (b1 - b2 + b3 - b4) - tq_m)
-        i_r += dt * ki_r * e_r + kb * (arm_a * (b2 + b3 - b1 - b4) - tq_l)
+        i_p += g.dt * g.pitch_ki * e_p + g.att_kb * (g.arm_a * (b1 - b2 + b3 - b4) - tq_m)
+        i_r += g.dt * g.roll_ki * e_r + g.att_kb * (g.arm_a * (b2 + b3 - b1 - b4) - tq_l)
+        i_lim = g.att_i_lim
         self._i_p = i_lim if i_p > i_lim else (-i_lim if i_p < -i_lim else i_p)
         self._i_r = i_lim if i_r > i_lim else (-i_lim if i_r < -i_lim else i_r)
         # altitude: upward-thrust integrator (grows while the vehicle is below its reference
@@ -484,11 +464,11 @@ class QuadCascade:
         # position term is frozen while the climb rate is limited, and the whole update is
         # skipped while the thrust saturates in the direction it would push.
         if pos_mode:
-            di = ki_zvp * (vz - vzc) if limited else ki_zvp * (vz - vzc) - ki_zp * ez
+            di = g.ki_z_vpos * (vz - vzc) if limited else g.ki_z_vpos * (vz - vzc) - g.ki_z_pos * ez
         else:
-            di = ki_zv * (vz - vzc)
-        di *= dt
+            di = g.ki_z_vel * (vz - vzc)
+        di *= g.dt
         if not ((t_sat > 0 and di > 0.0) or (t_sat < 0 and di < 0.0)):
             i_z += di
-            self._i_z = zi_lim if i_z > zi_lim else (-zi_lim if i_z < -zi_lim else i_z)
+            self._i_z = g.z_i_lim if i_z > g.z_i_lim else (-g.z_i_lim if i_z < -g.z_i_lim else i_z)
         self._n = n + 1

@@ -16,8 +16,9 @@ from __future__ import annotations
 import math
 
 from mav.airframe import Airframe
-from mav.cascade import Controller, ParamSpec, QuadCascade
+from mav.cascade import Controller, QuadCascade
 from mav.mixer import mixer_matrix
+from mav.params import ParamSpec
 
 __all__ = [
     "Bebop2Controller",
@@ -32,8 +33,8 @@ _D2R = math.pi / 180.0
 
 
 # ===================================================================== Mambo
-def _p(name, default, lo, hi, unit, doc) -> ParamSpec:
-    return ParamSpec(name, float(default), float(lo), float(hi), unit, doc)
+def _p(name, default, lo, hi, unit, doc, gain=False) -> ParamSpec:
+    return ParamSpec(name, float(default), float(lo), float(hi), unit, doc, gain)
 
 
 class MamboController(QuadCascade):
@@ -45,9 +46,9 @@ class MamboController(QuadCascade):
         # has 28/17 deg phase margin (x/y) and 38/52 % overshoot; 0.2/0.2 gives 52/37 deg and
         # ~1 % (python -m mav.tune mambo --preset template; mav/README.md "Controllers").
         _p("MC_XY_P", 0.2, 0.0, 2.0, "rad/m",
-           "XY position gain, tilt per metre of error (template 0.24)"),
+           "XY position gain, tilt per metre of error (template 0.24)", gain=True),
         _p("MC_XY_D", 0.2, 0.01, 1.0, "rad/(m/s)",
-           "XY velocity damping = velocity-mode P gain (template 0.1)"),
+           "XY velocity damping = velocity-mode P gain (template 0.1)", gain=True),
         _p("MC_XY_ERR_MAX", 3.0, 0.1, 10.0, "m", "XY position error saturation per axis"),
         _p("MC_XY_VEL_I", 0.1, 0.0, 5.0, "1/s",
            "horizontal velocity integral, per second of the velocity gain (0: off; wind)"),
@@ -58,20 +59,20 @@ class MamboController(QuadCascade):
         _p("MPC_TILTMAX_AIR", 25.0, 5.0, 45.0, "deg", "tilt (roll/pitch reference) limit"),
         # PX4's MPC_Z_VEL_MAX was 0.5..4 m/s (since split into _UP 0.5..8 and _DN 0.5..4)
         _p("MPC_Z_VEL_MAX", 1.5, 0.5, 3.0, "m/s", "climb and descent rate limit"),
-        _p("MC_PITCH_P", 0.013, 0.0, 0.1, "N m/rad", "pitch angle P"),
-        _p("MC_ROLL_P", 0.011, 0.0, 0.1, "N m/rad", "roll angle P"),
+        _p("MC_PITCH_P", 0.013, 0.0, 0.1, "N m/rad", "pitch angle P", gain=True),
+        _p("MC_ROLL_P", 0.011, 0.0, 0.1, "N m/rad", "roll angle P", gain=True),
         _p("MC_RP_I", 0.01, 0.0, 0.1, "N m/(rad s)", "roll and pitch I"),
         _p("MC_RP_I_LIM", 2.0, 0.0, 10.0, "N m", "roll and pitch integrator limit"),
         _p("MC_RP_AW", 0.001, 0.0, 1.0, "-", "roll/pitch anti-windup back-calculation gain"),
-        _p("MC_PITCH_D", 0.002, 0.0, 0.02, "N m s/rad", "pitch D on body rate q"),
-        _p("MC_ROLL_D", 0.003, 0.0, 0.02, "N m s/rad", "roll D on body rate p"),
-        _p("MC_YAW_P", 0.004, 0.0, 0.05, "N m/rad", "yaw angle P"),
-        _p("MC_YAW_D", 0.0012, 1e-5, 0.02, "N m s/rad", "yaw D on body rate r"),
+        _p("MC_PITCH_D", 0.002, 0.0, 0.02, "N m s/rad", "pitch D on body rate q", gain=True),
+        _p("MC_ROLL_D", 0.003, 0.0, 0.02, "N m s/rad", "roll D on body rate p", gain=True),
+        _p("MC_YAW_P", 0.004, 0.0, 0.05, "N m/rad", "yaw angle P", gain=True),
+        _p("MC_YAW_D", 0.0012, 1e-5, 0.02, "N m s/rad", "yaw D on body rate r", gain=True),
         _p("MC_YAWRATE_MAX", 200.0, 10.0, 720.0, "deg/s", "yaw rate limit"),   # PX4 0..1800
-        _p("MC_Z_P", 0.8, 0.0, 10.0, "N/m", "altitude P"),
+        _p("MC_Z_P", 0.8, 0.0, 10.0, "N/m", "altitude P", gain=True),
         _p("MC_Z_I", 0.24, 0.0, 5.0, "N/(m s)", "altitude I (on the altitude error)"),
         _p("MC_Z_I_LIM", 2.0, 0.0, 10.0, "N", "altitude integrator limit"),
-        _p("MC_Z_D", 0.5, 0.01, 5.0, "N s/m", "altitude D on vz = vertical velocity P"),
+        _p("MC_Z_D", 0.5, 0.01, 5.0, "N s/m", "altitude D on vz = vertical velocity P", gain=True),
         _p("MC_THR_MAX", 0.92, 0.1, 1.0, "-", "total thrust limit, fraction of 4*T_max"),
     )
     # The template's exact gains (no limits beyond its own +-3 m error saturation).
@@ -126,9 +127,9 @@ class Bebop2Controller(QuadCascade):
 
     PARAMS = (
         # PX4 names with PX4's meaning take PX4's ranges (mc_pos_control, mc_att_control params)
-        _p("MPC_XY_P", 1.0, 0.0, 2.0, "1/s", "position -> horizontal velocity gain"),
+        _p("MPC_XY_P", 1.0, 0.0, 2.0, "1/s", "position -> horizontal velocity gain", gain=True),
         _p("MPC_XY_VEL_P", 2.0, 0.1, 10.0, "1/s",
-           "horizontal velocity gain (acceleration per velocity error)"),
+           "horizontal velocity gain (acceleration per velocity error)", gain=True),
         _p("MPC_XY_ERR_MAX", 5.0, 0.1, 20.0, "m", "XY position error saturation per axis"),
         _p("MPC_XY_VEL_I_ACC", 0.4, 0.0, 10.0, "1/s^2",                   # PX4 0..60
            "horizontal velocity integral (acceleration per m/s of error per s; 0: off; wind)"),
@@ -136,18 +137,20 @@ class Bebop2Controller(QuadCascade):
         _p("MPC_XY_VEL_MAX", 5.0, 0.5, 15.0, "m/s", "horizontal speed limit"),
         # the Parrot settings these emulate keep Parrot's ranges (reference/mavlink.md)
         _p("MPC_TILTMAX_AIR", 20.0, 5.0, 35.0, "deg", "Parrot MaxTilt"),
-        _p("MPC_Z_P", 1.5, 0.0, 1.5, "1/s", "altitude -> vertical velocity gain"),   # PX4
+        _p("MPC_Z_P", 1.5, 0.0, 1.5, "1/s", "altitude -> vertical velocity gain",   # PX4
+           gain=True),
         _p("MPC_Z_VEL_P", 4.0, 0.5, 20.0, "1/s",
-           "vertical velocity gain (acceleration per velocity error)"),
+           "vertical velocity gain (acceleration per velocity error)", gain=True),
         _p("MPC_Z_VEL_I", 1.0, 0.0, 10.0, "1/s^2", "vertical velocity integral gain"),
         _p("MPC_Z_VEL_MAX", 1.0, 0.5, 2.5, "m/s", "Parrot MaxVerticalSpeed (up and down)"),
-        _p("MC_RP_P", 100.0, 0.0, 1000.0, "1/s^2", "roll/pitch P (angular accel per rad)"),
+        _p("MC_RP_P", 100.0, 0.0, 1000.0, "1/s^2", "roll/pitch P (angular accel per rad)",
+           gain=True),
         _p("MC_RP_I", 20.0, 0.0, 1000.0, "1/s^3", "roll/pitch I"),
-        _p("MC_RP_D", 18.0, 0.0, 100.0, "1/s", "roll/pitch D on body rates"),
+        _p("MC_RP_D", 18.0, 0.0, 100.0, "1/s", "roll/pitch D on body rates", gain=True),
         _p("MC_RP_I_LIM", 5.0, 0.0, 50.0, "rad/s^2", "roll/pitch integrator limit"),
-        _p("MC_YAW_P", 2.0, 0.0, 5.0, "1/s", "heading -> yaw rate gain"),             # PX4
+        _p("MC_YAW_P", 2.0, 0.0, 5.0, "1/s", "heading -> yaw rate gain", gain=True),  # PX4
         _p("MC_YAWRATE_P", 4.73, 0.5, 50.0, "1/s",
-           "yaw rate gain (angular accel per rate error)"),
+           "yaw rate gain (angular accel per rate error)", gain=True),
         _p("MC_YAWRATE_MAX", 100.0, 10.0, 200.0, "deg/s", "Parrot MaxRotationSpeed"),
         _p("MC_THR_MAX", 0.95, 0.1, 1.0, "-", "total thrust limit, fraction of 4*T_max"),
     )

@@ -26,129 +26,133 @@ def f32(v: float) -> float:
 
 
 @dataclass(frozen=True)
-class OnboardParam:
-    """The onboard stack's own parameters; same fields as the controller's ParamSpec."""
+class ParamSpec:
+    """One parameter, MAVLink style (PARAM_VALUE carries it as a float): the controllers' gains
+    (mav/control.py) and the onboard stack's own (ONBOARD_PARAMS) alike."""
 
-    name: str          # <= 16 characters, PX4 style
-    default: float
-    min: float
-    max: float
-    unit: str
-    doc: str
+    name: str       # <= 16 characters, MAVLink param id style ("MC_XY_P")
+    default: float  # in `unit`
+    min: float      # in `unit`, inclusive
+    max: float      # in `unit`, inclusive
+    unit: str       # e.g. "rad/m", "deg", "m/s"
+    doc: str        # one line
+    # a flight gain: while armed it stays within [default / GAIN_FACTOR, default * GAIN_FACTOR]
+    # (flight_envelope), so a vehicle in the air is never handed a gain that cannot fly
+    flight_gain: bool = False
 
 
 # The vehicle's own parameters (PX4 names where PX4 has the same meaning). Ranges: PX4's
 # parameter metadata (the @min/@max of its *_params.c / module.yaml) where the name is PX4's, or
 # narrower (never wider) where a room-sized vehicle warrants it, said on the line; mav/README.md
 # has the table with PX4's ranges beside ours.
-ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
+ONBOARD_PARAMS: tuple[ParamSpec, ...] = (
     # PX4 0..80 m (navigator/mission_params.c); a room is a few metres high
-    OnboardParam("MIS_TAKEOFF_ALT", 1.0, 0.2, 10.0, "m",
-                 "AUTO.TAKEOFF height above home when MAV_CMD_NAV_TAKEOFF gives none"),
+    ParamSpec("MIS_TAKEOFF_ALT", 1.0, 0.2, 10.0, "m",
+              "AUTO.TAKEOFF height above home when MAV_CMD_NAV_TAKEOFF gives none"),
     # PX4 1..5 m/s (mc_pos_control); wider below: the Mambo's 0.8 m/s climb to 1 m indoors
-    OnboardParam("MPC_TKO_SPEED", 0.8, 0.1, 3.0, "m/s", "climb speed of AUTO.TAKEOFF"),
+    ParamSpec("MPC_TKO_SPEED", 0.8, 0.1, 3.0, "m/s", "climb speed of AUTO.TAKEOFF"),
     # PX4 min 0.2 m/s, no max (mc_pos_control)
-    OnboardParam("MPC_LAND_SPEED", 0.4, 0.2, 2.0, "m/s", "descent speed of AUTO.LAND"),
+    ParamSpec("MPC_LAND_SPEED", 0.4, 0.2, 2.0, "m/s", "descent speed of AUTO.LAND"),
     # PX4 -1..20 s (<= 0: never); here always disarms, 0 = at once
-    OnboardParam("COM_DISARM_LAND", 0.5, 0.0, 20.0, "s",
-                 "time on the ground after a landing before the motors are disarmed"),
+    ParamSpec("COM_DISARM_LAND", 0.5, 0.0, 20.0, "s",
+              "time on the ground after a landing before the motors are disarmed"),
     # PX4 0..60 s; 0 would fire between two setpoints
-    OnboardParam("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s",
-                 "offboard setpoint silence that triggers the failsafe (hold position)"),
+    ParamSpec("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s",
+              "offboard setpoint silence that triggers the failsafe (hold position)"),
     # PX4 0..25 s (commander_params.c)
-    OnboardParam("COM_FAIL_ACT_T", 5.0, 0.0, 25.0, "s",
-                 "failsafe hold time before the vehicle lands if offboard does not resume"),
+    ParamSpec("COM_FAIL_ACT_T", 5.0, 0.0, 25.0, "s",
+              "failsafe hold time before the vehicle lands if offboard does not resume"),
     # not a PX4 parameter (PX4 has PWM/DShot idle values instead)
-    OnboardParam("MOT_IDLE_RATIO", 0.3, 0.0, 0.9, "1",
-                 "armed-on-ground motor command as a fraction of the hover command"),
+    ParamSpec("MOT_IDLE_RATIO", 0.3, 0.0, 0.9, "1",
+              "armed-on-ground motor command as a fraction of the hover command"),
     # PX4 battery module.yaml: capacity -1..100000 mAh, internal resistance -1..0.2 Ohm,
     # low 0.12..0.5, critical 0.05..0.5
-    OnboardParam("BAT1_CAPACITY", -1.0, -1.0, 100000.0, "mAh",
-                 "battery capacity (-1: the vehicle preset's)"),
-    OnboardParam("BAT1_R_INTERNAL", -1.0, -1.0, 0.2, "Ohm",
-                 "battery internal resistance (-1: the vehicle preset's)"),
-    OnboardParam("BAT_LOW_THR", 0.15, 0.12, 0.5, "1", "remaining charge that warns"),
-    OnboardParam("BAT_CRIT_THR", 0.07, 0.05, 0.5, "1", "remaining charge that warns critically"),
-    OnboardParam("BAT_EMERGEN_THR", 0.05, 0.03, 0.5, "1",
-                 "remaining charge of the emergency level (PX4's default)"),
-    OnboardParam("COM_LOW_BAT_ACT", 0.0, 0.0, 3.0, "",
-                 "battery failsafe: 0 warn, 2 land at critical, 3 return at critical and land "
-                 "at emergency (PX4)"),
-    OnboardParam("NAV_DLL_ACT", 0.0, 0.0, 3.0, "",
-                 "GCS link loss failsafe: 0 off, 1 hold, 2 return, 3 land (PX4)"),
-    OnboardParam("COM_DL_LOSS_T", 10.0, 5.0, 300.0, "s",
-                 "GCS heartbeat silence that counts as a lost link (PX4)"),
-    OnboardParam("COM_POS_FS_DELAY", 1.0, 1.0, 100.0, "s",
-                 "position estimate lost this long while flying: land (PX4)"),
-    OnboardParam("GF_ACTION", 2.0, 0.0, 5.0, "",
-                 "geofence breach: 0 none, 1 warn, 2 hold, 3 return, 5 land (PX4; 4, terminate, "
-                 "holds instead)"),
+    ParamSpec("BAT1_CAPACITY", -1.0, -1.0, 100000.0, "mAh",
+              "battery capacity (-1: the vehicle preset's)"),
+    ParamSpec("BAT1_R_INTERNAL", -1.0, -1.0, 0.2, "Ohm",
+              "battery internal resistance (-1: the vehicle preset's)"),
+    ParamSpec("BAT_LOW_THR", 0.15, 0.12, 0.5, "1", "remaining charge that warns"),
+    ParamSpec("BAT_CRIT_THR", 0.07, 0.05, 0.5, "1", "remaining charge that warns critically"),
+    ParamSpec("BAT_EMERGEN_THR", 0.05, 0.03, 0.5, "1",
+              "remaining charge of the emergency level (PX4's default)"),
+    ParamSpec("COM_LOW_BAT_ACT", 0.0, 0.0, 3.0, "",
+              "battery failsafe: 0 warn, 2 land at critical, 3 return at critical and land "
+              "at emergency (PX4)"),
+    ParamSpec("NAV_DLL_ACT", 0.0, 0.0, 3.0, "",
+              "GCS link loss failsafe: 0 off, 1 hold, 2 return, 3 land (PX4)"),
+    ParamSpec("COM_DL_LOSS_T", 10.0, 5.0, 300.0, "s",
+              "GCS heartbeat silence that counts as a lost link (PX4)"),
+    ParamSpec("COM_POS_FS_DELAY", 1.0, 1.0, 100.0, "s",
+              "position estimate lost this long while flying: land (PX4)"),
+    ParamSpec("GF_ACTION", 2.0, 0.0, 5.0, "",
+              "geofence breach: 0 none, 1 warn, 2 hold, 3 return, 5 land (PX4; 4, terminate, "
+              "holds instead)"),
     # the onboard estimator (mav/estimator/; PX4's EKF2_* names where PX4 has one)
-    OnboardParam("EKF2_TYPE", 0.0, 0.0, 1.0, "",
-                 "estimator: 0 fly on HIL ODOMETRY (truth, like motion capture), 1 the "
-                 "Minidrone template's filters on HIL_SENSOR, flow, range (and GPS); read at "
-                 "start"),
-    OnboardParam("EKF2_ACC_W", 0.001, 0.0, 0.5, "1",
-                 "attitude: weight per tick of the accelerometer's roll and pitch"),
-    OnboardParam("EKF2_ACC_GATE", 0.5, 0.0, 5.0, "m/s^2",
-                 "attitude: accelerometer used only within this of g (low-passed)"),
-    OnboardParam("EKF2_MAG_W", 0.002, 0.0, 0.5, "1", "heading: weight per tick of the compass"),
-    OnboardParam("EKF2_MAG_DECL", -14.3, -180.0, 180.0, "deg", "magnetic declination"),
-    OnboardParam("EKF2_ACC_NOISE", 0.7, 0.01, 10.0, "m/s^2",
-                 "altitude filter: acceleration process noise"),
-    OnboardParam("EKF2_ACC_B_NOISE", 0.003, 0.0, 1.0, "m/s^3",
-                 "altitude filter: process noise of the accelerometer bias (PX4's default)"),
-    OnboardParam("EKF2_ABL_LIM", 0.4, 0.0, 0.8, "m/s^2",
-                 "accelerometer bias learned: at most this (PX4's default)"),
-    OnboardParam("EKF2_BARO_NOISE", 0.15, 0.01, 10.0, "m", "barometer altitude noise"),
-    OnboardParam("EKF2_BARO_GATE", 0.8, 0.05, 100.0, "m",
-                 "barometer reading this far from the estimate: rejected (template)"),
-    OnboardParam("EKF2_RNG_NOISE", 0.02, 0.001, 10.0, "m", "range finder noise"),
-    OnboardParam("EKF2_RNG_GATE", 0.3, 0.05, 100.0, "m",
-                 "range reading this far from the estimate: rejected (template)"),
-    OnboardParam("EKF2_OF_Q", 0.09, 0.0001, 100.0, "(m/s)^2",
-                 "flow velocity filter: process noise per tick (template)"),
-    OnboardParam("EKF2_OF_R", 5.0, 0.0001, 1000.0, "(m/s)^2",
-                 "flow velocity filter: measurement noise (template)"),
-    OnboardParam("EKF2_OF_QMIN", 1.0, 0.0, 255.0, "", "flow quality below this: rejected"),
-    OnboardParam("EKF2_OF_GATE", 5.0, 0.1, 100.0, "m/s",
-                 "flow velocity this far from the estimate: rejected (template)"),
-    OnboardParam("EKF2_NOAID_TOUT", 1.0, 0.1, 60.0, "s",
-                 "no flow or GPS fused this long while flying: position estimate lost"),
-    OnboardParam("EKF2_GPS_W", 0.02, 0.0, 1.0, "1", "position: weight per fix of the GPS"),
-    OnboardParam("GF_MAX_HOR_DIST", 0.0, 0.0, 10000.0, "m",
-                 "geofence radius about home (0: no horizontal limit)"),
-    OnboardParam("GF_MAX_VER_DIST", 0.0, 0.0, 10000.0, "m",
-                 "geofence height above home (0: no vertical limit)"),
+    ParamSpec("EKF2_TYPE", 0.0, 0.0, 1.0, "",
+              "estimator: 0 fly on HIL ODOMETRY (truth, like motion capture), 1 the "
+              "Minidrone template's filters on HIL_SENSOR, flow, range (and GPS); read at "
+              "start"),
+    ParamSpec("EKF2_ACC_W", 0.001, 0.0, 0.5, "1",
+              "attitude: weight per tick of the accelerometer's roll and pitch"),
+    ParamSpec("EKF2_ACC_GATE", 0.5, 0.0, 5.0, "m/s^2",
+              "attitude: accelerometer used only within this of g (low-passed)"),
+    ParamSpec("EKF2_MAG_W", 0.002, 0.0, 0.5, "1", "heading: weight per tick of the compass"),
+    ParamSpec("EKF2_MAG_DECL", -14.3, -180.0, 180.0, "deg", "magnetic declination"),
+    ParamSpec("EKF2_ACC_NOISE", 0.7, 0.01, 10.0, "m/s^2",
+              "altitude filter: acceleration process noise"),
+    ParamSpec("EKF2_ACC_B_NOISE", 0.003, 0.0, 1.0, "m/s^3",
+              "altitude filter: process noise of the accelerometer bias (PX4's default)"),
+    ParamSpec("EKF2_ABL_LIM", 0.4, 0.0, 0.8, "m/s^2",
+              "accelerometer bias learned: at most this (PX4's default)"),
+    ParamSpec("EKF2_BARO_NOISE", 0.15, 0.01, 10.0, "m", "barometer altitude noise"),
+    ParamSpec("EKF2_BARO_GATE", 0.8, 0.05, 100.0, "m",
+              "barometer reading this far from the estimate: rejected (template)"),
+    ParamSpec("EKF2_RNG_NOISE", 0.02, 0.001, 10.0, "m", "range finder noise"),
+    ParamSpec("EKF2_RNG_GATE", 0.3, 0.05, 100.0, "m",
+              "range reading this far from the estimate: rejected (template)"),
+    ParamSpec("EKF2_OF_Q", 0.09, 0.0001, 100.0, "(m/s)^2",
+              "flow velocity filter: process noise per tick (template)"),
+    ParamSpec("EKF2_OF_R", 5.0, 0.0001, 1000.0, "(m/s)^2",
+              "flow velocity filter: measurement noise (template)"),
+    ParamSpec("EKF2_OF_QMIN", 1.0, 0.0, 255.0, "", "flow quality below this: rejected"),
+    ParamSpec("EKF2_OF_GATE", 5.0, 0.1, 100.0, "m/s",
+              "flow velocity this far from the estimate: rejected (template)"),
+    ParamSpec("EKF2_NOAID_TOUT", 1.0, 0.1, 60.0, "s",
+              "no flow or GPS fused this long while flying: position estimate lost"),
+    ParamSpec("EKF2_GPS_W", 0.02, 0.0, 1.0, "1", "position: weight per fix of the GPS"),
+    ParamSpec("GF_MAX_HOR_DIST", 0.0, 0.0, 10000.0, "m",
+              "geofence radius about home (0: no horizontal limit)"),
+    ParamSpec("GF_MAX_VER_DIST", 0.0, 0.0, 10000.0, "m",
+              "geofence height above home (0: no vertical limit)"),
     # automatic flight to a point (missions, RTL, go-to). PX4's names and meanings; the
     # defaults are scaled to a 60 g indoor vehicle (PX4's are for outdoor multicopters:
     # MPC_XY_CRUISE 5 m/s, MPC_ACC_HOR 3 m/s^2, NAV_ACC_RAD 2 m, NAV_MC_ALT_RAD 0.8 m,
     # RTL_RETURN_ALT 60 m, RTL_DESCEND_ALT 30 m, MPC_VEL_MANUAL 10 m/s, MPC_MAN_Y_MAX 150)
-    OnboardParam("MPC_XY_CRUISE", 1.0, 0.1, 20.0, "m/s",
-                 "horizontal speed of missions, RTL and go-to (DO_CHANGE_SPEED overrides)"),
-    OnboardParam("MPC_ACC_HOR", 1.0, 0.2, 15.0, "m/s^2",
-                 "acceleration of the automatic modes' reference along a leg"),
-    OnboardParam("MPC_JERK_AUTO", 2.0, 1.0, 80.0, "m/s^3",
-                 "jerk limit of the automatic modes' reference (PX4: 4)"),
-    OnboardParam("MPC_Z_V_AUTO_UP", 0.8, 0.1, 8.0, "m/s", "climb speed of the automatic modes"),
-    OnboardParam("MPC_Z_V_AUTO_DN", 0.6, 0.1, 4.0, "m/s",
-                 "descent speed of the automatic modes (above the landing)"),
-    OnboardParam("NAV_ACC_RAD", 0.3, 0.05, 200.0, "m",
-                 "horizontal acceptance radius of a waypoint (an item's param2 overrides)"),
-    OnboardParam("NAV_MC_ALT_RAD", 0.2, 0.05, 200.0, "m", "vertical acceptance of a waypoint"),
-    OnboardParam("RTL_RETURN_ALT", 1.5, 0.3, 150.0, "m",
-                 "RTL: climb to this height above home (if lower) before returning"),
-    OnboardParam("RTL_DESCEND_ALT", 1.0, 0.3, 100.0, "m",
-                 "RTL: height above home to descend to before the landing delay"),
-    OnboardParam("RTL_LAND_DELAY", 0.0, -1.0, 300.0, "s",
-                 "RTL: hover this long above home before landing (-1: hover, never land)"),
-    OnboardParam("MPC_VEL_MANUAL", 1.0, 0.1, 20.0, "m/s",
-                 "POSCTL: horizontal speed at full stick (MANUAL_CONTROL)"),
-    OnboardParam("MPC_MAN_Y_MAX", 90.0, 0.0, 400.0, "deg/s", "POSCTL: yaw rate at full stick"),
-    OnboardParam("MPC_HOLD_DZ", 0.1, 0.0, 1.0, "1",
-                 "POSCTL: stick deadzone; inside it the vehicle holds position or height"),
-    OnboardParam("COM_RC_LOSS_T", 0.5, 0.0, 35.0, "s",
-                 "POSCTL: MANUAL_CONTROL silence after which the sticks count as centred"),
+    ParamSpec("MPC_XY_CRUISE", 1.0, 0.1, 20.0, "m/s",
+              "horizontal speed of missions, RTL and go-to (DO_CHANGE_SPEED overrides)"),
+    ParamSpec("MPC_ACC_HOR", 1.0, 0.2, 15.0, "m/s^2",
+              "acceleration of the automatic modes' reference along a leg"),
+    ParamSpec("MPC_JERK_AUTO", 2.0, 1.0, 80.0, "m/s^3",
+              "jerk limit of the automatic modes' reference (PX4: 4)"),
+    ParamSpec("MPC_Z_V_AUTO_UP", 0.8, 0.1, 8.0, "m/s", "climb speed of the automatic modes"),
+    ParamSpec("MPC_Z_V_AUTO_DN", 0.6, 0.1, 4.0, "m/s",
+              "descent speed of the automatic modes (above the landing)"),
+    ParamSpec("NAV_ACC_RAD", 0.3, 0.05, 200.0, "m",
+              "horizontal acceptance radius of a waypoint (an item's param2 overrides)"),
+    ParamSpec("NAV_MC_ALT_RAD", 0.2, 0.05, 200.0, "m", "vertical acceptance of a waypoint"),
+    ParamSpec("RTL_RETURN_ALT", 1.5, 0.3, 150.0, "m",
+              "RTL: climb to this height above home (if lower) before returning"),
+    ParamSpec("RTL_DESCEND_ALT", 1.0, 0.3, 100.0, "m",
+              "RTL: height above home to descend to before the landing delay"),
+    ParamSpec("RTL_LAND_DELAY", 0.0, -1.0, 300.0, "s",
+              "RTL: hover this long above home before landing (-1: hover, never land)"),
+    ParamSpec("MPC_VEL_MANUAL", 1.0, 0.1, 20.0, "m/s",
+              "POSCTL: horizontal speed at full stick (MANUAL_CONTROL)"),
+    ParamSpec("MPC_MAN_Y_MAX", 90.0, 0.0, 400.0, "deg/s", "POSCTL: yaw rate at full stick"),
+    ParamSpec("MPC_HOLD_DZ", 0.1, 0.0, 1.0, "1",
+              "POSCTL: stick deadzone; inside it the vehicle holds position or height"),
+    ParamSpec("COM_RC_LOSS_T", 0.5, 0.0, 35.0, "s",
+              "POSCTL: MANUAL_CONTROL silence after which the sticks count as centred"),
     # relative moves (SET_POSITION_TARGET_LOCAL_NED in MAV_FRAME_BODY_OFFSET_NED, Parrot's
     # moveBy; mav/onboard/moveby.py): the firmware's autonomous-flight maxima
     # (ardrone3 PilotingSettings setAutonomousFlightMax*, "only used during autonomous
@@ -157,21 +161,21 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
     # (100 deg/s) this stack uses for its velocity loop; the others are chosen (not Parrot's
     # numbers), to be calibrated on paper 2's E1/E2 with the camera stream's delay. Not PX4
     # parameters (PX4 has no moveBy).
-    OnboardParam("MB_XY_VEL_MAX", 1.0, 0.05, 5.0, "m/s",
-                 "relative move: horizontal speed limit (chosen)"),
+    ParamSpec("MB_XY_VEL_MAX", 1.0, 0.05, 5.0, "m/s",
+              "relative move: horizontal speed limit (chosen)"),
     # 2 m/s^2: fitted on paper 2's E1 and E2 times only (0.5, 1, 2, 4 m/s^2 with the Bebop 2
     # stream's 0.12 s latency; python -m cosim.apps.vs.calibrate fit), then frozen for E3/E4
     # (docs/papers/visual-servoing.md, "Calibrate, then predict")
-    OnboardParam("MB_XY_ACC_MAX", 2.0, 0.05, 10.0, "m/s^2",
-                 "relative move: horizontal acceleration limit (fitted on paper 2's E1/E2)"),
-    OnboardParam("MB_Z_VEL_MAX", 1.0, 0.05, 2.5, "m/s",
-                 "relative move: vertical speed limit (Bebop 2 MaxVerticalSpeed)"),
-    OnboardParam("MB_Z_ACC_MAX", 1.0, 0.05, 10.0, "m/s^2",
-                 "relative move: vertical acceleration limit (chosen)"),
-    OnboardParam("MB_YAW_RATE_MAX", 100.0, 1.0, 400.0, "deg/s",
-                 "relative move: heading rate limit (Bebop 2 MaxRotationSpeed)"),
-    OnboardParam("MB_YAW_ACC_MAX", 180.0, 10.0, 2000.0, "deg/s^2",
-                 "relative move: heading acceleration limit (chosen)"),
+    ParamSpec("MB_XY_ACC_MAX", 2.0, 0.05, 10.0, "m/s^2",
+              "relative move: horizontal acceleration limit (fitted on paper 2's E1/E2)"),
+    ParamSpec("MB_Z_VEL_MAX", 1.0, 0.05, 2.5, "m/s",
+              "relative move: vertical speed limit (Bebop 2 MaxVerticalSpeed)"),
+    ParamSpec("MB_Z_ACC_MAX", 1.0, 0.05, 10.0, "m/s^2",
+              "relative move: vertical acceleration limit (chosen)"),
+    ParamSpec("MB_YAW_RATE_MAX", 100.0, 1.0, 400.0, "deg/s",
+              "relative move: heading rate limit (Bebop 2 MaxRotationSpeed)"),
+    ParamSpec("MB_YAW_ACC_MAX", 180.0, 10.0, 2000.0, "deg/s^2",
+              "relative move: heading acceleration limit (chosen)"),
 )
 
 # ---- what may change while armed (issue 14, item 6)
@@ -183,14 +187,6 @@ ONBOARD_PARAMS: tuple[OnboardParam, ...] = (
 # climbing and attitude control need on top of hovering; MC_THR_MAX = 0.1 brought a flying
 # Mambo down). Disarmed, any value in range is stored, but arming is refused while one is
 # outside its envelope, so a vehicle never takes off with it.
-FLIGHT_GAINS = frozenset({
-    # Mambo (template gains, absolute units)
-    "MC_XY_P", "MC_XY_D", "MC_PITCH_P", "MC_ROLL_P", "MC_PITCH_D", "MC_ROLL_D",
-    "MC_YAW_P", "MC_YAW_D", "MC_Z_P", "MC_Z_D",
-    # Bebop 2 (normalised gains)
-    "MPC_XY_P", "MPC_XY_VEL_P", "MPC_Z_P", "MPC_Z_VEL_P", "MC_RP_P", "MC_RP_D",
-    "MC_YAWRATE_P",
-})
 THRUST_LIMIT = "MC_THR_MAX"
 GAIN_FACTOR = 4.0          # in flight a gain stays within [default / 4, 4 x default]
 THRUST_HEADROOM = 1.5      # in flight MC_THR_MAX >= 1.5 x hover thrust / max thrust
@@ -200,7 +196,7 @@ def flight_envelope(spec, hover_fraction: float) -> tuple[float, float] | None:
     """The values parameter `spec` may take while the vehicle is armed (inside its range), or
     None when every value of its range may be set in flight. `hover_fraction`: the hover
     thrust as a fraction of the four rotors' maximum (weight / (4 T_max))."""
-    if spec.name in FLIGHT_GAINS:
+    if spec.flight_gain:
         lo, hi = spec.default / GAIN_FACTOR, spec.default * GAIN_FACTOR
     elif spec.name == THRUST_LIMIT:
         lo, hi = min(1.0, THRUST_HEADROOM * hover_fraction), spec.max

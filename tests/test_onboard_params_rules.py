@@ -14,7 +14,7 @@ from cosim.plant.fmu import Y_Z
 from mav.airframe import get_airframe
 from mav.control import make_controller
 from mav.onboard import IN_AIR
-from mav.params import FLIGHT_GAINS, ONBOARD_PARAMS, THRUST_LIMIT, flight_envelope
+from mav.params import ONBOARD_PARAMS, THRUST_LIMIT, flight_envelope
 
 M = mavlink2
 
@@ -57,7 +57,7 @@ def test_flight_envelopes(vehicle, thrust_floor):
     lo, hi = flight_envelope(specs[THRUST_LIMIT], hover)
     assert lo == pytest.approx(thrust_floor, abs=1e-3) and hi == 1.0
     assert lo > hover * 1.4                       # room to climb and to steer above hover
-    gains = [n for n in specs if n in FLIGHT_GAINS]
+    gains = [n for n in specs if specs[n].flight_gain]
     assert len(gains) >= 8
     for n in gains:
         lo, hi = flight_envelope(specs[n], hover)
