@@ -337,7 +337,7 @@ def _dispatch(args) -> int:
 
         return teach_command(args)
     if args.cmd == "bench":
-        from cosim.studies.bench import main as bench_main
+        from cosim.bench.command import main as bench_main
 
         only = [f"--{k}" for k in ("instructions", "flood", "live", "numerics")
                 if getattr(args, k)]

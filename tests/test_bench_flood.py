@@ -1,4 +1,4 @@
-"""The flood figure of `cosim bench` (cosim/studies/bench_flood.py), run briefly: its figures
+"""The flood figure of `cosim bench` (cosim/bench/flood.py), run briefly: its figures
 are there, the flooded runs answered every HIL tick and flew the same flight as the unflooded
 ones, and what was sent is accounted for. No timing is asserted (machines are shared)."""
 
@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from cosim.studies.bench_flood import FloodProbe, _heartbeats, flood_pool, format_flood
+from cosim.bench.flood import FloodProbe, _heartbeats, flood_pool, format_flood
 from mav import wire
 
 
@@ -49,7 +49,7 @@ def test_heartbeat_listener_counts_the_vehicles_only():
 
 
 def test_bench_flood_briefly():
-    from cosim.studies.bench_flood import bench_flood
+    from cosim.bench.flood import bench_flood
 
     d = bench_flood(t_final_s=1.0, flood_wall_s=0.5, realtime_s=0.5)
     assert d["target"] == "gcs" and d["rate_asked_hz"] == 70_000

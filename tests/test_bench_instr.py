@@ -1,4 +1,4 @@
-"""`cosim bench --instructions` (cosim/studies/bench_instr.py): the cachegrind summary parse,
+"""`cosim bench --instructions` (cosim/bench/instructions.py): the cachegrind summary parse,
 the per-tick arithmetic and the variants' environments through a stand-in `valgrind`
 executable (the real one is a system tool CI may lack), and the error without Valgrind."""
 
@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from cosim.studies import bench, bench_instr
+from cosim.bench import command as bench
+from cosim.bench import instructions as bench_instr
 
 FAKE = """#!{python}
 # a stand-in for valgrind: checks the arguments cosim passes, answers like cachegrind

@@ -214,7 +214,7 @@ def test_bad_foxglove_options_are_exit_2(args, tmp_path):
 
 
 def test_bench_live_measures_the_three_ways_and_the_series_is_the_same():
-    from cosim.studies.bench_live import bench_live, format_live
+    from cosim.bench.live import bench_live, format_live
 
     r = bench_live(t_final_s=1.0, repeats=1)
     for way in ("none", "unwatched", "watched"):

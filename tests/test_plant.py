@@ -226,7 +226,7 @@ def test_close_is_idempotent():
 
 
 def test_bench_step_reports_microseconds():
-    from cosim.plant.bench import bench_step
+    from cosim.bench.plant import bench_step
 
     r = bench_step(n=2000)
     assert set(r) >= {"step_us", "do_step_us", "step_us_min", "do_step_us_min"}

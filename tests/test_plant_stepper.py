@@ -110,9 +110,9 @@ def test_closed_plant_no_longer_calls_the_stepper():
 
 
 def test_seed_mission_identical_with_and_without_the_stepper(monkeypatch):
+    from cosim.bench.command import SEED
     from cosim.scenario.parse import load_scenario
     from cosim.sim.master import RunOptions, run_scenario
-    from cosim.studies.bench import SEED
 
     sc = load_scenario(SEED)
     runs = []

@@ -1,4 +1,4 @@
-"""The fast codec's speed against pymavlink's (`python -m mav.wire_bench` prints the table;
+"""The fast codec's speed against pymavlink's (`python -m cosim.bench.codec` prints the table;
 tests/test_onboard_wire.py checks the speed-up): mav/wire.py's benchmark, in a file of its own."""
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from mav.wire import (
 def bench(n: int = 20000, repeat: int = 5) -> dict[str, tuple[float, float]]:
     """us per message (pymavlink, fast) for encode and decode of the per-tick messages
     (best of `repeat` runs of `n`). pymavlink encode = message construction + pack, decode =
-    `MAVLink.decode`; fast = mav/wire.py. `python -m mav.wire_bench` prints the table."""
+    `MAVLink.decode`; fast = mav/wire.py. `python -m cosim.bench.codec` prints the table."""
     import timeit
 
     mav_a = mavlink2.MAVLink(None, 1, 1)

@@ -18,16 +18,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cosim.studies.bench_common import (  # noqa: F401
+from cosim.bench.common import (  # noqa: F401
     ROOT,
     SEED,
     _per_call_us,
     _stat,
     seed_scenario,
 )
-from cosim.studies.bench_flood import bench_flood, format_flood
-from cosim.studies.bench_paper2 import bench_paper2, format_paper2
-from cosim.studies.bench_tick import bench_tick_breakdown, floor_estimate
+from cosim.bench.flood import bench_flood, format_flood
+from cosim.bench.paper2 import bench_paper2, format_paper2
+from cosim.bench.tick import bench_tick_breakdown, floor_estimate
 from mav import compiled
 
 QUICK_FLOOD = {"t_final_s": 5.0, "flood_wall_s": 2.0, "realtime_s": 1.0}   # --quick: short
@@ -80,7 +80,7 @@ def bench_controller(n: int, repeats: int) -> dict[str, Any]:
 def interpreted(figure: str, *args: Any, **kw: Any) -> dict[str, Any]:
     """A figure of this module measured on the same sources interpreted: in a child process
     with COSIM_COMPILED=0 (a process runs one or the other, mav/compiled.py)."""
-    code = ("import json, sys\nfrom cosim.studies import bench\n"
+    code = ("import json, sys\nfrom cosim.bench import command as bench\n"
             f"print(json.dumps(bench.{figure}(*{args!r}, **{kw!r})))")
     env = dict(os.environ, COSIM_COMPILED="0")
     p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
@@ -284,7 +284,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["udp_hil_roundtrip"] = bench_udp_roundtrip(n // 4, r)
     res.update(bench_render_ips(max(200, n // 20), r))
     res["front"] = bench_front(50 if quick else 200, r)
-    from cosim.apps.vs.bench import bench_vision
+    from cosim.bench.vision import bench_vision
 
     res["vision"] = bench_vision(20 if quick else 100, r, _per_call_us, _stat)
     mr = 1 if quick else 3
@@ -305,10 +305,10 @@ def run(quick: bool = False) -> dict[str, Any]:
     res["mil_tick_breakdown_estimate"] = bench_tick_breakdown(
         repeats=1, sets={**HIL_FEED, "timing.t_final_s": 20.0} if quick else HIL_FEED)
     res["floor_us_per_tick"] = floor_estimate(res)
-    # issue 14 item 9: SIL under a UDP flood, lockstep and real time (cosim/studies/bench_flood)
+    # issue 14 item 9: SIL under a UDP flood, lockstep and real time (cosim/bench/flood)
     res["flood"] = bench_flood(**(QUICK_FLOOD if quick else {}))
     res["paper2"] = bench_paper2(quick)     # issue 29: E2-E4, the front-camera tick
-    from cosim.studies.bench_numerics import bench_numerics
+    from cosim.bench.numerics import bench_numerics
 
     if not quick:                  # issue 39: what portable costs (--numerics alone: 1.5 min)
         res["numerics"] = bench_numerics(3)
@@ -404,7 +404,7 @@ def format_report(res: dict[str, Any]) -> str:
     lines += format_flood(res["flood"])
     lines += format_paper2(res["paper2"])
     if "numerics" in res:
-        from cosim.studies.bench_numerics import format_numerics
+        from cosim.bench.numerics import format_numerics
 
         lines += format_numerics(res["numerics"])
     return "\n".join(lines)
@@ -414,20 +414,20 @@ def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = 
          instructions: bool = False, live_only: bool = False,
          numerics_only: bool = False) -> int:
     if numerics_only:  # what the portable numerics cost (bench_numerics.py)
-        from cosim.studies.bench_numerics import bench_numerics, format_numerics
+        from cosim.bench.numerics import bench_numerics, format_numerics
 
         res = {"machine": machine(), "numerics": bench_numerics(1 if quick else 3)}
         print("\n".join(format_numerics(res["numerics"])))
         return _write(res, json_path or Path("runs") / "bench_numerics.json")
     if live_only:      # what the live view costs the loop (bench_live.py)
-        from cosim.studies.bench_live import bench_live, format_live
+        from cosim.bench.live import bench_live, format_live
 
         res = {"machine": machine(), "live": bench_live(**(
             {"t_final_s": 5.0, "repeats": 1} if quick else {}))}
         print("\n".join(format_live(res["live"])))
         return _write(res, json_path or Path("runs") / "bench_live.json")
     if instructions:   # instructions per tick, now and before (bench_instr.py)
-        from cosim.studies.bench_instr import ToolMissing, bench_instructions, format_instructions
+        from cosim.bench.instructions import ToolMissing, bench_instructions, format_instructions
 
         try:
             res = {"machine": machine(), "instructions": bench_instructions()}

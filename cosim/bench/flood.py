@@ -43,7 +43,7 @@ import time
 from array import array
 from typing import Any
 
-from cosim.studies.bench_common import seed_scenario
+from cosim.bench.common import seed_scenario
 from mav import wire
 
 FLOOD_RATE_HZ = 70_000        # datagrams per second (wall clock), issue 14's flood
@@ -118,7 +118,7 @@ def _flood(port: int, rate: int, pool: list[bytes], stopped) -> tuple[int, int, 
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The flood process: `python -m cosim.studies.bench_flood PORT RATE`. Prints READY,
+    """The flood process: `python -m cosim.bench.flood PORT RATE`. Prints READY,
     floods until its stdin ends, prints `SENT n FAILED n WALL s CPU s`."""
     port, rate = (int(a) for a in (argv if argv is not None else sys.argv[1:]))
     pool = flood_pool()
@@ -141,7 +141,7 @@ class Flood:
 
     def __init__(self, port: int, rate: int) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "cosim.studies.bench_flood", str(port), str(rate)],
+            [sys.executable, "-m", "cosim.bench.flood", str(port), str(rate)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         assert self.proc.stdout is not None
         if self.proc.stdout.readline().strip() != "READY":

@@ -35,7 +35,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from cosim.studies.bench_common import SEED
+from cosim.bench.common import SEED
 
 
 class ToolMissing(RuntimeError):

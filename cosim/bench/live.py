@@ -84,9 +84,9 @@ class _WhenSubscribed:
 
 
 def bench_live(t_final_s: float = 30.0, repeats: int = 3) -> dict[str, Any]:
+    from cosim.bench.common import seed_scenario
     from cosim.outputs.live import LiveView
     from cosim.sim.master import RunOptions, run_scenario
-    from cosim.studies.bench_common import seed_scenario
 
     sc = seed_scenario({"timing.t_final_s": t_final_s})      # truth-fed
     out: dict[str, Any] = {"scenario": sc.name, "t_final_s": t_final_s, "repeats": repeats}

@@ -16,7 +16,7 @@ import subprocess
 import sys
 from typing import Any
 
-from cosim.studies.bench_common import ROOT
+from cosim.bench.common import ROOT
 
 MISSIONS = {"seed mission": "mambo_seed_track.toml", "E2": "bebop2_vs_e2.toml"}
 _CHILD = """

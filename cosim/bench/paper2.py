@@ -22,7 +22,7 @@ front-camera tick goes (issue 29).
   ticks, master); then the same run pipelined, with the CPU time of the stream's worker (the
   render process, or thread where a fork is not safe) and of the main thread.
 
-`python -m cosim.studies.bench_paper2 [--quick]` prints these alone; `--against DIR` flies
+`python -m cosim.bench.paper2 [--quick]` prints these alone; `--against DIR` flies
 E2 in fresh processes alternately with the code in DIR (e.g. a copy of the tree before a
 change) and with this tree, and prints the ratio from that one sitting.
 """
@@ -38,7 +38,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from cosim.studies.bench_common import ROOT, _stat
+from cosim.bench.common import ROOT, _stat
 
 HALF = {"camera.width": 428, "camera.height": 240}
 # label: (scenario, target x real time, --set overrides)
@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
 
     ap = argparse.ArgumentParser(
-        prog="python -m cosim.studies.bench_paper2",
+        prog="python -m cosim.bench.paper2",
         description="cosim bench's paper-2 figures alone: E2-E4 in x real time at 856x480 "
                     "and 428x240, and where a front-camera tick goes (a few minutes).")
     ap.add_argument("--quick", action="store_true",

@@ -1,5 +1,5 @@
 """The plant's own speed: ``Plant.step`` and a bare ``fmi2DoStep`` timed (``python -m
-cosim.plant.bench``; `cosim bench` measures the plant in the whole tick)."""
+cosim.bench.plant``; `cosim bench` measures the plant in the whole tick)."""
 
 from __future__ import annotations
 
@@ -49,5 +49,5 @@ def bench_step(n: int = 20000, vehicle: VehicleParams | None = None) -> dict[str
     }
 
 
-if __name__ == "__main__":  # python -m cosim.plant.bench  -> prints the benchmark
+if __name__ == "__main__":  # python -m cosim.bench.plant  -> prints the benchmark
     print(bench_step())

@@ -5,7 +5,7 @@ with COSIM_RENDER_PROCESS=0), alternately in this one process (OpenCV as `cosim 
 it). Prints the wall time of each flight, the ratio of the medians, and whether the flights
 are the same bit for bit (they must be).
 
-    python -m cosim.studies.bench_stream [--repeats N] [--set camera.latency_s=0.12 ...]
+    python -m cosim.bench.stream [--repeats N] [--set camera.latency_s=0.12 ...]
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cosim.studies.bench_common import ROOT
+from cosim.bench.common import ROOT
 
 
 def fly(sc, pipeline: bool) -> tuple[float, float, bytes, list]:

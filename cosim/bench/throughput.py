@@ -1,7 +1,7 @@
 """Study throughput on this machine: missions per minute by executor and worker count.
 
-    python -m cosim.studies.throughput [--runs 40] [--t-final 10]
-    python -m cosim.studies.throughput --memory [--runs 1000] [--t-final 10] [--workers 1]
+    python -m cosim.bench.throughput [--runs 40] [--t-final 10]
+    python -m cosim.bench.throughput --memory [--runs 1000] [--t-final 10] [--workers 1]
 
 The same small Monte Carlo (the seed mission cut to `--t-final` s, wind and odometry noise
 drawn) runs serially, on the local process pool and on a local Dask cluster with 1 and 2

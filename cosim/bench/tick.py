@@ -8,7 +8,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from cosim.studies.bench_common import seed_scenario
+from cosim.bench.common import seed_scenario
 
 # (module, class, method, label, parent label or None, set-up method or None): the parts of a
 # MIL tick, timed by wrapping them (bench_tick_breakdown). With a set-up method: `method` is an

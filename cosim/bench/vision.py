@@ -1,4 +1,4 @@
-"""`cosim bench` rows for paper 2's vision pipeline (called by cosim/studies/bench.py with
+"""`cosim bench` rows for paper 2's vision pipeline (called by cosim/bench/command.py with
 its timing helpers)."""
 
 from __future__ import annotations
