@@ -14,7 +14,7 @@ __version__ = "0.1.0"
 _HERE = _Path(__file__).resolve().parent
 # the per-tick path of the master
 COMPILED = [
-    "cosim.sim.tick", "cosim.sim.exits", "cosim.sim.onboard", "cosim.sim.recorder",
+    "cosim.sim.tick", "cosim.sim.exits", "cosim.sim.onboard", "cosim.outputs.series",
     "cosim.outputs.tlog", "cosim.plant.fmu", "cosim.sensors.odometry",
     # sensor-fed runs: the sensor models and the master's end of their HIL link
     "cosim.sensors.imu", "cosim.sensors.suite", "cosim.sim.estimate",

@@ -298,7 +298,7 @@ def _sigterm_interrupts():
 
 def _dispatch(args) -> int:
     if args.cmd == "validate":
-        from cosim.scenario.parse import load_scenario
+        from cosim.load import load_scenario
 
         bad = 0
         for path in args.scenarios:          # every file checked, each reported
@@ -329,11 +329,11 @@ def _dispatch(args) -> int:
 
         return sitl(args)
     if args.cmd == "render":
-        from cosim.sensors.view import render_command
+        from cosim.cli_render import render_command
 
         return render_command(args)
     if args.cmd == "teach":
-        from cosim.apps.vs.teach import teach_command
+        from cosim.cli_teach import teach_command
 
         return teach_command(args)
     if args.cmd == "bench":
@@ -354,15 +354,15 @@ def _dispatch(args) -> int:
 
 
 def _run(args) -> int:
+    from cosim.load import load_scenario, with_set
     from cosim.outputs.folder import claim_run_folder
     from cosim.outputs.report import one_screen, write_run
-    from cosim.scenario.parse import load_scenario, with_set
+    from cosim.scenario.sets import one_each
     from cosim.sim.master import ExitReason, RunOptions, run_scenario
-    from cosim.studies.sweep import parse_sets
 
     sc = load_scenario(args.scenario)
     if args.set:
-        sc = with_set(sc, {k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
+        sc = with_set(sc, one_each(args.set))
     if args.seed is not None:
         sc = with_set(sc, {"seed": args.seed})
     check_speed(args.speed)
@@ -407,7 +407,7 @@ def _run(args) -> int:
 
 
 def _sweep(args) -> int:
-    from cosim.scenario.parse import load_scenario, with_set
+    from cosim.load import load_scenario, with_set
     from cosim.studies.study import check_grid
     from cosim.studies.sweep import (
         EXECUTORS,

@@ -28,7 +28,7 @@ def enter_numerics(args, sc):
     from cosim import numerics
 
     if args.numerics is not None and args.numerics != sc.numerics:
-        from cosim.scenario.parse import with_set
+        from cosim.load import with_set
 
         sc = with_set(sc, {"run.numerics": args.numerics})
     if ENTRY_ARGV is not None and (args.numerics is not None or sc.numerics == "portable"):

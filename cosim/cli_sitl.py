@@ -14,8 +14,8 @@ from cosim.errors import ScenarioError
 
 
 def sitl(args) -> int:
+    from cosim.load import parse_scenario
     from cosim.outputs.folder import claim_run_folder
-    from cosim.scenario.parse import parse_scenario
     from cosim.sim.fleet import (
         MAX_INSTANCE,
         SitlOptions,

@@ -2,7 +2,7 @@
 values its mixer, feed-forward, take-off logic and loop analysis (`mav.tune`) are built on.
 
 The flight stack stands alone: it imports nothing of the simulator. The true physical values
-the plant flies with live with the FMU (`cosim/plant/vehicles.py`, `fmus/quadrotor/`); for
+the plant flies with live with the FMU (`cosim/scenario/vehicles.py`, `fmus/quadrotor/`); for
 the shipped airframes the nominal values here are the plant's, field for field
 (tests/test_airframes.py), with their sources in fmus/quadrotor/readme.md. A simulator that
 flies a changed plant (scenario `vehicle.overrides`) may tell the flight stack through

@@ -34,6 +34,7 @@ so a tick does no dict look-ups and allocates nothing but floats.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Protocol
 
 import cython
@@ -43,7 +44,6 @@ from cython.cimports.libc.math import sqrt as _sqrt
 
 from mav.airframe import Airframe
 from mav.mixer import inverse4, mixer_matrix
-from mav.params import ParamSpec
 from mav.rotations import euler_from_quat, tilt_cos
 from mav.types import Setpoint, VehicleState
 
@@ -52,6 +52,22 @@ from mav.types import Setpoint, VehicleState
 f64 = cython.typedef(cython.double)       # the controller's arithmetic: C doubles
 _PI = cython.declare(cython.double, math.pi)
 _TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter, MAVLink style (PARAM_VALUE carries it as a float): the controllers' gains
+    (mav/control.py) and the onboard stack's own (mav/params.py ONBOARD_PARAMS) alike."""
+
+    name: str       # <= 16 characters, MAVLink param id style ("MC_XY_P")
+    default: float  # in `unit`
+    min: float      # in `unit`, inclusive
+    max: float      # in `unit`, inclusive
+    unit: str       # e.g. "rad/m", "deg", "m/s"
+    doc: str        # one line
+    # a flight gain: while armed it stays within a factor of its default (mav/params.py
+    # flight_envelope), so a vehicle in the air is never handed a gain that cannot fly
+    flight_gain: bool = False
+
 
 class Controller(Protocol):
     dt: float  # s, control period

@@ -16,9 +16,8 @@ from __future__ import annotations
 import math
 
 from mav.airframe import Airframe
-from mav.cascade import Controller, QuadCascade
+from mav.cascade import Controller, ParamSpec, QuadCascade
 from mav.mixer import mixer_matrix
-from mav.params import ParamSpec
 
 __all__ = [
     "Bebop2Controller",

@@ -14,8 +14,9 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from pathlib import Path
+
+from mav.cascade import ParamSpec
 
 _F32 = struct.Struct("<f")
 
@@ -23,22 +24,6 @@ _F32 = struct.Struct("<f")
 def f32(v: float) -> float:
     """`v` rounded to IEEE single precision, as PARAM_VALUE carries it."""
     return _F32.unpack(_F32.pack(v))[0]
-
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """One parameter, MAVLink style (PARAM_VALUE carries it as a float): the controllers' gains
-    (mav/control.py) and the onboard stack's own (ONBOARD_PARAMS) alike."""
-
-    name: str       # <= 16 characters, MAVLink param id style ("MC_XY_P")
-    default: float  # in `unit`
-    min: float      # in `unit`, inclusive
-    max: float      # in `unit`, inclusive
-    unit: str       # e.g. "rad/m", "deg", "m/s"
-    doc: str        # one line
-    # a flight gain: while armed it stays within [default / GAIN_FACTOR, default * GAIN_FACTOR]
-    # (flight_envelope), so a vehicle in the air is never handed a gain that cannot fly
-    flight_gain: bool = False
 
 
 # The vehicle's own parameters (PX4 names where PX4 has the same meaning). Ranges: PX4's

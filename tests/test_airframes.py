@@ -1,5 +1,5 @@
 """One source per value: the flight stack's nominal airframes (mav/airframe.py) are the plant's
-presets (cosim/plant/vehicles.py) field for field, and the FMU's built-in defaults (model.c) and
+presets (cosim/scenario/vehicles.py) field for field, and the FMU's built-in defaults (model.c) and
 start values (modelDescription.xml, tested in test_fmu.py) are the Mambo preset."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cosim.plant.vehicles import PRESETS
+from cosim.scenario.vehicles import PRESETS
 from mav.airframe import AIRFRAMES, FIELDS, get_airframe
 
 MODEL_C = Path(__file__).resolve().parents[1] / "fmus" / "quadrotor" / "model.c"

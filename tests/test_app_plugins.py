@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, parse_scenario, with_set
+from cosim.load import load_scenario, parse_scenario, with_set
 
 ROOT = Path(__file__).resolve().parents[1]
 SQUARE = ROOT / "scenarios" / "scripted_square.toml"

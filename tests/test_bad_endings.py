@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, parse_scenario
+from cosim.load import load_scenario, parse_scenario
 
 BASE = {"vehicle": {"preset": "mambo"},
         "world": {"arena": {"n_min": 0, "n_max": 4, "e_min": 0, "e_max": 4}}}
@@ -126,7 +126,7 @@ def test_sigterm_writes_what_was_recorded_and_leaves_no_onboard_process(tmp_path
 
 
 def _short_run():
-    from cosim.scenario.parse import load_scenario
+    from cosim.load import load_scenario
     from cosim.sim.master import RunOptions, run_scenario
 
     sc = load_scenario(ROOT / "scenarios" / "mambo_hover.toml")

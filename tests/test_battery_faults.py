@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from cosim.apps.scripted import ScriptedApp
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
 from cosim.sim.faults import FaultHooks, parse_faults
 from cosim.sim.faults_battery import schedule
 from cosim.sim.master import ExitReason, RunOptions, run_scenario

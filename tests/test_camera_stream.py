@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, parse_scenario
+from cosim.load import load_scenario, parse_scenario
 from cosim.sensors import blur
 from cosim.sensors.camera import make_camera, parse_camera
 from cosim.sensors.front import FrontCamera, FrontCameraConfig
@@ -322,7 +322,7 @@ def test_a_delayed_stream_flies_the_same_pipelined_or_not(tmp_path):
 
 def test_paper2_e1_with_the_bebop2_stream_is_the_same_in_mil_and_sil(tmp_path):
     sc = load_scenario(ROOT / "scenarios/bebop2_vs_e1.toml")
-    from cosim.scenario.parse import with_set
+    from cosim.load import with_set
     sc = with_set(sc, {"camera.stream": "bebop2", "timing.t_final_s": 12.0})
     out = {}
     for mode in ("mil", "sil"):

@@ -193,8 +193,8 @@ def test_fast_telemetry_decode_matches_pymavlink(tmp_path):
     one forced through pymavlink: the same telemetry attributes and counters throughout."""
     from pathlib import Path
 
+    from cosim.load import load_scenario
     from cosim.outputs.tlog import read_tlog
-    from cosim.scenario.parse import load_scenario
     from cosim.sim.master import RunOptions, run_scenario
 
     root = Path(__file__).resolve().parent.parent

@@ -66,7 +66,7 @@ for name in names:
 # the binding: used before __init__, re-initialised with bad arguments, a y list shrunk
 from cosim.plant._fmi2step import Stepper
 from cosim.plant.fmu import Plant
-from cosim.plant.vehicles import MAMBO
+from cosim.scenario.vehicles import MAMBO
 s = Stepper.__new__(Stepper)
 for f in (lambda: s.step(), lambda: s.step(1.0), lambda: s.k):
     try:

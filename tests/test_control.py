@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from cosim.plant.vehicles import PRESETS
+from cosim.scenario.vehicles import PRESETS
 from mav.airframe import BEBOP2, MAMBO, Airframe
 from mav.control import Bebop2Controller, MamboController, ParamSpec, make_controller
 from mav.mixer import inverse4, mixer_matrix

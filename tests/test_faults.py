@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from test_onboard_auto import flying_rig, pos
 
-from cosim.scenario.parse import load_scenario
+from cosim.load import load_scenario
 from cosim.sim.faults import FaultHooks, parse_faults
 from cosim.sim.master import ExitReason, RunOptions, run_scenario
 from mav import wire

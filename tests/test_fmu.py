@@ -26,7 +26,7 @@ from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 
 from cosim.plant.fmu import OUTPUT_NAMES
-from cosim.plant.vehicles import BEBOP2, MAMBO, PRESETS
+from cosim.scenario.vehicles import BEBOP2, MAMBO, PRESETS
 from fmus import build as fb
 
 SRC = Path(fb.SOURCE_DIR)

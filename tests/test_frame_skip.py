@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from cosim.apps.base import FrameStage
+from cosim.load import load_scenario, with_set
 from cosim.plant.fmu import Y_P, Y_QW, Y_VX, Y_X, Y_Z
-from cosim.scenario.parse import load_scenario, with_set
 from cosim.sensors.front import FrontCamera, FrontCameraConfig
 from cosim.sensors.stream import FrameStream, StreamSpec
 from cosim.sim.master import run_scenario

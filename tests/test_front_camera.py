@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, parse_scenario
+from cosim.load import load_scenario, parse_scenario
 from cosim.sensors.camera import make_camera, parse_camera
 from cosim.sensors.front import (
     FrontCamera,

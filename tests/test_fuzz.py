@@ -233,8 +233,8 @@ def test_sitl_links_report_kernel_drops(tmp_path):
     import socket
     from pathlib import Path
 
+    from cosim.load import load_scenario
     from cosim.outputs.tlog import Tlog
-    from cosim.scenario.parse import load_scenario
     from cosim.sim.onboard import OnboardHandle
     from cosim.sim.options import RunOptions
     from mav.hil import HilSimulatorCodec

@@ -129,7 +129,7 @@ def _tree(root: Path) -> dict[str, str]:
 def inputs(tmp_path_factory):
     """Copies of the scenarios and worlds, and a small taught path (428 x 240, ORB)."""
     from cosim.apps.vs import visual_path as VP
-    from cosim.scenario.parse import load_scenario, with_set
+    from cosim.load import load_scenario, with_set
 
     d = tmp_path_factory.mktemp("fuzz-inputs")
     shutil.copytree(ROOT / "scenarios", d / "scenarios")

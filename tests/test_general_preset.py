@@ -14,8 +14,8 @@ import pytest
 from cosim.apps.ips import ImageProcessor, IPSParams
 from cosim.apps.line_follower import LineFollowerApp
 from cosim.apps.planner import MissionLogic, MissionState, PlannerParams
+from cosim.load import load_scenario, with_set
 from cosim.outputs.report import summarize
-from cosim.scenario.parse import load_scenario, with_set
 from cosim.sim.master import run_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -85,3 +85,55 @@ def test_flight_software_stands_alone():
     bad = {m: sorted(d for d in deps if d.startswith("cosim")) for m, deps in g.items()
            if m.startswith("mav")}
     assert not {m: d for m, d in bad.items() if d}, bad
+
+
+# ---- cosim's packages: each imports only the layers below it -------------------------------
+# bottom to top; a package (cosim/<name>/) or a top-level module (cosim/<name>.py) may import
+# only from lower layers. scenario is the leaf every part builds from (cosim/load.py hands it
+# the other packages' table parsers); nothing but the command line imports studies.
+LAYERS = (
+    ("errors", "numerics", "cvthreads", "cache", "build"),
+    ("scenario",),
+    ("world",),
+    ("plant",),
+    ("sensors",),
+    ("apps",),
+    ("outputs",),
+    ("sim",),
+    ("load",),
+    ("cli_checks", "bench", "cli_render", "cli_teach"),
+    ("studies", "cli_sitl"),
+    ("cli",),
+)
+
+
+def package_graph() -> dict[str, set[str]]:
+    """cosim unit (first part below cosim) -> the cosim units it imports, from import_graph."""
+    out: dict[str, set[str]] = {}
+    for mod, deps in import_graph().items():
+        parts = mod.split(".")
+        if parts[0] != "cosim" or len(parts) < 2:
+            continue
+        unit = parts[1]
+        out.setdefault(unit, set()).update(
+            d.split(".")[1] for d in deps
+            if d.startswith("cosim.") and d.split(".")[1] != unit)
+    return out
+
+
+def test_cosim_packages_import_only_downward():
+    rank = {u: i for i, layer in enumerate(LAYERS) for u in layer}
+    graph = package_graph()
+    assert set(graph) <= set(rank), f"units missing from LAYERS: {set(graph) - set(rank)}"
+    upward = sorted(f"{a} -> {b}" for a, deps in graph.items() for b in deps
+                    if rank[b] >= rank[a])
+    assert not upward, "imports that do not go down a layer: " + ", ".join(upward)
+    assert graph["scenario"] <= {"errors", "numerics"}
+    assert find_cycle(graph) is None
+
+
+def test_the_package_check_sees_an_upward_import():
+    graph = package_graph()
+    assert "sim" in graph["bench"] and "outputs" in graph["sim"]     # real edges are seen
+    rank = {u: i for i, layer in enumerate(LAYERS) for u in layer}
+    assert rank["outputs"] < rank["sim"]                              # so outputs -> sim fails

@@ -23,8 +23,8 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
+from cosim.load import load_scenario, with_set
 from cosim.outputs.live import LiveView
-from cosim.scenario.parse import load_scenario, with_set
 from cosim.sim.master import RunOptions, run_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

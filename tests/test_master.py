@@ -15,9 +15,9 @@ import pytest
 from pymavlink import mavutil
 
 from cosim.apps.scripted import ScriptedApp
+from cosim.load import load_scenario, with_set
 from cosim.outputs.report import write_run
 from cosim.outputs.tlog import read_tlog
-from cosim.scenario.parse import load_scenario, with_set
 from cosim.sim.master import ExitReason, RunOptions, run_scenario
 
 ROOT = Path(__file__).resolve().parent.parent

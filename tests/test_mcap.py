@@ -11,12 +11,12 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
+from cosim.load import load_scenario, with_set
 from cosim.outputs.mcap import TOPICS
+from cosim.outputs.series import COL
 from cosim.outputs.tlog import read_tlog
-from cosim.scenario.parse import load_scenario, with_set
 from cosim.sensors.camera import make_camera
 from cosim.sim.master import RunOptions, run_scenario
-from cosim.sim.recorder import COL
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = ROOT / "scenarios" / "mambo_seed_track.toml"

@@ -18,8 +18,8 @@ from mcap.decoder import DecoderFactory as McapDecoderFactory
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
+from cosim.load import load_scenario, with_set
 from cosim.outputs.fox_topics import TOPICS
-from cosim.scenario.parse import load_scenario, with_set
 from cosim.sim.master import RunOptions, run_scenario
 from mav.rotations import R_from_quat
 

@@ -13,7 +13,7 @@ import pytest
 
 from cosim import numerics
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
 
 ROOT = Path(__file__).resolve().parents[1]
 SQUARE = ROOT / "scenarios" / "scripted_square.toml"

@@ -56,7 +56,7 @@ class Rig:
         self.plant = None
         if plant:
             from cosim.plant.fmu import Plant
-            from cosim.plant.vehicles import get_vehicle
+            from cosim.scenario.vehicles import get_vehicle
 
             self.plant = Plant(get_vehicle(vehicle))
 
@@ -206,7 +206,7 @@ class UdpSim:
         self.plant = None
         if plant:
             from cosim.plant.fmu import Plant
-            from cosim.plant.vehicles import get_vehicle
+            from cosim.scenario.vehicles import get_vehicle
 
             self.plant = Plant(get_vehicle(vehicle))
 

@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from test_onboard_rig import Rig
 
 from cosim.plant.fmu import Y_X, Y_Y, Y_Z, Plant
-from cosim.plant.vehicles import get_vehicle
+from cosim.scenario.vehicles import get_vehicle
 from mav import wire
 from mav.onboard import OFFBOARD
 

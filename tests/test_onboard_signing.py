@@ -119,8 +119,8 @@ def test_sitl_signing_key_file_reaches_the_vehicle(tmp_path):
 
     from cosim.cli_sitl import read_signing_key
     from cosim.errors import ScenarioError
+    from cosim.load import load_scenario
     from cosim.outputs.tlog import Tlog
-    from cosim.scenario.parse import load_scenario
     from cosim.sim.onboard import OnboardHandle
     from cosim.sim.options import RunOptions
     from mav.hil import HilSimulatorCodec
@@ -141,7 +141,7 @@ def test_sitl_signing_key_file_reaches_the_vehicle(tmp_path):
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "--signing-key" in r.stderr
 
-    from cosim.scenario.parse import with_set
+    from cosim.load import with_set
 
     sc = with_set(load_scenario(__import__("pathlib").Path(__file__).resolve().parents[1]
                                 / "scenarios" / "scripted_square.toml"),

@@ -16,7 +16,7 @@ from cosim import cache, cvthreads
 from cosim.apps.vs import visual_path as VP
 from cosim.apps.vs.tasks import Obstacle, find_obstacle
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
 from cosim.sensors.camera import make_camera
 from cosim.sensors.noise import FrameNoise
 from cosim.sensors.pinhole import world_surfaces

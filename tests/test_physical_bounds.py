@@ -10,8 +10,8 @@ import pytest
 
 from cosim.cli import main
 from cosim.errors import ScenarioError
-from cosim.plant.vehicles import PHYSICAL_RANGES, PRESETS
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
+from cosim.scenario.vehicles import PHYSICAL_RANGES, PRESETS
 
 ROOT = Path(__file__).resolve().parents[1]
 HOVER = ROOT / "scenarios" / "mambo_hover.toml"

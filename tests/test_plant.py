@@ -9,7 +9,7 @@ import pytest
 import cosim.plant.fmu as cp
 from cosim.errors import ComponentError
 from cosim.plant.fmu import OUTPUT_NAMES, Plant, PlantState
-from cosim.plant.vehicles import BEBOP2, MAMBO, PRESETS
+from cosim.scenario.vehicles import BEBOP2, MAMBO, PRESETS
 
 VEHICLES = list(PRESETS.values())
 

@@ -16,6 +16,7 @@ import pytest
 from fmpy.validation import validate_fmu
 
 from cosim.errors import ComponentError, ScenarioError
+from cosim.load import load_scenario, parse_scenario
 from cosim.outputs.report import summarize
 from cosim.plant.fmu import Plant
 from cosim.plant.mapped import (
@@ -25,8 +26,7 @@ from cosim.plant.mapped import (
     world_swap,
 )
 from cosim.plant.mapping import PlantSpec
-from cosim.plant.vehicles import MAMBO
-from cosim.scenario.parse import load_scenario, parse_scenario
+from cosim.scenario.vehicles import MAMBO
 from cosim.sim.master import RunOptions, run_scenario
 from fmus import build as fb
 from mav.rotations import quat_from_euler, rotate_world_to_body
@@ -207,7 +207,7 @@ def test_the_map_matters(enu_fmu):
 
 
 def with_time(sc, t: float):
-    from cosim.scenario.parse import with_set
+    from cosim.load import with_set
 
     return with_set(sc, {"timing.t_final_s": t})
 

@@ -11,7 +11,7 @@ import pytest
 
 from cosim.errors import ComponentError
 from cosim.plant.fmu import Plant
-from cosim.plant.vehicles import BEBOP2, MAMBO
+from cosim.scenario.vehicles import BEBOP2, MAMBO
 
 
 def test_the_stepper_is_built_and_builds_are_checked(tmp_path):
@@ -111,7 +111,7 @@ def test_closed_plant_no_longer_calls_the_stepper():
 
 def test_seed_mission_identical_with_and_without_the_stepper(monkeypatch):
     from cosim.bench.command import SEED
-    from cosim.scenario.parse import load_scenario
+    from cosim.load import load_scenario
     from cosim.sim.master import RunOptions, run_scenario
 
     sc = load_scenario(SEED)

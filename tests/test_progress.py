@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from cosim.load import load_scenario, with_set
 from cosim.outputs.progress import track_progress
 from cosim.outputs.report import summarize
-from cosim.scenario.parse import load_scenario, with_set
 from cosim.sim.master import ExitReason, RunOptions, run_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
 from cosim.sim import master
 from cosim.sim.master import RunOptions, run_scenario
 

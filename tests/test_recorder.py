@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import parse_scenario
+from cosim.load import parse_scenario
+from cosim.outputs.series import CHUNK, COL, SERIES_COLUMNS, SeriesSpool
 from cosim.sensors.camera import parse_camera
-from cosim.sim.recorder import CHUNK, COL, SERIES_COLUMNS, SeriesSpool
 
 
 def test_spool_round_trips_bit_exact_and_memory_stays_one_block(tmp_path):

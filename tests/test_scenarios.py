@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from cosim.load import load_scenario
 from cosim.outputs.report import summarize
-from cosim.scenario.parse import load_scenario
 from cosim.sim.master import RunOptions, run_scenario
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from cosim.errors import ScenarioError
+from cosim.load import load_scenario, with_set
 from cosim.outputs.metrics import compute_metrics
-from cosim.scenario.parse import load_scenario, with_set
 from cosim.sensors.spec import SensorsSpec
 from cosim.sensors.suite import SensorSuite
 from cosim.sim.master import ExitReason, RunOptions, run_scenario
@@ -192,7 +192,7 @@ def test_sensor_faults_reach_the_estimate_and_are_counted():
 def test_bad_sensor_fields_are_named(table, value, field):
     raw = dict(load_scenario(SQUARE).raw)
     raw["sensors"] = table
-    from cosim.scenario.parse import parse_scenario
+    from cosim.load import parse_scenario
 
     with pytest.raises(ScenarioError) as ei:
         parse_scenario(raw, source=str(SQUARE), base_dir=SQUARE.parent)
@@ -290,7 +290,7 @@ def test_the_estimate_is_spooled_chunk_by_chunk_in_order():
     """The estimate rows go to disk a CHUNK at a time (memory flat over a long run, as the
     series): over 5000 ticks, across the first chunk's boundary, the spooled estimate is the
     one the series recorded tick by tick (its est_x/y/z columns), none lost or reordered."""
-    from cosim.sim.recorder import CHUNK, COL
+    from cosim.outputs.series import CHUNK, COL
 
     res = run_scenario(with_set(load_scenario(HOVER), {"timing.t_final_s": 25.0}), RunOptions())
     assert len(res.estimate) == res.ticks == 5000 > CHUNK

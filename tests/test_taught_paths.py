@@ -15,7 +15,7 @@ import pytest
 from cosim.apps.vs import visual_path as VP
 from cosim.cli import main
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
 
 ROOT = Path(__file__).resolve().parents[1]
 E1 = ROOT / "scenarios" / "bebop2_vs_e1.toml"

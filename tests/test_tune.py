@@ -12,7 +12,7 @@ import control as ct
 import numpy as np
 import pytest
 
-from cosim.plant.vehicles import PRESETS
+from cosim.scenario.vehicles import PRESETS
 from mav import tune
 from mav.airframe import get_airframe
 from mav.control import make_controller

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from cosim.plant.vehicles import BEBOP2, MAMBO, PRESETS, VehicleParams, get_vehicle
+from cosim.scenario.vehicles import BEBOP2, MAMBO, PRESETS, VehicleParams, get_vehicle
 
 
 def test_presets_and_lookup():

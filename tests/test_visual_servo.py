@@ -18,8 +18,8 @@ from cosim.apps.vs import visual_path as VP
 from cosim.apps.vs.features import homography, sort_points
 from cosim.apps.vs.tasks import Obstacle, corridor_task, find_obstacle
 from cosim.cli import main as cli
+from cosim.load import load_scenario, with_set
 from cosim.outputs.report import summarize
-from cosim.scenario.parse import load_scenario, with_set
 from cosim.sim.master import run_scenario
 from cosim.sim.options import RunOptions
 

@@ -14,8 +14,8 @@ from scipy.linalg import expm
 from cosim.apps.visual_servo import VisualServoApp
 from cosim.apps.vs.lowlevel import LowLevel, twist_displacement
 from cosim.cli import main as cli
+from cosim.load import load_scenario
 from cosim.outputs.report import summarize
-from cosim.scenario.parse import load_scenario
 from cosim.sim.master import run_scenario
 from cosim.sim.options import RunOptions
 

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cosim.load import load_scenario
 from cosim.outputs.report import summarize
-from cosim.scenario.parse import load_scenario
 from cosim.sim.master import run_scenario
 from cosim.sim.options import RunOptions
 

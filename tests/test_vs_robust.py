@@ -15,7 +15,7 @@ from cosim.apps.vs.features import homographies
 from cosim.apps.vs.memory import ObstacleMemory
 from cosim.apps.vs.tasks import Obstacle
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
 
 ROOT = Path(__file__).resolve().parents[1]
 E2 = ROOT / "scenarios" / "bebop2_vs_e2.toml"

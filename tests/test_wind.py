@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cosim.errors import ScenarioError
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
 from cosim.sim.master import ExitReason, RunOptions, run_scenario
 from cosim.world.wind import Gust, WindField, WindSpec, parse_wind
 

@@ -48,7 +48,7 @@ def machine() -> dict[str, Any]:
 
 def bench_plant(n: int, repeats: int) -> dict[str, Any]:
     from cosim.plant.fmu import Plant
-    from cosim.plant.vehicles import MAMBO
+    from cosim.scenario.vehicles import MAMBO
 
     u = MAMBO.u_hover
     out = {}
@@ -177,7 +177,7 @@ def bench_udp_roundtrip(n: int, repeats: int) -> dict[str, Any]:
 
 def bench_render_ips(n: int, repeats: int) -> dict[str, Any]:
     from cosim.apps.ips import ImageProcessor
-    from cosim.scenario.parse import load_scenario
+    from cosim.load import load_scenario
     from cosim.sensors.camera import make_camera
 
     sc = load_scenario(SEED)
@@ -198,7 +198,7 @@ def bench_front(n: int, repeats: int) -> dict[str, Any]:
     856 x 480, 2.5 ms at 428 x 240, one core)."""
     import math
 
-    from cosim.scenario.parse import load_scenario
+    from cosim.load import load_scenario
     from cosim.sensors.front import FrontCamera, FrontCameraConfig
     from mav.rotations import quat_from_euler
 

@@ -18,7 +18,7 @@ TRUTH_FEED = {"sensors.feed": "truth"}
 
 def seed_scenario(sets: dict[str, Any] | None = None):
     """The seed mission, truth-fed unless `sets` says otherwise (e.g. {"sensors.feed": "hil"})."""
-    from cosim.scenario.parse import load_scenario, with_set
+    from cosim.load import load_scenario, with_set
 
     return with_set(load_scenario(SEED), {**TRUTH_FEED, **(sets or {})})
 

@@ -49,7 +49,7 @@ VARIANTS: dict[str, dict[str, str]] = {
 # the script each process runs: fly the seed mission `n` times (MIL), print the ticks
 _SCRIPT = """
 import sys
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
 from cosim.sim.master import RunOptions, run_scenario
 ticks = 0
 sc = with_set(load_scenario(sys.argv[1]), {"sensors.feed": sys.argv[3]})

@@ -22,7 +22,7 @@ MISSIONS = {"seed mission": "mambo_seed_track.toml", "E2": "bebop2_vs_e2.toml"}
 _CHILD = """
 import json, sys
 from cosim.numerics import mode
-from cosim.scenario.parse import load_scenario
+from cosim.load import load_scenario
 from cosim.sim.master import RunOptions, run_scenario
 res = run_scenario(load_scenario(sys.argv[1]), RunOptions(mode="mil"))
 print(json.dumps({"rtf": res.loop_real_time_factor, "sim_s": res.t_end_s,

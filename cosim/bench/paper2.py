@@ -69,7 +69,7 @@ WORKER_PARTS = ("render", "grey conversion", "detection (column)")
 
 
 def _scenario(name: str):
-    from cosim.scenario.parse import load_scenario, with_set
+    from cosim.load import load_scenario, with_set
 
     file, _, sets = MISSIONS[name]
     sc = load_scenario(ROOT / "scenarios" / file)
@@ -267,7 +267,7 @@ def format_paper2(res: dict[str, Any]) -> list[str]:
 
 
 _FLY_ONE = ("import sys, time; from pathlib import Path; import tempfile\n"
-            "from cosim.scenario.parse import load_scenario\n"
+            "from cosim.load import load_scenario\n"
             "from cosim.sim.master import RunOptions, run_scenario\n"
             "sc = load_scenario(sys.argv[1])\n"
             "with tempfile.TemporaryDirectory() as d:\n"

@@ -7,7 +7,7 @@ import statistics
 import time
 
 from cosim.plant.fmu import Plant
-from cosim.plant.vehicles import VehicleParams
+from cosim.scenario.vehicles import VehicleParams
 
 
 def bench_step(n: int = 20000, vehicle: VehicleParams | None = None) -> dict[str, float]:
@@ -17,7 +17,7 @@ def bench_step(n: int = 20000, vehicle: VehicleParams | None = None) -> dict[str
     ``{"step_us", "step_us_min", "do_step_us", "do_step_us_min", "n"}``. Report, do not gate:
     on a loaded machine the numbers are dominated by scheduling noise (compare the minima).
     """
-    from cosim.plant.vehicles import MAMBO
+    from cosim.scenario.vehicles import MAMBO
 
     vehicle = MAMBO if vehicle is None else vehicle
     u = vehicle.u_hover

@@ -33,16 +33,15 @@ def fly(sc, pipeline: bool) -> tuple[float, float, bytes, list]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from cosim.scenario.parse import load_scenario, with_set
-    from cosim.studies.sweep import parse_sets
+    from cosim.load import load_scenario, with_set
+    from cosim.scenario.sets import one_each
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenario", default=str(ROOT / "scenarios/bebop2_vs_e2.toml"))
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     a = ap.parse_args(argv)
-    sets = {k: v[0] for k, v in parse_sets(a.set or ["camera.latency_s=0.12"],
-                                           multi=False).items()}
+    sets = one_each(a.set or ["camera.latency_s=0.12"])
     sc = with_set(load_scenario(a.scenario), sets)
     fly(sc, True)                                    # warm: textures, tiles, taught keys
     walls: dict[bool, list[float]] = {False: [], True: []}

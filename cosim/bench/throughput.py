@@ -5,7 +5,9 @@
 
 The same small Monte Carlo (the seed mission cut to `--t-final` s, wind and odometry noise
 drawn) runs serially, on the local process pool and on a local Dask cluster with 1 and 2
-workers. Wall times include starting the pool or the cluster. Per-run overhead of an executor =
+workers, each as a user starts it: `cosim montecarlo` in its own process, its `runs.log` and
+`results.csv` read afterwards. Wall times include starting the command and the pool or the
+cluster. Per-run overhead of an executor =
 (its wall time - the sum of the runs' own wall times / workers) / runs; Dask vs the pool =
 (Dask's wall time - the pool's) / runs, with the same number of workers. Run it on a quiet
 machine; it prints a Markdown table (and JSON with --json).
@@ -18,32 +20,43 @@ memory per worker is issue 15's target.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
+import subprocess
+import sys
 import tempfile
+import time
+from dataclasses import dataclass
 from pathlib import Path
-
-from cosim.studies.deps import load_scenario
-from cosim.studies.dists import parse_varies
-from cosim.studies.engine import run_study
-from cosim.studies.study import montecarlo_jobs
-from cosim.studies.table import ResultsTable
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "mambo_seed_track.toml"
 VARY = ["wind.n_mps=uniform(0,0.3)", "sensors.flow.flow_noise_rad_s=uniform(0.01,0.04)"]
 
 
+@dataclass
+class Stats:
+    wall_s: float
+    failed: int
+
+
 def _study(executor: str, workers: int, runs: int, t_final: float):
-    """The small Monte Carlo; returns its stats and the lines of its runs.log."""
-    sc = load_scenario(SCENARIO)
+    """The small Monte Carlo through the CLI; returns its stats and the lines of its runs.log."""
     with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp)
-        jobs, _ = montecarlo_jobs(sc, parse_varies(VARY), runs, 1,
-                                  {"timing.t_final_s": t_final}, out)
-        table = ResultsTable(out / "results.csv", [j for j, _ in jobs[0].params])
-        stats = run_study(jobs, table, executor=executor, workers=workers, progress=False,
-                          log=out / "runs.log")
-        return stats, [json.loads(line) for line in open(out / "runs.log")]
+        out = Path(tmp) / "study"
+        cmd = [sys.executable, "-m", "cosim.cli", "montecarlo", str(SCENARIO), "-n", str(runs),
+               "--set", f"timing.t_final_s={t_final}", "--executor", executor,
+               "--workers", str(workers), "--out", str(out), "--quiet"]
+        for v in VARY:
+            cmd += ["--vary", v]
+        t0 = time.perf_counter()
+        res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        wall = time.perf_counter() - t0
+        if not (out / "runs.log").is_file():
+            raise RuntimeError(f"the study did not run: {res.stderr[-2000:]}")
+        with open(out / "results.csv", newline="") as f:
+            failed = sum(row.get("status") != "ok" for row in csv.DictReader(f))
+        return Stats(wall, failed), [json.loads(line) for line in open(out / "runs.log")]
 
 
 def measure(executor: str, workers: int, runs: int, t_final: float) -> dict:

@@ -23,7 +23,7 @@ def bench_vision(n: int, repeats: int, per_call_us, stat) -> dict[str, Any]:
         robust_inliers,
         sort_points,
     )
-    from cosim.scenario.parse import load_scenario
+    from cosim.load import load_scenario
     from cosim.sensors.front import FrontCamera
 
     sc = load_scenario(Path(__file__).resolve().parents[3] / "scenarios" / "bebop2_vs_e1.toml")

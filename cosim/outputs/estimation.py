@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from cosim.sim.estimate import ESTIMATE_COLUMNS
+from cosim.outputs.series import ESTIMATE_COLUMNS
 
 
 def estimation_metrics(res) -> dict[str, Any]:

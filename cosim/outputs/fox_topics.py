@@ -37,8 +37,7 @@ from foxglove.messages import (
 )
 
 from cosim.outputs import fox_scene as fs
-from cosim.sim.estimate import ESTIMATE_COLUMNS
-from cosim.sim.recorder import COL
+from cosim.outputs.series import COL, ESTIMATE_COLUMNS
 from mav.rotations import R_from_quat, euler_from_quat
 
 NUM, INT, STR = "number", "integer", "string"

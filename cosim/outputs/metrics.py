@@ -27,10 +27,9 @@ from typing import Any
 import numpy as np
 
 from cosim.outputs.progress import track_progress
-from cosim.scenario.records import Criteria
-from cosim.sim.exits import ExitReason
-from cosim.sim.master import RunResult
-from cosim.sim.recorder import COL
+from cosim.outputs.result import RunResult
+from cosim.outputs.series import COL
+from cosim.scenario.records import Criteria, ExitReason
 
 __all__ = ["COL", "compute_metrics", "evaluate"]
 

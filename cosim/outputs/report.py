@@ -19,10 +19,9 @@ from cosim import numerics
 from cosim.errors import output_error
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.metrics import COL, compute_metrics, evaluate
+from cosim.outputs.result import RunResult
+from cosim.outputs.series import ESTIMATE_COLUMNS, SERIES_COLUMNS
 from cosim.outputs.strict import dumps as strict_dumps
-from cosim.sim.estimate import ESTIMATE_COLUMNS
-from cosim.sim.master import RunResult
-from cosim.sim.recorder import SERIES_COLUMNS
 from mav import compiled
 
 FAILED_EXITS = {"component_error", "crashed", "left_arena", "collision", "interrupted",

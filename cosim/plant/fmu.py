@@ -17,7 +17,7 @@ processes and after :meth:`Plant.reset` / :meth:`Plant.set_state`.
 Example::
 
     from cosim.plant.fmu import Plant
-    from cosim.plant.vehicles import MAMBO
+    from cosim.scenario.vehicles import MAMBO
     with Plant(MAMBO) as plant:
         for _ in range(200):                       # 1 s
             y = plant.step(*(4 * [MAMBO.u_hover]))
@@ -37,7 +37,7 @@ from ctypes import POINTER, byref, c_char, c_double, c_int, c_size_t, c_uint, c_
 from dataclasses import dataclass
 
 from cosim.errors import ComponentError
-from cosim.plant.vehicles import VehicleParams
+from cosim.scenario.vehicles import VehicleParams
 
 __all__ = [
     "OUTPUT_NAMES", "INPUT_NAMES", "FmuPlant", "Plant", "PlantState",

@@ -15,7 +15,7 @@ Example::
 
     from cosim.plant.mapped import MappedPlant
     from cosim.plant.mapping import PlantSpec
-    from cosim.plant.vehicles import MAMBO
+    from cosim.scenario.vehicles import MAMBO
     with MappedPlant(MAMBO, PlantSpec(fmu=None, fmi=3, map=None)) as plant:   # own FMI 3.0
         y = plant.step(*(4 * [MAMBO.u_hover]), 0.0, 0.0, 0.0)
 """

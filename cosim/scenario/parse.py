@@ -10,23 +10,43 @@ from __future__ import annotations
 import copy
 import re
 import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cosim.apps.registry import BUILTIN_APPS, check_app, check_inputs
 from cosim.errors import ScenarioError
 from cosim.numerics import MODES as NUMERICS_MODES
-from cosim.plant.mapping import parse_plant
-from cosim.plant.vehicles import PHYSICAL_RANGES, PRESETS, get_vehicle
-from cosim.scenario.records import AppSpec, Criteria, Scenario, SensorNoise, Start, Timing
+from cosim.scenario.records import (
+    AppSpec,
+    Criteria,
+    ExitReason,
+    Scenario,
+    SensorNoise,
+    Start,
+    Timing,
+)
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
-from cosim.sensors.camera import parse_camera
-from cosim.sensors.spec import TABLES as SENSOR_TABLES
-from cosim.sensors.spec import parse_sensors
-from cosim.sim.exits import ExitReason
-from cosim.sim.faults import parse_faults
-from cosim.world.floor import World
-from cosim.world.wind import parse_wind
+from cosim.scenario.vehicles import PHYSICAL_RANGES, PRESETS, get_vehicle
+
+
+@dataclass(frozen=True)
+class Parts:
+    """The parsers of the tables other packages own, each building that package's record and
+    naming the field it refuses: handed in by cosim/load.py (which imports them all), so this
+    package imports none of the packages that build from it."""
+
+    world: Callable[[dict, str], Any]             # [world] -> cosim.world.floor.World
+    camera: Callable[[dict, str], Any]            # [camera] -> a camera config
+    sensors: Callable[[dict, str], Any]           # [sensors], vehicle -> SensorsSpec
+    sensor_tables: tuple[str, ...]                # the sub-tables [sensors] may have
+    wind: Callable[[dict], Any]                   # [wind] -> WindSpec
+    faults: Callable[[dict], Any]                 # [faults] -> FaultSpec
+    plant: Callable[..., Any]                     # [vehicle] fmu/fmu_map/fmi -> PlantSpec | None
+    apps: tuple[str, ...]                         # the built-in apps' names
+    check_app: Callable[[AppSpec], None]          # the app's class and parameters
+    check_inputs: Callable[..., None]             # the app's inputs against camera and world
+
 
 # --------------------------------------------------------------------------- parsing
 NAME_OK = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,79}")
@@ -34,7 +54,7 @@ TOP_KEYS = {"name", "description", "seed", "vehicle", "timing", "world", "camera
             "sensors", "wind", "faults", "onboard", "criteria", "run"}
 
 
-def load_scenario(path: str | Path) -> Scenario:
+def load_scenario(path: str | Path, parts: Parts) -> Scenario:
     """Read and validate a scenario TOML file."""
     p = Path(path)
     try:
@@ -52,7 +72,7 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError("scenario", str(p), f"valid UTF-8 TOML ({exc})") from None
     except RecursionError:   # thousands of nested tables or arrays
         raise ScenarioError("scenario", str(p), "TOML nested less deeply") from None
-    return parse_scenario(raw, source=str(p), base_dir=p.parent)
+    return parse_scenario(raw, parts, source=str(p), base_dir=p.parent)
 
 
 def _load_world(raw: dict, base_dir: Path) -> dict:
@@ -83,7 +103,8 @@ def _load_world(raw: dict, base_dir: Path) -> dict:
     return w
 
 
-def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None) -> Scenario:
+def parse_scenario(raw: dict, parts: Parts, *, source: str = "",
+                   base_dir: Path | None = None) -> Scenario:
     base_dir = base_dir or Path(".")
     no_unknown(raw, TOP_KEYS, "")
     stem = re.sub(r"[^A-Za-z0-9._-]", "_", Path(source).stem).lstrip("._-")[:80]
@@ -140,15 +161,15 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     a = table(raw, "app", "")
     no_unknown(a, {"name", "params"}, "app")
     app_name = string(a, "name", "app", "none")
-    if app_name not in BUILTIN_APPS and ":" not in app_name:
+    if app_name not in parts.apps and ":" not in app_name:
         raise ScenarioError(
-            "app.name", app_name, f"one of {', '.join(BUILTIN_APPS)} or 'package.module:Class'"
+            "app.name", app_name, f"one of {', '.join(parts.apps)} or 'package.module:Class'"
         )
     app = AppSpec(name=app_name, params=dict(table(a, "params", "app")))
 
     # sensors / wind / faults
     s = table(raw, "sensors", "")
-    no_unknown(s, {"odometry_noise", "feed", "flow_floor", *SENSOR_TABLES}, "sensors")
+    no_unknown(s, {"odometry_noise", "feed", "flow_floor", *parts.sensor_tables}, "sensors")
     n = table(s, "odometry_noise", "sensors")
     no_unknown(n, {"pos_std_m", "vel_std_mps", "att_std_rad", "rate_std_radps"},
                 "sensors.odometry_noise")
@@ -159,17 +180,17 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
         att_std_rad=number(n, "att_std_rad", w, 0.0, lo=0.0, hi=1.0),
         rate_std_radps=number(n, "rate_std_radps", w, 0.0, lo=0.0, hi=10.0),
     )
-    wind_spec = parse_wind(table(raw, "wind", ""))
+    wind_spec = parts.wind(table(raw, "wind", ""))
     wind = wind_spec.mean
-    faults = parse_faults(table(raw, "faults", ""))
+    faults = parts.faults(table(raw, "faults", ""))
     # your own plant FMU ([vehicle] fmu, fmu_map) or the FMI 3.0 build (fmi = 3); None: ours
-    plant = parse_plant(v, vehicle, base_dir, has_wind=any(wind) or not wind_spec.steady)
+    plant = parts.plant(v, vehicle, base_dir, has_wind=any(wind) or not wind_spec.steady)
 
     # the flight stack's parameters at start (PX4-style names, mav/README.md "Parameters")
     ob = table(raw, "onboard", "")
     no_unknown(ob, {"params"}, "onboard")
     onboard_params = _onboard_params(table(ob, "params", "onboard"), preset)
-    sensors = parse_sensors(s, preset)
+    sensors = parts.sensors(s, preset)
     if sensors.hil and "odometry_noise" in s:
         raise ScenarioError("sensors.odometry_noise", dict(n),
                             "feed = 'truth' (it is the noise of the truth ODOMETRY; on the "
@@ -216,16 +237,16 @@ def parse_scenario(raw: dict, *, source: str = "", base_dir: Path | None = None)
     )
 
     # the parts owned by other modules, parsed here once into their records
-    world = World.from_dict(world_table, "world")
+    world = parts.world(world_table, "world")
     a = world.arena
     if not (a.n_min <= start.n <= a.n_max and a.e_min <= start.e <= a.e_max):
         where = "vehicle.start" if st else "world.start"
         raise ScenarioError(where, {"n": start.n, "e": start.e},
                             f"a start inside the world's arena (N {a.n_min:g} to {a.n_max:g}, "
                             f"E {a.e_min:g} to {a.e_max:g})")
-    camera = parse_camera(camera_table, "camera") if camera_table is not None else None
-    check_app(app)
-    check_inputs(app, camera, source, world.arena, world.scene, vehicle.body_radius)
+    camera = parts.camera(camera_table, "camera") if camera_table is not None else None
+    parts.check_app(app)
+    parts.check_inputs(app, camera, source, world.arena, world.scene, vehicle.body_radius)
     return Scenario(
         name=name, description=description, seed=seed, vehicle=vehicle, start=start,
         timing=timing, world=world, camera=camera, app=app, noise=noise,
@@ -254,7 +275,7 @@ def _onboard_params(p: dict, vehicle: str) -> tuple[tuple[str, float], ...]:
     return tuple(pairs)
 
 
-def with_set(sc: Scenario, assignments: dict[str, Any]) -> Scenario:
+def with_set(sc: Scenario, assignments: dict[str, Any], parts: Parts) -> Scenario:
     """A copy of `sc` with dotted-path overrides applied to its TOML and parsed again.
 
     `{"app.params.alpha": 0.005, "seed": 3}`: the path names keys of the file; for the app's
@@ -271,4 +292,4 @@ def with_set(sc: Scenario, assignments: dict[str, Any]) -> Scenario:
             if not isinstance(node, dict):
                 raise ScenarioError(path, value, "a path through tables of the scenario")
         node[keys[-1]] = value
-    return parse_scenario(raw, source=sc.source, base_dir=Path(sc.source).parent)
+    return parse_scenario(raw, parts, source=sc.source, base_dir=Path(sc.source).parent)

@@ -1,19 +1,33 @@
-"""Scenario records: what a scenario file says, typed, with units. Built once by
-`cosim.scenario.parse` at the edge; everything inside trusts them.
+"""Scenario records: what a scenario file says, typed, with units. Built once at the edge by
+`cosim.load` (cosim.scenario.parse and the parsers of the other packages); everything inside
+trusts them.
 
-This module imports no other part of the simulator but the record types it holds, so any part
-(sensors, the loop, outputs) may import it without an import circle.
+This package imports no other part of the simulator (the world and the camera are built by
+their own packages, cosim/load.py hands their parsers in), so any part may import it.
 """
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from cosim.plant.vehicles import VehicleParams
-    from cosim.sensors.camera import CameraConfigAny
-    from cosim.world.floor import World
+    from cosim.scenario.vehicles import VehicleParams
+
+
+# why a run ended (a scenario's pass criteria name them; the master sets one)
+class ExitReason(enum.Enum):
+    MISSION_COMPLETE = "mission_complete"   # the app reached its goal; vehicle down, disarmed
+    APP_ABORTED = "app_aborted"             # the app gave up (its reason in the message); down
+    LANDED = "landed"                       # down and disarmed, but the app did not finish
+    CRASHED = "crashed"                     # hard touchdown or flipped
+    LEFT_ARENA = "left_arena"               # outside the world's arena or above the ceiling
+    COLLISION = "collision"                 # the body sphere touched a wall, box or column
+    TIME_LIMIT = "time_limit"               # timing.t_final_s reached
+    COMPONENT_ERROR = "component_error"     # a part failed (plant, onboard, app, camera)
+    INTERRUPTED = "interrupted"             # Ctrl-C
+    STOPPED = "stopped"                     # cosim sitl: Ctrl-C or SIGTERM, a normal stop
 
 @dataclass(frozen=True)
 class Timing:
@@ -75,8 +89,9 @@ class Scenario:
     vehicle: VehicleParams
     start: Start
     timing: Timing
-    world: World                             # the parsed world (cosim.world.floor.World)
-    camera: CameraConfigAny | None           # the parsed camera config, chosen by its kind
+    world: Any                               # the parsed world (cosim.world.floor.World)
+    camera: Any                              # the parsed camera config, chosen by its kind
+                                             # (cosim.sensors.camera.CameraConfigAny), or None
     app: AppSpec
     noise: SensorNoise
     wind_ned_mps: tuple[float, float, float]

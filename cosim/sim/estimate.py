@@ -19,14 +19,12 @@ from pathlib import Path
 import cython
 import numpy as np
 
+from cosim.outputs.series import CHUNK, ESTIMATE_COLUMNS, SeriesSpool
 from cosim.sensors.suite import SensorSuite
-from cosim.sim.recorder import CHUNK, SeriesSpool
 from mav import wire
 from mav.fields import Layout, done, get_f, get_i, new_payload, put_f
 from mav.rotations import euler_from_quat
 
-ESTIMATE_COLUMNS = ("est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_roll",
-                    "est_pitch", "est_yaw", "est_lost")
 # a row of the estimate (doubles), and the answer's ODOMETRY read in place (fields by index:
 # 0 time_usec, 1-3 x y z, 4-7 q, 8-10 vx vy vz, ..., 60 quality)
 _ROW_L = cython.declare(Layout, Layout(f"<{len(ESTIMATE_COLUMNS)}d"))

@@ -7,27 +7,12 @@ landed), or None to go on. The time limit and failures of a part are decided by 
 
 from __future__ import annotations
 
-import enum
-
 import cython
 
 from cosim.errors import ComponentError
 from cosim.plant.fmu import Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_Z
+from cosim.scenario.records import ExitReason
 from cosim.world.clearance import sphere_clearance
-
-
-class ExitReason(enum.Enum):
-    MISSION_COMPLETE = "mission_complete"   # the app reached its goal; vehicle down, disarmed
-    APP_ABORTED = "app_aborted"             # the app gave up (its reason in the message); down
-    LANDED = "landed"                       # down and disarmed, but the app did not finish
-    CRASHED = "crashed"                     # hard touchdown or flipped
-    LEFT_ARENA = "left_arena"               # outside the world's arena or above the ceiling
-    COLLISION = "collision"                 # the body sphere touched a wall, box or column
-    TIME_LIMIT = "time_limit"               # timing.t_final_s reached
-    COMPONENT_ERROR = "component_error"     # a part failed (plant, onboard, app, camera)
-    INTERRUPTED = "interrupted"             # Ctrl-C
-    STOPPED = "stopped"                     # cosim sitl: Ctrl-C or SIGTERM, a normal stop
-
 
 CEILING_M = 5.0            # m above the floor: higher is "left the arena"
 ARENA_MARGIN_M = 0.5       # m outside the arena bounds before LEFT_ARENA

@@ -38,14 +38,15 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from cosim.errors import ComponentError
 from cosim.outputs.folder import clean_run_folder
+from cosim.outputs.result import RunResult
+from cosim.outputs.series import SeriesSpool
 from cosim.outputs.tlog import Tlog
 from cosim.scenario.records import Scenario
 from cosim.sensors.odometry import OdometrySensor
 from cosim.sim.exits import Exit, ExitMonitor, ExitReason
-from cosim.sim.master import Pacer, RunResult, build_plant
+from cosim.sim.master import Pacer, build_plant
 from cosim.sim.onboard import OnboardHandle
 from cosim.sim.options import RunOptions
-from cosim.sim.recorder import SeriesSpool
 from cosim.sim.tick import Tick
 from mav import wire
 from mav.hil import HilSimulatorCodec

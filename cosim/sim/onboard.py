@@ -12,8 +12,8 @@ from typing import Any
 
 from cosim.errors import ComponentError
 from cosim.outputs.tlog import Tlog, tap
-from cosim.plant.vehicles import get_vehicle
 from cosim.scenario.records import Scenario
+from cosim.scenario.vehicles import get_vehicle
 from cosim.sim.options import RunOptions
 from mav.links import SpinPolicy, UdpLink, UnixLink, memory_link, memory_pair
 

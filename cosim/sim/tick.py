@@ -27,8 +27,8 @@ import math
 import cython
 
 from cosim.errors import ComponentError
+from cosim.outputs.series import CHUNK
 from cosim.plant.fmu import Y_VZ
-from cosim.sim.recorder import CHUNK
 
 NAN3 = (math.nan, math.nan, math.nan)
 

@@ -81,14 +81,14 @@ def _engine_kw(args) -> dict:
 
 
 def montecarlo(args) -> int:
-    from cosim.studies.deps import load_scenario, parse_sets
+    from cosim.studies.deps import load_scenario, one_each
     from cosim.studies.dists import parse_varies
     from cosim.studies.study import montecarlo_jobs
 
     sc = load_scenario(args.scenario)
     dists = parse_varies(args.vary)
     sc = enter_numerics(args, sc)
-    sets = {k: v[0] for k, v in parse_sets(args.set, multi=False).items()}
+    sets = one_each(args.set)
     out = args.out or Path("runs") / f"mc-{sc.name}"
     jobs, manifest = montecarlo_jobs(sc, dists, args.runs, args.seed, sets, out,
                                      mode=args.mode, keep_runs=args.keep_runs,

@@ -11,26 +11,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+# the command line's values (a leaf module: nothing of the simulator is loaded)
+from cosim.scenario.sets import one_each, parse_sets, parse_value, split_values  # noqa: F401
+
 
 # ---------------------------------------------------------------- command-line values
-def parse_value(text: str) -> Any:
-    from cosim.studies.sweep import parse_value as f
-
-    return f(text)
-
-
-def split_values(text: str) -> list[str]:
-    from cosim.studies.sweep import split_values as f
-
-    return f(text)
-
-
-def parse_sets(sets: list[str], *, multi: bool) -> dict[str, list[Any]]:
-    from cosim.studies.sweep import parse_sets as f
-
-    return f(sets, multi=multi)
-
-
 def strict_json(o: Any, **kw: Any) -> str:
     """JSON without NaN / Infinity (null for a missing number) and with real booleans."""
     from cosim.outputs.strict import dumps
@@ -40,20 +25,20 @@ def strict_json(o: Any, **kw: Any) -> str:
 
 # ---------------------------------------------------------------- scenarios
 def load_scenario(path: str | Path):
-    from cosim.scenario.parse import load_scenario as f
+    from cosim.load import load_scenario as f
 
     return f(path)
 
 
 def parse_scenario(raw: dict[str, Any], *, source: str, base_dir: Path):
-    from cosim.scenario.parse import parse_scenario as f
+    from cosim.load import parse_scenario as f
 
     return f(raw, source=source, base_dir=base_dir)
 
 
 def with_set(sc, assignments: dict[str, Any]):
     """A copy of the scenario with dotted-path overrides, re-validated."""
-    from cosim.scenario.parse import with_set as f
+    from cosim.load import with_set as f
 
     return f(sc, assignments)
 
@@ -86,6 +71,6 @@ def write_run(res, out: Path) -> dict[str, Any]:
 
 def phase_column() -> int:
     """Index of the app's phase in a run's recorded series."""
-    from cosim.sim.recorder import COL
+    from cosim.outputs.series import COL
 
     return COL["phase"]

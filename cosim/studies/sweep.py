@@ -14,14 +14,13 @@ import csv
 import itertools
 import json
 import os
-import tomllib
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from cosim.errors import ScenarioError
+from cosim.scenario.sets import parse_sets, split_values  # noqa: F401
 
 
 class Executor(Protocol):
@@ -51,55 +50,6 @@ EXECUTORS: dict[str, Callable[[int | None], Executor]] = {
 }
 
 
-def parse_value(text: str) -> Any:
-    """A TOML value (number, bool, string, list); a bare word is a string. Nested at most
-    MAX_DEPTH deep (a deeper one would exhaust the recursion of the parser and the checks)."""
-    depth = deepest = 0
-    for ch in text:
-        depth += ch in "[{"
-        depth -= ch in "]}"
-        deepest = max(deepest, depth)
-    if deepest > MAX_DEPTH:
-        raise ScenarioError("value", text, f"a TOML value nested at most {MAX_DEPTH} deep")
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-MAX_DEPTH = 32
-
-
-def split_values(text: str) -> list[str]:
-    """Split 'a,b,[1,2]' at top-level commas."""
-    out, depth, cur = [], 0, ""
-    for ch in text:
-        if ch in "[{":
-            depth += 1
-        elif ch in "]}":
-            depth -= 1
-        if ch == "," and depth == 0:
-            out.append(cur)
-            cur = ""
-        else:
-            cur += ch
-    out.append(cur)
-    return [s.strip() for s in out if s.strip()]
-
-
-def parse_sets(sets: list[str], *, multi: bool) -> dict[str, list[Any]]:
-    out: dict[str, list[Any]] = {}
-    for s in sets:
-        key, eq, vals = s.partition("=")
-        if not eq or not key.strip():
-            raise ScenarioError("--set", s, "KEY=VALUE[,VALUE...] with a dotted key")
-        values = [parse_value(v) for v in (split_values(vals) if multi else [vals])]
-        if not values:
-            raise ScenarioError(f"--set {key}", vals, "at least one value")
-        out[key.strip()] = values
-    return out
-
-
 @dataclass(frozen=True)
 class Job:
     scenario: str
@@ -109,8 +59,8 @@ class Job:
 
 
 def run_job(job: Job) -> dict[str, Any]:
+    from cosim.load import load_scenario, with_set
     from cosim.outputs.report import write_run
-    from cosim.scenario.parse import load_scenario, with_set
     from cosim.sim.master import RunOptions, run_scenario
 
     sc = with_set(load_scenario(job.scenario), dict(job.overrides))

@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 from viewer_http import CHROMIUM, FLAGS, NODE, ROOT, run_url, serve
 
-from cosim.scenario.parse import load_scenario, with_set
+from cosim.load import load_scenario, with_set
+from cosim.outputs.series import COL
 from cosim.sim.master import RunOptions, run_scenario
-from cosim.sim.recorder import COL
 
 T_SEEK_S = 8.0        # hovering by then
 WAIT_S = float(os.environ.get("COSIM_VIEWER_WAIT_S", 180.0))

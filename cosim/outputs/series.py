@@ -24,6 +24,9 @@ SERIES_COLUMNS = (
                              "sp_x", "sp_y", "sp_z", "phase")
 )
 COL = {name: i for i, name in enumerate(SERIES_COLUMNS)}
+# a sensor-fed run's estimate per tick (cosim/sim/estimate.py records it; RunResult.estimate)
+ESTIMATE_COLUMNS = ("est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_roll",
+                    "est_pitch", "est_yaw", "est_lost")
 CHUNK = 4096               # rows per spooled block (4096 x 30 x 8 B ~ 1 MB)
 READ_BLOCK = 8192          # rows per block when reading back (~2 MB)
 

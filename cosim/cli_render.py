@@ -48,15 +48,15 @@ def _image_path(path: Path, flag: str, suffixes: tuple[str, ...]) -> None:
 
 
 def render_command(args) -> int:
-    from cosim.scenario.parse import load_scenario, with_set
-    from cosim.studies.sweep import parse_sets
+    from cosim.load import load_scenario, with_set
+    from cosim.scenario.sets import one_each
 
     _image_path(args.out, "--out", IMAGE_SUFFIXES)
     if args.depth is not None:
         _image_path(args.depth, "--depth", (".png",))
     sc = load_scenario(args.scenario)
     if args.set:
-        sc = with_set(sc, {k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
+        sc = with_set(sc, one_each(args.set))
     n, e, d, yaw = _numbers(args.at, 4, "--at")
     roll, pitch = _numbers(args.attitude, 2, "--attitude")
     if abs(roll) >= 90 or abs(pitch) >= 90:

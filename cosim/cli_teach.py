@@ -67,12 +67,12 @@ def _pose_at(res, t: float) -> tuple[float, float, float, float]:
 
 def teach_command(args) -> int:
     from cosim.apps.vs.presets import resolve
-    from cosim.scenario.parse import load_scenario, with_set
-    from cosim.studies.sweep import parse_sets
+    from cosim.load import load_scenario, with_set
+    from cosim.scenario.sets import one_each
 
     sc = load_scenario(args.scenario)
     if args.set:
-        sc = with_set(sc, {k: v[0] for k, v in parse_sets(args.set, multi=False).items()})
+        sc = with_set(sc, one_each(args.set))
     if sc.app.name != "visual_servo":
         raise ScenarioError("app.name", sc.app.name, "visual_servo (a repeat scenario)")
     params = resolve(sc.app.params)        # checked when the scenario was loaded
