@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup fmu build demo test test-slow viewer-setup lint bench docs docs-figures clean
+.PHONY: setup fmu build demo test test-fast test-slow viewer-setup lint bench docs docs-figures clean
 
 setup: $(STAMP) fmu build
 
@@ -31,6 +31,12 @@ demo: setup
 test: setup
 	$(VENV)/bin/ruff check .
 	$(PY) -m cosim.numerics portable -- $(PY) -m pytest -m "not slow" --durations=25
+
+# the fast lane for development: unit tests of the parts, no whole flights (tests marked
+# `flight` or `slow` are left out; one that flies anyway fails, tests/conftest.py)
+test-fast: setup
+	$(VENV)/bin/ruff check .
+	$(PY) -m pytest --fast --durations=10 -q
 
 # the slow checks include a real viewer (tests/viewer): chromium, Playwright, npm packages
 test-slow: setup viewer-setup

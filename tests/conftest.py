@@ -1,3 +1,37 @@
 """Shared test setup: the tests run on what the switch chose for this process (mav/compiled.py:
 compiled when built, the default); tests/test_compiled.py runs flights and the onboard
 behaviour tests interpreted too, back to back."""
+
+import pytest
+
+
+def pytest_addoption(parser):
+    parser.addoption("--fast", action="store_true",
+                     help="the fast lane (make test-fast): unit tests of the parts; tests marked "
+                          "flight or slow are left out, and a test that starts a whole flight "
+                          "anyway fails, naming the marker it lacks")
+
+
+def pytest_collection_modifyitems(config, items):
+    if not config.getoption("--fast"):
+        return
+    keep, drop = [], []
+    for item in items:
+        (drop if item.get_closest_marker("flight") or item.get_closest_marker("slow")
+         else keep).append(item)
+    if drop:
+        config.hook.pytest_deselected(items=drop)
+        items[:] = keep
+
+
+@pytest.fixture(autouse=True)
+def _fast_lane_flies_nothing(request, monkeypatch):
+    """In the fast lane, building a run's plant (every whole flight does) fails the test."""
+    if request.config.getoption("--fast"):
+        from cosim.sim import fleet, master
+
+        def refuse(*args, **kwargs):
+            raise AssertionError("a whole flight in the fast lane: mark the test "
+                                 "`@pytest.mark.flight` (or its module: pytestmark)")
+        monkeypatch.setattr(master, "build_plant", refuse)
+        monkeypatch.setattr(fleet, "build_plant", refuse)

@@ -73,6 +73,7 @@ def test_a_class_without_the_contract_is_refused(tmp_path, monkeypatch):
     assert notapp.CALLS == []
 
 
+@pytest.mark.flight
 def test_a_plugin_app_is_checked_at_load_and_built_only_at_run(tmp_path, monkeypatch):
     (tmp_path / "myapp.py").write_text(
         "from cosim.apps.scripted import ScriptedApp\n"

@@ -134,6 +134,7 @@ def _short_run():
     return run_scenario(sc, RunOptions())
 
 
+@pytest.mark.flight
 def test_disk_full_leaves_no_truncated_file_and_no_summary_claiming_success(tmp_path,
                                                                            monkeypatch):
     """Issue 14 item 7: disk full gave a traceback, a truncated CSV and a summary.json saying

@@ -108,6 +108,7 @@ def _tlog_msgs(res, mtype: str) -> list:
     return out
 
 
+@pytest.mark.flight
 def test_battery_faults_mil_equals_sil_bit_for_bit():
     sc = with_set(load_scenario(SCEN / "mambo_hover.toml"), {"timing.t_final_s": 12.0, "faults": {
         "battery": [{"kind": "sag", "start_s": 6.0, "end_s": 8.0, "r_factor": 4.0,
@@ -141,6 +142,7 @@ class LowBatteryLands(ScriptedApp):
         ctx.client.set_param("COM_LOW_BAT_ACT", 2.0)
 
 
+@pytest.mark.flight
 def test_drain_mid_hover_lands_the_vehicle_through_the_failsafe_in_mil_and_sil():
     sc = with_set(load_scenario(SCEN / "mambo_hover.toml"), {"timing.t_final_s": 30.0, "faults": {
         "battery": [{"kind": "drain", "start_s": 10.0, "remaining": 0.06}]}})
@@ -166,6 +168,7 @@ def test_drain_mid_hover_lands_the_vehicle_through_the_failsafe_in_mil_and_sil()
     assert modes[0] == (6, 0) and modes[-1] == (4, 6)    # OFFBOARD, then AUTO.LAND
 
 
+@pytest.mark.flight
 def test_shipped_battery_scenario_lands_the_same_in_mil_and_sil():
     """scenarios/mambo_seed_battery.toml: `[onboard.params]` COM_LOW_BAT_ACT = 2 reaches the
     flight stack in both modes (a parameter file: OnboardConfig.param_file / --params), and a

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 COSIM = [sys.executable, "-m", "cosim.cli"]
 
@@ -23,6 +25,7 @@ def _figures(d, path=""):
                 yield from _figures(v, f"{path}.{k}")
 
 
+@pytest.mark.flight
 def test_bench_quick_reports_every_figure(tmp_path):
     out = tmp_path / "bench.json"
     r = subprocess.run([*COSIM, "bench", "--quick", "--json", str(out)], capture_output=True,

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from cosim.bench.flood import FloodProbe, _heartbeats, flood_pool, format_flood
 from mav import wire
 
@@ -48,6 +50,7 @@ def test_heartbeat_listener_counts_the_vehicles_only():
     assert len(probe.tick_wall) == 3 and probe.flood is None and probe.flood_end_k is None
 
 
+@pytest.mark.flight
 def test_bench_flood_briefly():
     from cosim.bench.flood import bench_flood
 

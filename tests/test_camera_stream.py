@@ -279,6 +279,7 @@ class Recorder:
         return getattr(self.app, name)
 
 
+@pytest.mark.flight
 def test_defaults_hand_the_app_the_frame_rendered_at_its_tick(tmp_path):
     """The zero-latency default is the loop as it was: every frame rendered at the pose of
     its camera tick and handed over on that tick (compared with a fresh camera rendering
@@ -296,6 +297,7 @@ def test_defaults_hand_the_app_the_frame_rendered_at_its_tick(tmp_path):
         assert np.array_equal(img, fresh.render(np.array(row[1:4]), tuple(row[7:11])))
 
 
+@pytest.mark.flight
 def test_latency_hands_the_app_older_frames_with_their_capture_time(tmp_path):
     _, res, rec = room_run(tmp_path, {"latency_s": 0.1, "jitter_s": 0.01, "exposure_s": 0.01})
     assert len(rec.seen) >= 3.0 / (8 * 0.005) - 4
@@ -312,6 +314,7 @@ def test_latency_hands_the_app_older_frames_with_their_capture_time(tmp_path):
     assert res.camera_stream["frames"] == len(rec.seen)
 
 
+@pytest.mark.flight
 def test_a_delayed_stream_flies_the_same_pipelined_or_not(tmp_path):
     a = room_run(tmp_path / "p", {"stream": "bebop2"}, pipeline=True)[1]
     b = room_run(tmp_path / "s", {"stream": "bebop2"}, pipeline=False)[1]
@@ -320,6 +323,7 @@ def test_a_delayed_stream_flies_the_same_pipelined_or_not(tmp_path):
     assert a.frame_times == b.frame_times and a.camera_stream["blur_max_px"] > 0.5
 
 
+@pytest.mark.flight
 def test_paper2_e1_with_the_bebop2_stream_is_the_same_in_mil_and_sil(tmp_path):
     sc = load_scenario(ROOT / "scenarios/bebop2_vs_e1.toml")
     from cosim.load import with_set
@@ -335,6 +339,7 @@ def test_paper2_e1_with_the_bebop2_stream_is_the_same_in_mil_and_sil(tmp_path):
     assert a.frame_times == b.frame_times
 
 
+@pytest.mark.flight
 def test_cli_render_worker_switch_flies_the_same(tmp_path):
     """`cosim run --render-worker on|off`: which worker ran is in summary.json and on the
     screen; the flight is the same bytes."""
@@ -360,6 +365,7 @@ def test_cli_render_worker_switch_flies_the_same(tmp_path):
     assert on[2] == off[2]
 
 
+@pytest.mark.flight
 def test_a_term_to_the_process_group_ends_a_pipelined_run_cleanly(tmp_path):
     """Ctrl-C or `timeout` signal the whole process group, the render process too: it leaves
     the signal to the run, which ends 'interrupted' (exit 143), closes the stream (the

@@ -56,6 +56,7 @@ def test_out_and_json_paths_are_checked_first(tmp_path, capsys):
     assert "--out" in capsys.readouterr().err
 
 
+@pytest.mark.flight
 def test_a_failed_run_never_passes_even_without_criteria(tmp_path, capsys):
     out = tmp_path / "r"
     # an app that raises at once, and criteria that would all pass: still exit 1
@@ -79,6 +80,7 @@ def test_a_failed_run_never_passes_even_without_criteria(tmp_path, capsys):
     assert "boom" in capsys.readouterr().err
 
 
+@pytest.mark.flight
 def test_reused_run_folder_does_not_mix_runs(tmp_path):
     out = tmp_path / "r"
     seed = str(ROOT / "scenarios" / "mambo_seed_track.toml")

@@ -188,6 +188,7 @@ def test_signed_client():
         OffboardClient(app_end, signing_key=b"x")
 
 
+@pytest.mark.flight
 def test_fast_telemetry_decode_matches_pymavlink(tmp_path):
     """Every datagram of a flight's API link into two clients, one with the fast decoder and
     one forced through pymavlink: the same telemetry attributes and counters throughout."""

@@ -40,6 +40,7 @@ def fly(tmp: Path, scenario: str, compiled: str, *extra: str) -> dict:
     return {"dir": out, "summary": summary}
 
 
+@pytest.mark.flight
 @pytest.mark.parametrize(("scenario", "extra"), [
     ("mambo_seed_track.toml", ()),                  # the seed mission (paper 1)
     ("mambo_seed_track.toml", ("--mode", "sil")),   # SIL: the flight stack in its own process
@@ -96,6 +97,7 @@ def _probe(tmp: Path, pkg: Path, env_value: str | None) -> subprocess.CompletedP
                           env=env, capture_output=True, text=True, timeout=120, check=False)
 
 
+@pytest.mark.flight
 def test_the_switch_uses_fresh_builds_and_refuses_stale_ones(tmp_path):
     """A module built from its source loads compiled; after the source changes it is never
     used: COSIM_COMPILED=1 fails with one line naming the rebuild command, unset runs

@@ -136,6 +136,7 @@ def _run(name: str, mode: str = "mil"):
     return res, summarize(res)
 
 
+@pytest.mark.flight
 def test_seed_mission_lands_on_the_marker_with_20_percent_loss():
     res, s = _run("mambo_seed_lossy")
     assert s["passed"], s["criteria"]
@@ -143,6 +144,7 @@ def test_seed_mission_lands_on_the_marker_with_20_percent_loss():
     assert any("dropped" in w for _, w in res.faults)
 
 
+@pytest.mark.flight
 def test_offboard_outage_holds_then_lands_where_it_held():
     res, s = _run("mambo_seed_outage")
     assert s["passed"], s["criteria"]
@@ -152,6 +154,7 @@ def test_offboard_outage_holds_then_lands_where_it_held():
     assert "Failsafe: offboard not back, landing" in texts
 
 
+@pytest.mark.flight
 def test_odometry_dropout_does_not_fly_away():
     res, s = _run("mambo_seed_dropout")
     assert s["passed"], s["criteria"]
@@ -162,6 +165,7 @@ def test_odometry_dropout_does_not_fly_away():
     assert drift < 0.3          # it was flying 0.1 m/s: momentum, braked by drag
 
 
+@pytest.mark.flight
 def test_faults_mil_equals_sil_bit_for_bit():
     mil, _ = _run("mambo_seed_lossy")
     sil, _ = _run("mambo_seed_lossy", "sil")

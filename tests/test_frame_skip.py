@@ -122,6 +122,7 @@ def test_a_camera_that_cannot_skip_renders_every_frame():
     assert st.pop()[2][0, 0, 0] == 3 and st.skipped == 0
 
 
+@pytest.mark.flight
 def test_e1_flies_the_same_when_every_frame_is_rendered(tmp_path):
     """E1's first 10 s (take-off, matching, servo): the app's frames_wanted skips the frames
     of the take-off; a sink that sees every frame (PNGs) makes the stream render them all.

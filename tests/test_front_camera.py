@@ -312,6 +312,7 @@ def _bar_distance(x, y):
     return np.hypot(dn, de)
 
 
+@pytest.mark.flight
 def test_flying_into_the_column_ends_in_collision_at_the_right_time(tmp_path):
     sc = _e1([[1.5, 0.05, -1.0, 1.0]], t_final_s=20.0)
     res = run_scenario(sc, RunOptions(out_dir=tmp_path))
@@ -327,6 +328,7 @@ def test_flying_into_the_column_ends_in_collision_at_the_right_time(tmp_path):
     assert t_hit == pytest.approx(res.ticks * sc.timing.tick_s, abs=1e-6)
 
 
+@pytest.mark.flight
 def test_min_clearance_matches_a_hand_computed_value(tmp_path):
     sc = _e1()
     res = run_scenario(sc, RunOptions(out_dir=tmp_path))
@@ -447,6 +449,7 @@ def test_cosim_render_writes_the_view_and_its_depth(tmp_path):
     assert abs(int(col.min()) - 700) <= 15
 
 
+@pytest.mark.flight
 def test_room_video_of_a_flight(tmp_path):
     sc = load_scenario(ROOT / "scenarios/bebop2_room_e1.toml")
     raw = copy.deepcopy(sc.raw)
@@ -460,6 +463,7 @@ def test_room_video_of_a_flight(tmp_path):
     assert res.png_count == math.ceil(4.0 / (8 * 0.005) / 10)
 
 
+@pytest.mark.flight
 def test_front_camera_frames_are_the_same_bytes_in_mil_and_sil(tmp_path):
     """Same scenario and seed: the same frames (with seeded noise) and the same flight."""
     sc = load_scenario(ROOT / "scenarios/bebop2_room_e1.toml")

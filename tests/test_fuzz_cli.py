@@ -213,6 +213,7 @@ def _inputs(work: Path, placed: bool) -> dict[str, str]:
             **({f"out/{k}": v for k, v in _tree(vp).items()} if placed else {})}
 
 
+@pytest.mark.flight
 def test_fuzz_command_line_inputs(inputs, tmp_path, monkeypatch):
     rng = random.Random(SEED)
     systmp = tmp_path / "systmp"

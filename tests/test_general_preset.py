@@ -101,6 +101,7 @@ def test_general_is_the_default_and_released_is_unchanged():
     assert app.ips_params == IPSParams.released() and not app.planner_params.coast_m
 
 
+@pytest.mark.flight
 @pytest.mark.parametrize("name", NEW)
 def test_the_released_preset_fails_where_general_flies(name):
     """Each new track defeats the released code (the reason the preset exists): measured
@@ -116,6 +117,7 @@ def test_the_released_preset_fails_where_general_flies(name):
 ISSUE27 = ["mambo_figure8", "mambo_hairpin150", "mambo_thin_sharp"]
 
 
+@pytest.mark.flight
 @pytest.mark.parametrize("name", ISSUE27)
 def test_the_ring_of_issue_12_fails_where_the_along_line_look_ahead_flies(name):
     """Issue 27's tracks defeat the general preset as it was before it measured the

@@ -109,6 +109,7 @@ class Client:
         self._conn.__exit__(None, None, None)
 
 
+@pytest.mark.flight
 def test_a_client_receives_the_run_live_and_the_run_is_unchanged(tmp_path):
     sc = with_set(load_scenario(SEED), {"timing.t_final_s": 4.0})
     live = LiveView(port=0)
@@ -162,6 +163,7 @@ def test_a_client_receives_the_run_live_and_the_run_is_unchanged(tmp_path):
     assert np.array_equal(plain.series, res.series, equal_nan=True)
 
 
+@pytest.mark.flight
 def test_cosim_sitl_foxglove_serves_the_vehicle(tmp_path):
     """`cosim sitl --foxglove 0`: the address on stderr; poses while it runs."""
     sinks = []
@@ -213,6 +215,7 @@ def test_bad_foxglove_options_are_exit_2(args, tmp_path):
     assert r.returncode == 2 and "--foxglove" in r.stderr
 
 
+@pytest.mark.flight
 def test_bench_live_measures_the_three_ways_and_the_series_is_the_same():
     from cosim.bench.live import bench_live, format_live
 

@@ -42,6 +42,7 @@ def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
+@pytest.mark.flight
 @pytest.mark.parametrize("runs", ["seed_runs", "square_runs"])
 def test_mil_and_sil_are_bit_identical(runs, request):
     r = request.getfixturevalue(runs)
@@ -54,12 +55,14 @@ def test_mil_and_sil_are_bit_identical(runs, request):
     assert mil.events == sil.events
 
 
+@pytest.mark.flight
 def test_same_run_twice_is_identical(seed_runs):
     again = run_scenario(load_scenario(SEED), RunOptions(mode="mil"))
     assert _same_bits(again.series, seed_runs["mil"].series)
     assert again.tlog.read() == seed_runs["mil"].tlog.read()
 
 
+@pytest.mark.flight
 def test_seed_differs_with_noise_seed():
     sc = with_set(load_scenario(SQUARE), {"sensors.flow.flow_noise_rad_s": 0.03,
                                          "timing.t_final_s": 4.0})
@@ -70,6 +73,7 @@ def test_seed_differs_with_noise_seed():
     assert not _same_bits(a.series, c.series)
 
 
+@pytest.mark.flight
 def test_outputs_are_written_and_readable(seed_runs, tmp_path):
     res = seed_runs["mil"]
     summary = write_run(res, tmp_path)
@@ -101,6 +105,7 @@ class ExplodingApp(ScriptedApp):
         super().on_tick(t)
 
 
+@pytest.mark.flight
 def test_app_exception_stops_the_run_and_keeps_outputs(tmp_path):
     sc = load_scenario(SQUARE)
     res = run_scenario(sc, RunOptions(app_override=ExplodingApp(sc.app.params)))
@@ -128,6 +133,7 @@ def onboard_procs(monkeypatch):
     return procs
 
 
+@pytest.mark.flight
 def test_onboard_process_killed_mid_run(tmp_path, onboard_procs):
     procs = onboard_procs
 
@@ -150,6 +156,7 @@ def test_onboard_process_killed_mid_run(tmp_path, onboard_procs):
     assert not procs[0].alive()
 
 
+@pytest.mark.flight
 def test_cli_run_validate_and_help(tmp_path):
     out = tmp_path / "run"
     r = subprocess.run([*COSIM, "run", str(SQUARE), "--out", str(out), "--quiet"],
@@ -179,6 +186,7 @@ def test_cli_run_validate_and_help(tmp_path):
     assert r.returncode == 0 and "examples:" in r.stdout and "cosim sweep" in r.stdout
 
 
+@pytest.mark.flight
 def test_two_sil_runs_side_by_side(tmp_path):
     cmds = [[*COSIM, "run", str(SQUARE), "--mode", "sil", "--quiet", "--no-plots",
              "--out", str(tmp_path / f"r{i}")] for i in range(2)]
@@ -224,6 +232,7 @@ def test_sitl_answers_a_ground_station():
         api.close()
 
 
+@pytest.mark.flight
 def test_realtime_pacing_keeps_the_lockstep():
     sc = with_set(load_scenario(SQUARE), {"timing.t_final_s": 2.0})
     fast = run_scenario(sc, RunOptions())
@@ -234,6 +243,7 @@ def test_realtime_pacing_keeps_the_lockstep():
     assert _same_bits(fast.series, paced.series)
 
 
+@pytest.mark.flight
 def test_cli_video_pngs_and_tune(tmp_path):
     out = tmp_path / "v"
     r = subprocess.run([*COSIM, "run", str(SEED), "--out", str(out), "--quiet", "--video",
@@ -253,6 +263,7 @@ def test_cli_video_pngs_and_tune(tmp_path):
     assert r.returncode == 0 and "PM" in r.stdout and "alt" in r.stdout
 
 
+@pytest.mark.flight
 def test_fmu_error_is_named_and_outputs_kept(tmp_path, monkeypatch):
     """A NaN motor command reaches the real FMU, which rejects it with fmi2Error."""
     from mav import wire
@@ -272,6 +283,7 @@ def test_fmu_error_is_named_and_outputs_kept(tmp_path, monkeypatch):
     assert (tmp_path / "summary.json").is_file()
 
 
+@pytest.mark.flight
 def test_onboard_process_that_hangs_is_detected(tmp_path, onboard_procs):
     procs = onboard_procs
 
@@ -292,6 +304,7 @@ def test_onboard_process_that_hangs_is_detected(tmp_path, onboard_procs):
     assert not procs[0].alive()               # the master shut the stopped process down
 
 
+@pytest.mark.flight
 def test_vehicle_overrides_fly_the_same_in_mil_and_sil():
     sc = with_set(load_scenario(SQUARE), {"vehicle.overrides.mass": 0.07,
                                          "vehicle.overrides.drag_xy": 0.02,
@@ -305,6 +318,7 @@ def test_vehicle_overrides_fly_the_same_in_mil_and_sil():
     assert sil.onboard_stats["rx_hil"] == mil.onboard_stats["rx_hil"] == mil.ticks
 
 
+@pytest.mark.flight
 def test_landing_is_detected_with_odometry_noise():
     """PX4's land detector decides on filtered velocities; ours low-passes vz, so velocity
     noise the scenarios allow does not keep the vehicle armed on the ground (issue 12:

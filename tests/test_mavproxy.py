@@ -25,9 +25,12 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 from sitl_proc import free_udp_port, sitl
+
+pytestmark = pytest.mark.flight     # whole flights (make test-fast leaves them out)
 
 M = mavlink2
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"

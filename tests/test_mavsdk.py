@@ -22,6 +22,7 @@ import socket
 import subprocess
 import sys
 
+import pytest
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw
@@ -130,6 +131,7 @@ async def _mission(api_port: int, log: list[str]) -> None:
                 await watcher
 
 
+@pytest.mark.flight
 def test_mavsdk_flies_cosim_sitl(tmp_path):
     api_port = _free_udp_port()
     gcs_sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)   # the GCS link's peer: unread

@@ -14,6 +14,7 @@ import socket
 import subprocess
 import sys
 
+import pytest
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mission import MissionAsync, MissionItem, MissionPlan
@@ -97,6 +98,7 @@ async def _fly(api_port: int, log: list[str]) -> None:
         assert d < 0.2
 
 
+@pytest.mark.flight
 def test_mavsdk_mission_goto_speed_and_rtl(tmp_path):
     api_port = _free_udp_port()
     gcs_sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -97,6 +97,7 @@ async def _session(api_port: int, log: list[str]) -> None:
         assert max(took) < timeout_s / 3, (took, timeout_s)
 
 
+@pytest.mark.flight
 def test_mavsdk_param_refusals_fail_fast_with_the_reason(tmp_path):
     api_port = free_udp_port()
     log: list[str] = []

@@ -95,12 +95,14 @@ def test_image_payload_is_the_rendered_frame(run):
     assert img.tobytes() in data and b"rgb8" in data and b"camera" in data
 
 
+@pytest.mark.flight
 def test_same_bytes_run_to_run(run, tmp_path):
     res, out = run
     again = run_scenario(res.scenario, RunOptions(out_dir=tmp_path, mcap=True))
     assert again.mcap.read_bytes() == (out / "run.mcap").read_bytes()
 
 
+@pytest.mark.flight
 def test_a_study_keeps_an_mcap_per_kept_run(tmp_path):
     import subprocess
     import sys

@@ -23,6 +23,8 @@ from cosim.outputs.fox_topics import TOPICS
 from cosim.sim.master import RunOptions, run_scenario
 from mav.rotations import R_from_quat
 
+pytestmark = pytest.mark.flight     # whole flights (make test-fast leaves them out)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

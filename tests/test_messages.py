@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from cosim.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,6 +33,7 @@ def test_validate_checks_every_file_and_reports_each(tmp_path, capsys):
     assert "bad1.toml" in err and "bad2.toml" in err and "2 of 4 files are bad" in err
 
 
+@pytest.mark.flight
 def test_an_odd_sized_video_says_what_it_drops(tmp_path, capsys):
     import cv2
 

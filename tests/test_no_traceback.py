@@ -119,6 +119,7 @@ def test_broken_study_folders(tmp_path, capsys):
     _bad(capsys, [*MC, "--out", out], "results.csv")
 
 
+@pytest.mark.flight
 def test_a_junk_run_id_does_not_break_every_rerun(tmp_path, capsys):
     out = tmp_path / "mc"
     assert main([*MC, "--out", str(out)]) == 0

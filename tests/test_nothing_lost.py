@@ -128,6 +128,7 @@ def _whole_outputs(out: Path) -> None:
             assert wire.decode_fast is not None and len(frame) >= 12
 
 
+@pytest.mark.flight
 @pytest.mark.parametrize("free", [5_000, 40_000, 147_000])
 def test_a_full_disk_ends_a_run_in_one_line_and_keeps_outputs_whole(tmp_path, monkeypatch,
                                                                    capsys, free):
@@ -145,6 +146,7 @@ def test_a_full_disk_ends_a_run_in_one_line_and_keeps_outputs_whole(tmp_path, mo
     _whole_outputs(out)
 
 
+@pytest.mark.flight
 def test_a_full_disk_ends_a_study_in_one_line_and_keeps_its_table(tmp_path, monkeypatch,
                                                                    capsys):
     """Defect 6, studies: tracebacks and a stray results.csv.tmp. Now one line, exit 1, the
@@ -177,6 +179,7 @@ def _strict_load(text: str):
     return json.loads(text, parse_constant=refuse)
 
 
+@pytest.mark.flight
 def test_summary_json_is_strict_json(tmp_path, monkeypatch):
     """Defect 7: summary.json held bare NaN and criteria `"passed": "True"` (a numpy bool
     through default=str). Now null for a missing number, true/false as booleans."""

@@ -90,6 +90,7 @@ print(h.hexdigest())
 """
 
 
+@pytest.mark.flight
 def test_libm_numpy_and_blas_give_the_same_bits_at_every_level_when_portable():
     hashes = {lv: child(["-c", LIBM], level=lv, numerics_mode="portable").stdout.strip()
               for lv in LEVELS}
@@ -116,6 +117,7 @@ def test_a_run_refuses_portable_numerics_its_process_lacks(tmp_path):
     assert not (out / "summary.json").exists()
 
 
+@pytest.mark.flight
 def test_the_cosim_command_starts_itself_with_the_numerics_asked_for(tmp_path):
     out = tmp_path / "r"
     child(["-m", "cosim.cli", "run", str(SQUARE), "--numerics", "portable", "--no-plots",
@@ -150,6 +152,7 @@ def test_run_numerics_in_the_scenario(tmp_path):
     assert s["numerics"]["mode"] == "portable"
 
 
+@pytest.mark.flight
 def test_a_study_says_whether_every_run_was_portable(tmp_path):
     out = tmp_path / "mc"
     child(["-m", "cosim.cli", "montecarlo", str(SQUARE), "-n", "2", "--executor", "serial",

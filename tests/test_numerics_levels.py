@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.flight     # whole flights (make test-fast leaves them out)
+
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 LEVELS = ("native", "avx2", "baseline")

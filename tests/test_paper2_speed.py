@@ -221,6 +221,7 @@ def _fly_e1(threads: int, seconds: float, sets: dict | None = None, where: list 
         visual_servo.frame_work = work
 
 
+@pytest.mark.flight
 def test_e1_is_the_same_sequential_and_pipelined_and_from_the_cache(fresh_cache, monkeypatch):
     """Take-off, matching, tracking and the column in view (the first 7 s of E1): one
     thread, sequential, with everything made afresh; then on two cores with the world and
@@ -283,6 +284,7 @@ def test_render_process_hands_back_each_frame_in_order_and_raises_its_errors():
     assert rp.proc is None
 
 
+@pytest.mark.flight
 def test_render_process_ends_when_its_parent_is_killed(tmp_path):
     """The child holds no copy of the parent's end of the pipe: a parent killed outright
     (SIGKILL, no clean-up) leaves no render process behind."""
@@ -320,6 +322,7 @@ def _stuck(ys):
     time.sleep(120)
 
 
+@pytest.mark.flight
 def test_a_stuck_render_process_is_killed_at_close():
     """The child ignores SIGTERM (a TERM to the process group is its run's to handle), so
     close() kills one that does not answer, rather than waiting for it (also at exit)."""
@@ -347,6 +350,7 @@ def test_render_process_gone_is_an_error_not_a_hang():
         rp.close()
 
 
+@pytest.mark.flight
 def test_a_frame_a_camera_fault_replaces_is_worked_on_afresh_when_pipelined(fresh_cache):
     """A frozen or black frame is not the frame the worker prepared: the app works on the
     frame it gets, as a sequential run does (E1 with both faults while it tracks)."""
@@ -390,6 +394,7 @@ def test_pixel_thresholds_scale_with_the_width():
     assert len(pts) > 50 and d.min() >= 3.5 - 1e-6    # 7 px at 856 wide: 3.5 px here
 
 
+@pytest.mark.flight
 def test_e1_at_half_resolution_matches_and_tracks(fresh_cache):
     """428 x 240 (the documented fast choice): the keys are taught at that size, the points
     matched and tracked with the scaled thresholds (the first 7 s of E1)."""

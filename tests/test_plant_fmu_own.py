@@ -104,6 +104,7 @@ def test_closed_mapped_plant_refuses_to_step():
         p.step(*(4 * [MAMBO.u_hover]))
 
 
+@pytest.mark.flight
 def test_fmi3_scenario_flies_the_square_as_the_fmi2_one():
     res3, s3 = fly(load_scenario(SCEN / "scripted_square_fmi3.toml"))
     res2, _ = fly(load_scenario(SCEN / "scripted_square.toml"))
@@ -136,11 +137,13 @@ def test_frame_conversions():
 
 
 # ---- a plant from another toolchain: PythonFMU -------------------------------------------------
+@pytest.mark.flight
 def test_pythonfmu_plant_flies_the_scripted_square(enu_fmu):
     _, s = fly(scenario_on("scripted_square.toml", enu_fmu, enu_map()))
     assert s["metrics"]["position_error_max_m"] <= 0.15
 
 
+@pytest.mark.flight
 def test_pythonfmu_plant_flies_the_bebop2_square_in_sil_as_in_mil(enu_fmu):
     sc = scenario_on("bebop2_scripted_square.toml", enu_fmu, enu_map())
     sil, _ = fly(sc, mode="sil")
@@ -148,10 +151,12 @@ def test_pythonfmu_plant_flies_the_bebop2_square_in_sil_as_in_mil(enu_fmu):
     assert np.array_equal(sil.series, mil.series, equal_nan=True)
 
 
+@pytest.mark.flight
 def test_pythonfmu_plant_flies_the_seed_mission(enu_fmu):
     fly(scenario_on("mambo_seed_track.toml", enu_fmu, enu_map()))
 
 
+@pytest.mark.flight
 def test_pythonfmu_plant_takes_thrust_and_torques(enu_fmu):
     m = enu_map()
     m["command"] = "wrench"
@@ -198,6 +203,7 @@ def test_pythonfmu_plant_through_its_map_moves_like_our_plant(enu_fmu):
         assert a[13:16] == pytest.approx(b[13:16], abs=0.05)           # specific force
 
 
+@pytest.mark.flight
 def test_the_map_matters(enu_fmu):
     """The same plant told it is NED/FRD does not fly: the map is what makes it work."""
     m = enu_map()

@@ -109,6 +109,7 @@ def test_closed_plant_no_longer_calls_the_stepper():
     assert p._stepper is None and "step" not in p.__dict__ and p.k == 1
 
 
+@pytest.mark.flight
 def test_seed_mission_identical_with_and_without_the_stepper(monkeypatch):
     from cosim.bench.command import SEED
     from cosim.load import load_scenario

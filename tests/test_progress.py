@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from cosim.load import load_scenario, with_set
 from cosim.outputs.progress import track_progress
@@ -59,6 +60,7 @@ def test_a_nearby_leg_does_not_hide_the_error():
     assert err[-1] > 0.19 and cov < 0.3
 
 
+@pytest.mark.flight
 def test_an_app_that_gives_up_is_not_a_completed_mission():
     sc = with_set(load_scenario(SEED), {"app.params.mission_timeout_s": 30.0})
     res = run_scenario(sc, RunOptions(mode="mil"))

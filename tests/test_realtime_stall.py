@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from cosim.load import load_scenario, with_set
 from cosim.sim import master
 from cosim.sim.master import RunOptions, run_scenario
@@ -37,6 +39,7 @@ class FakeClock:
         self.now += s
 
 
+@pytest.mark.flight
 def test_a_host_stall_is_skipped_not_replayed(monkeypatch):
     clock = FakeClock(stall_at=400, stall_s=2.0)
     monkeypatch.setattr(master, "time", clock)

@@ -17,6 +17,8 @@ from cosim.load import load_scenario
 from cosim.outputs.report import summarize
 from cosim.sim.master import RunOptions, run_scenario
 
+pytestmark = pytest.mark.flight     # whole flights (make test-fast leaves them out)
+
 ROOT = Path(__file__).resolve().parent.parent
 # paper 2's oval (E3, E4): minutes of flight with the front camera; E2 on relative moves
 # (~1 min); run with -m slow

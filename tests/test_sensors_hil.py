@@ -44,6 +44,7 @@ def _estimator() -> tuple[Estimator, dict]:
     return Estimator(own, stats, FlatEarth(42.3, -71.35, 71.0)), stats
 
 
+@pytest.mark.flight
 def test_mil_and_sil_are_bit_identical_with_sensors_on():
     sc = _square()
     mil, sil = (run_scenario(sc, RunOptions(mode=m)) for m in ("mil", "sil"))
@@ -57,6 +58,7 @@ def test_mil_and_sil_are_bit_identical_with_sensors_on():
     assert 0.0 < math.dist(e[:3], mil.series[-1, 1:4]) < 0.5
 
 
+@pytest.mark.flight
 def test_same_seed_same_flight_other_seed_other_noise():
     a, b = (run_scenario(_square(**{"timing.t_final_s": 4.0}), RunOptions()) for _ in range(2))
     c = run_scenario(_square(**{"timing.t_final_s": 4.0, "seed": 7}), RunOptions())
@@ -65,6 +67,7 @@ def test_same_seed_same_flight_other_seed_other_noise():
     assert a.estimate.tobytes() != c.estimate.tobytes()
 
 
+@pytest.mark.flight
 def test_the_sensors_are_the_default_feed_and_the_truth_an_option():
     sc = load_scenario(SQUARE)
     assert sc.sensors.hil and dict(sc.onboard_params)["EKF2_TYPE"] == 1.0
@@ -84,6 +87,7 @@ def test_the_sensors_are_the_default_feed_and_the_truth_an_option():
     assert not ok.sensors.hil and len(ok.faults.odometry) == 1
 
 
+@pytest.mark.flight
 def test_a_lost_position_keeps_the_altitude_and_refuses_the_position_modes():
     """Over a plain floor the flow gives nothing: the position is lost once above 0.5 m
     (EKF2_NOAID_TOUT). The vehicle holds level at its estimated altitude (sonar, baro), as
@@ -109,6 +113,7 @@ def test_a_lost_position_keeps_the_altitude_and_refuses_the_position_modes():
     assert landing > held + 0.2                  # COM_POS_FS_DELAY after: descending
 
 
+@pytest.mark.flight
 def test_seed_mission_on_the_estimate_meets_the_landing_and_coverage_targets():
     res = run_scenario(with_set(load_scenario(SEED), {"sensors.feed": "hil"}), RunOptions())
     assert res.exit_reason is ExitReason.MISSION_COMPLETE, res.message
@@ -160,6 +165,7 @@ def test_outliers_are_rejected_and_counted_never_propagated():
     assert all(math.isfinite(v) for v in od[1:14])
 
 
+@pytest.mark.flight
 def test_sensor_faults_reach_the_estimate_and_are_counted():
     sc = _square(**{"faults.sensor": [
         {"kind": "flow_garbage", "start_s": 6.0, "end_s": 7.0, "value": [1, 0, 0]},
@@ -251,6 +257,7 @@ def test_estimator_status_on_request_on_odometry():
     assert es.flags & M.ESTIMATOR_POS_HORIZ_REL and es.flags & M.ESTIMATOR_ATTITUDE
 
 
+@pytest.mark.flight
 def test_gps_fixes_reach_the_estimate():
     res = run_scenario(_square(**{"sensors.gps.enabled": True, "timing.t_final_s": 8.0}),
                        RunOptions())
@@ -259,6 +266,7 @@ def test_gps_fixes_reach_the_estimate():
     assert st["est_gps_fused"] == 8.0 / 0.2 + 1 and st["est_rej_gps"] == 0
 
 
+@pytest.mark.flight
 def test_flow_lost_in_flight_is_a_lost_position_and_the_vehicle_lands():
     sc = _square(**{"timing.t_final_s": 30.0, "faults.sensor": [
         {"kind": "flow_loss", "start_s": 8.0}]})
@@ -271,6 +279,7 @@ def test_flow_lost_in_flight_is_a_lost_position_and_the_vehicle_lands():
     assert res.series[-1, 3] > -0.05                 # landed (z ~ 0), COM_POS_FS_DELAY later
 
 
+@pytest.mark.flight
 def test_the_altitude_filter_learns_the_accelerometer_bias():
     """The altitude filter's third state (EKF2 learns the accelerometer's bias the same way):
     without it the Mambo's vertical accelerometer error (bias 0.08 m/s^2 and a 0.55 % scale
@@ -286,6 +295,7 @@ def test_the_altitude_filter_learns_the_accelerometer_bias():
     assert vz_offset(0.0) > 0.02                # no bias learnt (limit 0): 0.034 m/s
 
 
+@pytest.mark.flight
 def test_the_estimate_is_spooled_chunk_by_chunk_in_order():
     """The estimate rows go to disk a CHUNK at a time (memory flat over a long run, as the
     series): over 5000 ticks, across the first chunk's boundary, the spooled estimate is the
@@ -359,6 +369,7 @@ def _sys_status(res) -> list[tuple[float, int]]:
     return out
 
 
+@pytest.mark.flight
 @pytest.mark.parametrize("feed", ["hil", "truth"])
 def test_sys_status_says_not_ready_until_the_estimator_is_aligned(feed, tmp_path):
     """As PX4 before EKF2's tilt alignment: the pre-arm check (a ground station's "Ready To

@@ -216,6 +216,7 @@ def test_instance_offsets_and_sysids_in_a_real_run(tmp_path):
         assert s["sitl"]["links"]["api"]["remote"] == f"127.0.0.1:{api_b + instance - 1}"
 
 
+@pytest.mark.flight
 def test_two_vehicles_in_one_world_flown_by_one_client(tmp_path):
     with sitl_and_gcs(tmp_path, count=2) as (sitl, gcs):
         gcs.pump(lambda: gcs.get(1, "GLOBAL_POSITION_INT") and gcs.get(2, "GLOBAL_POSITION_INT")
@@ -243,6 +244,7 @@ def test_two_vehicles_in_one_world_flown_by_one_client(tmp_path):
 
 
 # ------------------------------------------------------------------ item 9: lifetime
+@pytest.mark.flight
 def test_a_crash_respawns_the_vehicle_on_the_same_connection(tmp_path):
     with sitl_and_gcs(tmp_path) as (sitl, gcs):
         gcs.pump(lambda: gcs.get(1, "HEARTBEAT") is not None, "heartbeat")

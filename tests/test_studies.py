@@ -112,6 +112,7 @@ def _study(out: Path, executor: str, n: int = 4, **kw):
     return run_in_folder(jobs, manifest, out, executor=executor, progress=False, **kw)
 
 
+@pytest.mark.flight
 def test_serial_and_local_dask_cluster_give_the_same_rows(tmp_path):
     s_stats, s_rows, _ = _study(tmp_path / "serial", "serial")
     d_stats, _, _ = _study(tmp_path / "dask", "dask", workers=2)
@@ -125,6 +126,7 @@ def test_serial_and_local_dask_cluster_give_the_same_rows(tmp_path):
 
 
 # ------------------------------------------------------------------ resume
+@pytest.mark.flight
 def test_interrupted_study_resumes_without_redoing_runs(tmp_path):
     out = tmp_path / "mc"
     r = _cli(*_mc_args(out, 5, "--executor", "serial", "--limit", "2"))
@@ -152,6 +154,7 @@ def test_interrupted_study_resumes_without_redoing_runs(tmp_path):
     assert "wind.e_mps" in r.stderr and len((out / "results.csv").read_text().splitlines()) == 6
 
 
+@pytest.mark.flight
 def test_replay_command_flies_the_same_run_kept_with_keep_runs(tmp_path):
     out = tmp_path / "mc"
     assert _cli(*_mc_args(out, 3, "--executor", "serial", "--keep-runs")).returncode == 0
@@ -192,6 +195,7 @@ class CrashingApp:
         return {}
 
 
+@pytest.mark.flight
 def test_crashing_runs_are_failed_rows_and_the_study_goes_on(tmp_path):
     sc = load_scenario(SQUARE)
     raw = self_contained(sc)
@@ -225,6 +229,7 @@ def _dies_once(job: Job) -> dict:
     return run_job(job)
 
 
+@pytest.mark.flight
 def test_a_job_whose_worker_dies_runs_again_or_is_a_failed_row(tmp_path):
     import cloudpickle
 
@@ -240,6 +245,7 @@ def test_a_job_whose_worker_dies_runs_again_or_is_a_failed_row(tmp_path):
     assert "KilledWorker" in rows[2]["error"] and (tmp_path / "died-1").exists()
 
 
+@pytest.mark.flight
 def test_a_study_on_an_existing_cluster_via_scheduler(tmp_path):
     """`dask scheduler` + `dask worker` (the README's two commands, port 0), then --scheduler."""
     dask_cli = str(Path(sys.executable).parent / "dask")
@@ -271,6 +277,7 @@ def test_a_study_on_an_existing_cluster_via_scheduler(tmp_path):
         logs.close()
 
 
+@pytest.mark.flight
 def test_sweep_through_the_study_engine(tmp_path):
     """`cosim sweep` with a study option: streamed table, one seed column, report, same bytes
     from the local pool and serially."""

@@ -51,6 +51,7 @@ def _probe(job: Job) -> dict:
     return row
 
 
+@pytest.mark.flight
 def test_a_dask_worker_keeps_neither_earlier_results_nor_a_profile(tmp_path):
     import cloudpickle
 
@@ -73,6 +74,7 @@ def _census() -> tuple[int, int, int]:
     return len(gc.get_objects()), len(os.listdir("/proc/self/fd")), threading.active_count()
 
 
+@pytest.mark.flight
 @pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc (Linux)")
 def test_runs_in_one_process_leave_nothing_behind(tmp_path):
     """What a worker executes per run, 12 times in this process: after the warm-up runs, no
@@ -130,6 +132,7 @@ print(json.dumps([J.run_job(j)["_rss_mb"] for j in js]))
 """
 
 
+@pytest.mark.flight
 @pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc (Linux)")
 def test_a_front_camera_worker_gives_freed_frames_back(tmp_path):
     """Seven E1 runs cut to 4 s in a worker process, with and without `release_memory` after

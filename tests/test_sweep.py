@@ -25,6 +25,7 @@ def _sweep(tmp: Path, scenario: str, sets: list[str], executor: str) -> list[dic
     return list(csv.DictReader(open(tmp / "sweep.csv")))
 
 
+@pytest.mark.flight
 def test_pool_and_serial_agree(tmp_path):
     # odometry noise makes the seed matter; each run's whole time series must agree bit for bit
     sets = ["seed=0,1", "sensors.flow.flow_noise_rad_s=0.03", "timing.t_final_s=6.0"]

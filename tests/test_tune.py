@@ -185,6 +185,7 @@ def test_main_prints_table_and_exit_codes(capsys):
     assert tune.main(["plane"]) == 2
 
 
+@pytest.mark.flight
 def test_module_entry_point():
     r = subprocess.run([sys.executable, "-m", "mav.tune", "mambo", "--preset", "template"],
                        capture_output=True, text=True, timeout=120)

@@ -119,6 +119,7 @@ def _project(X, R, c):
     return ((Xc / Xc[:, 2:3]) @ K.T)[:, :2]
 
 
+@pytest.mark.flight
 @pytest.mark.parametrize("method", ["virtual_plane", "dominant_plane"])
 def test_the_control_law_converges_in_closed_loop_on_a_3d_scene(method):
     """Camera kinematics with the law v = -lambda e: the error direction (m* ~ H m) and the
@@ -226,6 +227,7 @@ def e1_runs(tmp_path_factory):
     return out
 
 
+@pytest.mark.flight
 def test_e1_converges_past_the_bar(e1_runs):
     res, s, _ = e1_runs["mil"]
     m = s["metrics"]
@@ -255,6 +257,7 @@ def test_e1_converges_past_the_bar(e1_runs):
     assert h_m.max() < 0.25
 
 
+@pytest.mark.flight
 def test_e1_is_the_same_in_mil_and_sil_bit_for_bit(e1_runs):
     a, b = e1_runs["mil"][0], e1_runs["sil"][0]
     assert a.exit_reason == b.exit_reason
@@ -262,6 +265,7 @@ def test_e1_is_the_same_in_mil_and_sil_bit_for_bit(e1_runs):
     assert a.frame_log == b.frame_log and len(a.frame_log) > 100
 
 
+@pytest.mark.flight
 def test_e2_follows_four_keys_past_two_obstacles():
     res = run_scenario(load_scenario(E2))
     s = summarize(res)
@@ -287,6 +291,7 @@ def test_e2_follows_four_keys_past_two_obstacles():
     assert m["goal_time_s"] < 60.0
 
 
+@pytest.mark.flight
 def test_lost_view_hovers_then_aborts_with_a_reason():
     """A key the vehicle cannot see from where it is (taught facing backwards): the app
     hovers, re-matches, gives up after lost_timeout_s, lands; must_complete fails."""

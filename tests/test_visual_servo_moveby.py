@@ -109,6 +109,7 @@ def e1_moveby(tmp_path_factory):
     return out
 
 
+@pytest.mark.flight
 def test_e1_on_relative_moves_is_the_same_in_mil_and_sil_bit_for_bit(e1_moveby):
     (a, sa), (b, _) = e1_moveby["mil"], e1_moveby["sil"]
     assert a.exit_reason == b.exit_reason

@@ -45,6 +45,7 @@ def test_there_are_eight_missions_in_at_least_six_rooms():
     assert len(MISSIONS) >= 8 and len(rooms) >= 6, (len(MISSIONS), rooms)
 
 
+@pytest.mark.flight
 def test_the_corridor_with_a_bar_on_the_path_is_flown_the_same_in_mil_and_sil(tmp_path):
     """The issue's first failure: a straight 1 m key in an 8 m corridor with a bar on the
     path; main's app flipped between the virtual and the dominant plane (a side wall 1.5 m

@@ -53,6 +53,7 @@ def test_bad_wind_tables_name_the_field():
             parse_wind(d)
 
 
+@pytest.mark.flight
 @pytest.mark.parametrize("wind", [{"wind.n_mps": 1.0}, {"wind.e_mps": -1.0},
                                   {"wind.n_mps": 0.3}])
 def test_the_seed_mission_lands_on_the_marker_in_steady_wind(wind):
