@@ -8,8 +8,9 @@ of its source is embedded in that C, and gcc compiles it against this interprete
 into `pkg/mod<EXT_SUFFIX>` beside the source. Compiler flags keep every double operation
 rounding as Python's does: -O2 without -ffast-math and with -ffp-contract=off (no fused
 multiply-add), so a compiled run is bit-identical to the interpreted one. gcc's warnings are
-shown; `--werror` (CI) makes them errors for the project's hand-written C only (the FMI
-binding, cosim/build.py), never for Cython's output, whose warnings are Cython's.
+shown; COSIM_WERROR=1 (CI) makes errors of gcc's warnings on the project's hand-written C (the
+FMI binding) and of Cython's warnings on the sources (a clean build has none, so a new one
+fails CI), never of gcc's warnings on the C Cython generates, which are Cython's.
 
 A module is rebuilt when its source, the flags, Cython's or gcc's version or the interpreter's
 ABI changed (a hash of all of them is embedded too); several processes may build at once (each
@@ -126,6 +127,8 @@ def compile_module(name: str, src: Path, so: Path, build_dir: Path, tool: str,
         if res.returncode != 0:
             raise BuildError(f"cython failed on {src}:\n{res.stdout}{res.stderr}")
         log = res.stdout + res.stderr
+        if werror and "warning:" in log:
+            raise BuildError(f"cython warned on {src} (COSIM_WERROR=1):\n{log}")
         with open(c, "ab") as f:
             f.write(_marker(src, tool))
     else:

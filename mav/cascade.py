@@ -152,8 +152,8 @@ class Gains:
 class QuadCascade:
     """Shared cascade and mixer. Subclasses supply the parameter table and `_gains()`."""
 
-    PARAMS: tuple[ParamSpec, ...] = ()
-    PRESETS: dict[str, dict[str, float]] = {}
+    PARAMS = ()         # tuple[ParamSpec, ...]: every parameter (a class attribute, not typed:
+    PRESETS = {}        # dict[str, dict[str, float]]  Cython keeps no annotation on one)
     # True: a yaw-rate setpoint integrates a heading reference (no drift, PX4 style);
     # False: yaw-rate setpoints close a pure rate loop (Parrot PCMD style).
     YAW_RATE_INTEGRATES = True

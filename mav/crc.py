@@ -81,12 +81,12 @@ def crc_of(data, start: int, end: int, extra: int) -> int:
         raise IndexError("crc_of: span outside the data")
     if extra < 0 or extra > 255:
         raise ValueError("bytes must be in range(0, 256)")
-    if cython.compiled:
-        if type(data) is bytes:
-            p = cython.cast(cython.p_uchar, PyBytes_AS_STRING(data))        # noqa: F821
-        else:
-            p = cython.cast(cython.p_uchar, PyByteArray_AS_STRING(data))    # noqa: F821
-        crc = _x25(p, start, end, 0xFFFF)
-        ex = extra
-        return _x25(cython.address(ex), 0, 1, crc)
-    return crc16(bytes(data[start:end]) + bytes((extra,)))
+    if not cython.compiled:
+        return crc16(bytes(data[start:end]) + bytes((extra,)))
+    if type(data) is bytes:
+        p = cython.cast(cython.p_uchar, PyBytes_AS_STRING(data))        # noqa: F821
+    else:
+        p = cython.cast(cython.p_uchar, PyByteArray_AS_STRING(data))    # noqa: F821
+    crc = _x25(p, start, end, 0xFFFF)
+    ex = extra
+    return _x25(cython.address(ex), 0, 1, crc)
