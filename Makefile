@@ -18,10 +18,9 @@ fmu: $(STAMP)
 	$(PY) -m fmus.build
 
 # the flight software and the master's tick compiled from their Python sources (Cython), and
-# the FMI binding; warnings shown (mav/compiled.py: COSIM_COMPILED picks compiled/interpreted)
+# the FMI binding; warnings shown (onesource/switch.py: COSIM_COMPILED picks compiled/interpreted)
 build: $(STAMP)
-	$(PY) -m mav.build
-	$(PY) -m cosim.build
+	$(PY) -m onesource.build
 
 demo: setup
 	$(VENV)/bin/cosim run scenarios/mambo_seed_track.toml --out runs/demo

@@ -4,9 +4,9 @@ the compiled build.
 setuptools copies the sources (with every ``.pxd`` and the FMI binding's C, pyproject.toml's
 package-data) into its build folder; this step then compiles there every module the packages
 list (``mav.COMPILED``, ``cosim.COMPILED`` and ``cosim.BINDINGS``) with the project's own
-builder (mav/build.py: the same Cython directives, gcc flags and embedded source hash as
+builder (onesource/build.py: the same Cython directives, gcc flags and embedded source hash as
 ``make build``), so each extension lies beside the source it was built from and the loader's
-stale-build check (mav/compiled.py) works in site-packages as in a checkout. The wheel is
+stale-build check (onesource/switch.py) works in site-packages as in a checkout. The wheel is
 tagged for this interpreter and platform. An editable install (``pip install -e .``, what
 ``make setup`` does) compiles nothing here: ``make build`` compiles in place.
 
@@ -36,8 +36,8 @@ class BuildPyCompiled(build_py):
         try:
             import cosim  # noqa: F401  (lists its modules with the switch)
             import mav  # noqa: F401
-            from mav.build import BuildError, build_modules
-            from mav.compiled import compiled_modules, extension_path
+            from onesource.build import BuildError, build_modules
+            from onesource.switch import compiled_modules, extension_path
         finally:
             sys.path.remove(str(ROOT))
         lib = Path(self.build_lib).resolve()

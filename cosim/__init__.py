@@ -1,13 +1,14 @@
 """The simulator: the master algorithm, the plant, sensors, worlds, apps, outputs, studies.
 
-The modules below run compiled when built (`python -m cosim.build`), as the flight software's
-do (mav/__init__.py, the switch: mav/compiled.py); the FMI stepper is a hand-written C binding
+The modules below run compiled when built (`python -m onesource.build`), as the flight software's
+do (mav/__init__.py, the switch: onesource/switch.py); the FMI stepper is a hand-written C binding
 used only then (cosim/plant/fmu.py falls back to ctypes).
 """
 
 from pathlib import Path as _Path
 
-from mav import compiled as _compiled
+import mav  # noqa: F401  (the flight software lists its compiled modules first)
+from onesource import switch as _compiled
 
 __version__ = "0.1.0"
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from cosim import cli_checks
 from cosim.cli_checks import add_numerics, check_out_dir, check_speed, enter_numerics, live_view
 from cosim.errors import OutputError, ScenarioError
-from mav.compiled import CompiledError
+from onesource.switch import CompiledError
 
 EXAMPLES = {
     "run": """examples:

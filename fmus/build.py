@@ -34,7 +34,7 @@ import sys
 import tempfile
 import zipfile
 
-from mav.compiled import build_root
+from onesource.switch import build_root
 
 PACKAGE_DIR = pathlib.Path(__file__).resolve().parent
 SOURCE_DIR = PACKAGE_DIR / "quadrotor"
@@ -195,7 +195,7 @@ def build(force: bool = False, out_dir: pathlib.Path | None = None,
 
 def fmu_path(build_if_needed: bool = True, fmi: int = 2) -> pathlib.Path:
     """Path of ``<build>/Quadrotor.fmu`` (`fmi` 3: ``Quadrotor3.fmu``; ``<build>``:
-    mav.compiled.build_root), built (or rebuilt) first if `build_if_needed`."""
+    onesource.switch.build_root), built (or rebuilt) first if `build_if_needed`."""
     if build_if_needed:
         return build(fmi=fmi)
     _check_fmi(fmi)

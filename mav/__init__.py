@@ -1,12 +1,12 @@
 """The flight software: the onboard stack, its controllers, its MAVLink codec and client.
 
-The modules below are compiled by Cython when built (`python -m mav.build`); the same sources
-run interpreted otherwise. mav/compiled.py is the switch (COSIM_COMPILED).
+The modules below are compiled by Cython when built (`python -m onesource.build`); the same sources
+run interpreted otherwise. onesource/switch.py is the switch (COSIM_COMPILED).
 """
 
 from pathlib import Path as _Path
 
-from mav import compiled as _compiled
+from onesource import switch as _compiled
 
 __version__ = "0.1.0"
 

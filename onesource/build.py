@@ -1,6 +1,6 @@
-"""Compile the listed modules of a package (the model) into extension modules (the generated
-code) with Cython: ``python -m mav.build`` for the flight software (the install step runs it;
-``make build`` builds every package). See mav/compiled.py for how a run chooses between them.
+"""Compile the modules the packages list (the model) into extension modules (the generated
+code) with Cython: ``python -m onesource.build`` (``make build``; the install step runs it, and
+setup.py for a wheel). See onesource/switch.py for how a run chooses between them.
 
 Each module `pkg/mod.py` (with its `pkg/mod.pxd`, if any: types Cython reads beside the
 source, which stays plain Python) is translated by Cython to C in `build/cython/`, the SHA-256
@@ -18,8 +18,8 @@ writes to a temporary file and moves it into place).
 
 Examples::
 
-    python -m mav.build            # build what changed, print each module's path
-    python -m mav.build --force    # rebuild everything
+    python -m onesource.build            # build what changed, print each module's path
+    python -m onesource.build --force    # rebuild everything
 """
 
 from __future__ import annotations
@@ -35,9 +35,8 @@ import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from mav.compiled import MARKER, build_root, compiled_modules, embedded_hash, source_hash
+from onesource.switch import MARKER, build_root, compiled_modules, embedded_hash, source_hash
 
-PACKAGE_DIR = Path(__file__).resolve().parent
 CFLAGS = ("-O2", "-shared", "-fPIC", "-Wall", "-Wextra", "-Wno-unused-parameter",
           "-Wno-unused-function", "-Wno-missing-field-initializers",
           "-ffp-contract=off", "-fno-fast-math")
@@ -101,7 +100,7 @@ def up_to_date(py: Path, so: Path, tool: str) -> bool:
 
 
 def _marker(src: Path, tool: str) -> bytes:
-    """A C line that embeds the source hash the loader checks (mav/compiled.py)."""
+    """A C line that embeds the source hash the loader checks (onesource/switch.py)."""
     return (b'\n__attribute__((used)) static const char cosim_source_sha256[] = "'
             + _stamp(src, tool) + b'";\n')
 
@@ -167,26 +166,25 @@ def build_modules(modules: dict[str, tuple[Path, Path]], *, force: bool = False,
     return [so for _, so in modules.values()]
 
 
-def build_main(argv: list[str] | None, prog: str, description: str, packages: list[str]) -> int:
-    """The command line of a package's builder: prints each extension's path; exit 1 with
-    the reason when one cannot be built."""
-    ap = argparse.ArgumentParser(prog=prog, description=description)
+def main(argv: list[str] | None = None) -> int:
+    """`python -m onesource.build`: every module the packages list (the flight software's and
+    the simulator's, with the FMI binding), printing each extension's path; exit 1 with the
+    reason when one cannot be built."""
+    import cosim  # noqa: F401  (each package lists its modules when imported)
+    import mav  # noqa: F401
+
+    ap = argparse.ArgumentParser(prog="python -m onesource.build",
+                                 description="Compile the listed modules with Cython.")
     ap.add_argument("--force", action="store_true", help="rebuild even if up to date")
     ap.add_argument("-j", "--jobs", type=int, default=None, help="modules compiled at once")
     args = ap.parse_args(argv)
-    mods = {n: p for n, p in compiled_modules().items() if n.split(".")[0] in packages}
     try:
-        for so in build_modules(mods, force=args.force, jobs=args.jobs):
+        for so in build_modules(compiled_modules(), force=args.force, jobs=args.jobs):
             print(so)
     except BuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    return build_main(argv, "python -m mav.build",
-                      "Compile the flight software's modules with Cython.", ["mav"])
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 The flight software and the master's tick are written once, in typed Python (the model); the
 install step compiles the modules each package lists (`register`) with Cython into extension
-modules beside their sources (`python -m mav.build`, `make build`), and runs use them. The
+modules beside their sources (`python -m onesource.build`, `make build`), and runs use them. The
 same `.py` files run interpreted when they are not compiled, with the same results bit for bit
 (tests/test_compiled.py flies both), as Simulink tests a model against its generated code.
 
@@ -37,7 +37,7 @@ ENV = "COSIM_COMPILED"
 ROOT = Path(__file__).resolve().parent.parent    # the folder that holds the packages
 # a source checkout (pyproject.toml beside the packages), or an installed package
 CHECKOUT = (ROOT / "pyproject.toml").is_file()
-REBUILD = "make build" if CHECKOUT else "python -m mav.build && python -m cosim.build"
+REBUILD = "make build" if CHECKOUT else "python -m onesource.build"
 
 
 def build_root() -> Path:

@@ -1,4 +1,4 @@
-"""Model against generated code (mav/compiled.py): the same sources run interpreted
+"""Model against generated code (onesource/switch.py): the same sources run interpreted
 (COSIM_COMPILED=0) and compiled by Cython (COSIM_COMPILED=1) fly the same flight bit for bit,
 and the switch refuses a compiled module that does not match its source.
 
@@ -81,7 +81,7 @@ def _package(tmp: Path, body: str = "def f(x):\n    return 2 * x\n") -> Path:
 _PROBE = """
 import sys
 sys.path.insert(0, {root!r})
-from mav import compiled
+from onesource import switch as compiled
 compiled.register(__import__('pathlib').Path({pkg!r}), ["pkgx.mod"])
 import pkgx.mod
 print("LOADED", type(pkgx.mod.f).__name__, compiled.describe())
@@ -102,8 +102,8 @@ def test_the_switch_uses_fresh_builds_and_refuses_stale_ones(tmp_path):
     """A module built from its source loads compiled; after the source changes it is never
     used: COSIM_COMPILED=1 fails with one line naming the rebuild command, unset runs
     interpreted and says why on stderr, 0 runs interpreted."""
-    from mav import compiled
-    from mav.build import build_modules
+    from onesource import switch as compiled
+    from onesource.build import build_modules
 
     pkg = _package(tmp_path)
     py = pkg / "mod.py"
@@ -137,7 +137,7 @@ def test_the_cli_names_the_rebuild_command_when_compiled_is_demanded_but_stale(t
     pkg = _package(tmp_path)
     env = dict(os.environ, COSIM_COMPILED="1",
                PYTHONPATH=f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    code = ("import sys; from mav import compiled; from pathlib import Path; "
+    code = ("import sys; from onesource import switch as compiled; from pathlib import Path; "
             f"compiled.register(Path({str(pkg)!r}), ['pkgx.mod']); "
             "from cosim.cli import main; sys.exit(main(['validate', "
             f"{str(SC / 'mambo_hover.toml')!r}]))")
@@ -150,7 +150,7 @@ def test_the_cli_names_the_rebuild_command_when_compiled_is_demanded_but_stale(t
 def test_this_test_run_is_compiled():
     """The suite runs on the build the install step made (a missing or stale build would
     quietly test the interpreter only)."""
-    from mav import compiled
+    from onesource import switch as compiled
 
     assert compiled.mode() == "compiled", compiled.describe()
     assert all(compiled.module_status(src, so) == "fresh"
@@ -161,7 +161,7 @@ def test_a_changed_record_layout_makes_every_module_that_cimports_it_stale(tmp_p
     """A field added to a .pxd changes the C code of every module that cimports it (they read
     the fields at fixed offsets): such modules count as changed too, so a stale build is
     never loaded with the new layout (it corrupted memory once: tick.so with an old tlog.pxd)."""
-    from mav import compiled
+    from onesource import switch as compiled
 
     pkg = tmp_path / "pkgy"
     (pkg / "sub").mkdir(parents=True)

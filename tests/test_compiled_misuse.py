@@ -12,7 +12,7 @@ import sys
 
 _SCRIPT = r'''
 import importlib, inspect, sys
-from mav import compiled
+from onesource import switch as compiled
 import cosim  # noqa: F401  (registers the simulator's modules)
 
 BAD = (None, "x", -1, 1e308, float("nan"), [], (1, 2), object())

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 import cosim  # noqa: F401  (lists its compiled modules)
-from mav import compiled
+from onesource import switch as compiled
 
 ROOT = Path(__file__).resolve().parent.parent
 _CLASS = re.compile(r"^cdef class (\w+)")

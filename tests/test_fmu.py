@@ -444,7 +444,7 @@ def test_bebop2_parameters_run_in_the_fmu(make):
 
 
 def test_builds_go_where_cosim_build_dir_says(monkeypatch, tmp_path):
-    from mav import compiled
+    from onesource import switch as compiled
     assert compiled.CHECKOUT and compiled.build_root() == Path(fb.REPO_ROOT) / "build"
     monkeypatch.setenv("COSIM_BUILD_DIR", str(tmp_path))
     assert compiled.build_root() == tmp_path

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 import cosim  # noqa: F401  (lists its compiled modules)
-from mav import compiled
+from onesource import switch as compiled
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.slow
@@ -47,7 +47,7 @@ def installed(tmp_path_factory):
     return wheel, py, site, env, tmp
 
 
-PROBE = ("import cosim, mav, mav.compiled as c, mav.wire, cosim.sim.tick; "
+PROBE = ("import cosim, mav, onesource.switch as c, mav.wire, cosim.sim.tick; "
          "print(c.describe()); print(mav.wire.__file__); print(cosim.sim.tick.__file__)")
 
 
@@ -84,8 +84,8 @@ def test_the_stale_build_check_and_the_rebuild_work_in_site_packages(installed):
         res = _run([str(py), "-c", PROBE], cwd=tmp, env=env)
         assert res.stdout.startswith("interpreted (battery.py (mav.battery) changed"), res.stdout
         # the message names the command that works for an installed package
-        assert "python -m mav.build && python -m cosim.build" in res.stdout
-        _run([str(py), "-m", "mav.build"], cwd=tmp, env=env)
+        assert "python -m onesource.build" in res.stdout
+        _run([str(py), "-m", "onesource.build"], cwd=tmp, env=env)
         assert _run([str(py), "-c", PROBE], cwd=tmp, env=env).stdout.startswith("compiled (")
     finally:
         src.write_text(original)

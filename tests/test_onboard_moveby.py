@@ -187,7 +187,7 @@ import hashlib, math, sys
 sys.path.insert(0, {tests!r})
 from test_onboard_closed_loop import enter_offboard, takeoff_and_hold
 from test_onboard_rig import Rig
-from mav import compiled
+from onesource import switch as compiled
 rig = Rig(plant=True, vehicle="bebop2", client=True, decode=False, offboard_loss_s=30.0)
 takeoff_and_hold(rig)
 enter_offboard(rig)

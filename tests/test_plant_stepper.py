@@ -15,12 +15,12 @@ from cosim.scenario.vehicles import BEBOP2, MAMBO
 
 
 def test_the_stepper_is_built_and_builds_are_checked(tmp_path):
-    """The install step built it (python -m cosim.build) from its current source; a build
+    """The install step built it (python -m onesource.build) from its current source; a build
     embeds the source's hash (what the switch checks), is skipped while the source is
     unchanged, redone when it changes, and a broken source fails with gcc's words."""
     from cosim import BINDINGS
-    from mav import compiled
-    from mav.build import BuildError, build_modules
+    from onesource import switch as compiled
+    from onesource.build import BuildError, build_modules
 
     src, so = BINDINGS["cosim.plant._fmi2step"]
     assert compiled.module_status(src, so) == "fresh"

@@ -28,7 +28,7 @@ from cosim.bench.common import (  # noqa: F401
 from cosim.bench.flood import bench_flood, format_flood
 from cosim.bench.paper2 import bench_paper2, format_paper2
 from cosim.bench.tick import bench_tick_breakdown, floor_estimate
-from mav import compiled
+from onesource import switch as compiled
 
 QUICK_FLOOD = {"t_final_s": 5.0, "flood_wall_s": 2.0, "realtime_s": 1.0}   # --quick: short
 
@@ -79,7 +79,7 @@ def bench_controller(n: int, repeats: int) -> dict[str, Any]:
 
 def interpreted(figure: str, *args: Any, **kw: Any) -> dict[str, Any]:
     """A figure of this module measured on the same sources interpreted: in a child process
-    with COSIM_COMPILED=0 (a process runs one or the other, mav/compiled.py)."""
+    with COSIM_COMPILED=0 (a process runs one or the other, onesource/switch.py)."""
     code = ("import json, sys\nfrom cosim.bench import command as bench\n"
             f"print(json.dumps(bench.{figure}(*{args!r}, **{kw!r})))")
     env = dict(os.environ, COSIM_COMPILED="0")

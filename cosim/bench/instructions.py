@@ -10,7 +10,7 @@ figure; the rest of `cosim bench` does not need it.
 Each variant is one Python process under cachegrind flying the seed mission once, and one
 flying it twice; the difference over the mission's ticks is the work per tick, without the
 imports, the FMU load and the first-run setup. Variants: "now" with `COSIM_COMPILED=1` (the
-compiled modules, mav/compiled.py); "before" with `COSIM_COMPILED=0` (the same sources
+compiled modules, onesource/switch.py); "before" with `COSIM_COMPILED=0` (the same sources
 interpreted, and the plant through ctypes). Four processes, two at a time: ~5-8 minutes.
 
 Where the compiled tick's instructions go (`parts`): one more process, under callgrind, flies

@@ -22,7 +22,7 @@ from cosim.outputs.metrics import COL, compute_metrics, evaluate
 from cosim.outputs.result import RunResult
 from cosim.outputs.series import ESTIMATE_COLUMNS, SERIES_COLUMNS
 from cosim.outputs.strict import dumps as strict_dumps
-from mav import compiled
+from onesource import switch as compiled
 
 FAILED_EXITS = {"component_error", "crashed", "left_arena", "collision", "interrupted",
                 "app_aborted"}
@@ -70,7 +70,7 @@ def summarize(res: RunResult) -> dict[str, Any]:
         "camera_stream": res.camera_stream,
         "onboard_stats": res.onboard_stats,
         "versions": versions(),
-        # compiled or interpreted, and why (mav/compiled.py; the flight is the same either way)
+        # compiled or interpreted, and why (onesource/switch.py; the flight is the same either way)
         "implementation": compiled.describe(),
         # the CPU code each library ran: "portable" = the same bits on every x86-64 CPU
         "numerics": numerics.describe(),

@@ -366,8 +366,8 @@ class Plant(FmuPlant):
 
     def _use_stepper(self, want: bool | None) -> None:
         """Bind :meth:`step` to the compiled stepper (see the class docstring): when this run
-        is compiled (mav/compiled.py) and `want` is not False; `want` True requires it."""
-        from mav import compiled
+        is compiled (onesource/switch.py) and `want` is not False; `want` True requires it."""
+        from onesource import switch as compiled
 
         if want is None:
             want = compiled.uses(STEPPER)

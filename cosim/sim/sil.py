@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from cosim.errors import ComponentError
-from mav import compiled
+from onesource import switch as compiled
 
 
 class OnboardProcess:
@@ -43,7 +43,7 @@ class OnboardProcess:
             "--hil-timeout", str(hil_timeout_s),
             *extra_args,
         ]
-        # the flight stack runs compiled or interpreted as this process does (mav/compiled.py)
+        # the flight stack runs compiled or interpreted as this process does (onesource/switch.py)
         env = dict(os.environ, PYTHONUNBUFFERED="1", **compiled.environment())
         self.proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=self._log, stdin=subprocess.DEVNULL, env=env,

@@ -1,6 +1,6 @@
 """One tick of the master algorithm, for every loop that steps a vehicle: `cosim run`
 (master.py, with or without fault hooks, MIL or SIL) and `cosim sitl` (fleet.py, one `Tick`
-per vehicle). Written once, in Python; compiled by Cython when built (mav/compiled.py).
+per vehicle). Written once, in Python; compiled by Cython when built (onesource/switch.py).
 
 Tick k (t_k = k * h from the integer counter), the order of ARCHITECTURE.md:
 1-2. plant outputs y(t_k) -> the sensor -> ODOMETRY stamped t_k (`hooks.on_odometry`);

@@ -1,5 +1,5 @@
 /* cosim.plant._fmi2step: one FMI 2.0 co-simulation tick (set inputs, doStep, get outputs) in
- * one call from Python, without ctypes argument marshalling (`python -m cosim.build`, `make build`
+ * one call from Python, without ctypes argument marshalling (`python -m onesource.build`, `make build`
  * builds it; cosim/plant/fmu.py uses it when it is there).
  *
  * Generic FMI 2.0: it calls the FMU's own fmi2SetReal, fmi2DoStep, fmi2GetReal and
