@@ -14,7 +14,7 @@ __version__ = "0.1.0"
 COMPILED = [
     "mav.crc", "mav.fields", "mav.wire", "mav.rotations", "mav.types", "mav.cascade",
     "mav.control", "mav.mixer", "mav.battery", "mav.hil", "mav.links", "mav.client",
-    "mav.onboard.vehicle", "mav.onboard.links", "mav.onboard.telemetry", "mav.onboard.status",
+    "mav.onboard.vehicle", "mav.onboard.channels", "mav.onboard.telemetry", "mav.onboard.status",
     "mav.onboard.commander", "mav.onboard.navigator", "mav.onboard.offboard",
     "mav.onboard.failsafe", "mav.onboard.mission", "mav.onboard.manual", "mav.onboard.leg",
     "mav.onboard.moveby",

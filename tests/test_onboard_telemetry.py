@@ -254,7 +254,7 @@ def test_stream_schedule_emits_as_the_plain_loop():
     ticks, in list order, as the loop over every stream it replaced, under random rate
     changes (SET_MESSAGE_INTERVAL and REQUEST_DATA_STREAM set interval and next time, then
     recompute_due)."""
-    from mav.onboard.links import Chan, Stream
+    from mav.onboard.channels import Chan, Stream
     from mav.onboard.telemetry import Telemetry
 
     def plain_loop(ch, t, log):          # the reference: what publish did before the heap

@@ -32,7 +32,7 @@ _TICK_PARTS = (
     ("cosim.sim.onboard", "OnboardHandle", "exchange", _HIL, None, None),
     ("mav.estimator.core", "Estimator", "estimate", "  onboard estimator (decode + filters)",
      _HIL, None),
-    ("mav.onboard.links", "LinkInput", "drain", "  onboard drain api+gcs", _HIL, None),
+    ("mav.onboard.channels", "LinkInput", "drain", "  onboard drain api+gcs", _HIL, None),
     ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", _HIL, None),
     ("mav.cascade", "QuadCascade", "update", "  onboard controller", _HIL, None),
     ("mav.battery", "Battery", "step", "  onboard battery", _HIL, None),

@@ -3,7 +3,7 @@
 Definitions (also in docs/outputs.md, Metrics):
 - mission_time_s: from the app's take-off command to the final touchdown (s).
 - path error while following: horizontal distance from the vehicle to the part of the track
-  centreline it should be on (cosim/outputs/progress.py: a cursor that follows the vehicle
+  centreline it should be on (cosim/outputs/coverage.py: a cursor that follows the vehicle
   along the route, so a leg that crosses or comes near does not count), over the following
   span (first to last tick of the app's 'following' phase): RMS, max, per track part.
 - track_coverage: the fraction of the route (the centreline parts joined in track order)
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from cosim.outputs.progress import track_progress
+from cosim.outputs.coverage import track_progress
 from cosim.outputs.result import RunResult
 from cosim.outputs.series import COL
 from cosim.scenario.records import Criteria, ExitReason

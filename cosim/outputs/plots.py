@@ -88,8 +88,8 @@ def plot_run(res, world, out: Path) -> list[Path]:
 
 def _path_error(ax, res, world, s, t) -> None:
     """The path error of the summary (progress.py), over the same following span."""
+    from cosim.outputs.coverage import track_progress
     from cosim.outputs.metrics import COVERAGE_TOL_M
-    from cosim.outputs.progress import track_progress
 
     span = _following_span(res, s, t)
     ax.set_ylabel("path error (m)")

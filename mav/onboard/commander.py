@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+from mav.onboard.channels import Outbox
 from mav.onboard.defs import (
     AIRBORNE_AGL_M,
     IN_AIR,
@@ -26,7 +27,6 @@ from mav.onboard.defs import (
     TAKING_OFF,
     M,
 )
-from mav.onboard.links import Outbox
 from mav.onboard.status import VehicleStatus
 from mav.rotations import yaw_from_quat
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 from mav import wire
+from mav.onboard.channels import Chan, Outbox
 from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     DATA_STREAM_GROUPS,
@@ -24,7 +25,6 @@ from mav.onboard.defs import (
     M,
     hz_to_us,
 )
-from mav.onboard.links import Chan, Outbox
 from mav.onboard.navigator import Navigator, speed_range
 from mav.onboard.status import VehicleStatus
 from mav.onboard.telemetry import Telemetry

@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import math
 
+from mav.onboard.channels import Outbox
 from mav.onboard.commander import Commander
 from mav.onboard.defs import LAND, LOITER, ON_GROUND, RTL, M
-from mav.onboard.links import Outbox
 from mav.onboard.status import VehicleStatus
 
 

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import math
 
+from mav.onboard.channels import Chan
 from mav.onboard.commander import Commander
 from mav.onboard.defs import IN_AIR, NAN, ON_GROUND
-from mav.onboard.links import Chan
 from mav.onboard.status import VehicleStatus
 
 LOCK_SPEED_MPS = 0.2        # an axis released locks its position once slower than this

@@ -28,8 +28,8 @@ import math
 from dataclasses import dataclass
 
 from mav import wire
+from mav.onboard.channels import Chan, Outbox
 from mav.onboard.defs import IN_AIR, LOITER, MISSION, ON_GROUND, M
-from mav.onboard.links import Chan, Outbox
 from mav.onboard.status import VehicleStatus
 
 REQUEST_RETRY_US = 500_000          # the vehicle asks again for an item not received

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+from mav.onboard.channels import Outbox
 from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     AIRBORNE_AGL_M,
@@ -37,7 +38,6 @@ from mav.onboard.defs import (
     wrap_pi,
 )
 from mav.onboard.leg import Leg
-from mav.onboard.links import Outbox
 from mav.onboard.status import VehicleStatus
 from mav.params import ONBOARD_PARAMS
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 from mav import wire
+from mav.onboard.channels import Chan, Outbox
 from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     FRAME_BODY_NED,
@@ -29,7 +30,6 @@ from mav.onboard.defs import (
     M,
     wrap_pi,
 )
-from mav.onboard.links import Chan, Outbox
 from mav.onboard.moveby import MoveBy
 from mav.onboard.status import VehicleStatus
 

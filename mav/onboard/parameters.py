@@ -16,8 +16,8 @@ from __future__ import annotations
 import math
 
 from mav import wire
+from mav.onboard.channels import Chan, Outbox
 from mav.onboard.defs import M, text_of
-from mav.onboard.links import Chan, Outbox
 from mav.onboard.status import VehicleStatus
 from mav.params import (
     ONBOARD_PARAMS,

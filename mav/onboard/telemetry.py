@@ -12,6 +12,7 @@ from collections.abc import Callable
 from heapq import heappop, heappush
 
 from mav import wire
+from mav.onboard.channels import Chan, Outbox
 from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     CAPABILITIES,
@@ -35,7 +36,6 @@ from mav.onboard.defs import (
     M,
     px4_custom_mode,
 )
-from mav.onboard.links import Chan, Outbox
 from mav.onboard.parameters import Parameters
 from mav.onboard.status import VehicleStatus
 from mav.rotations import euler_from_quat, rotate_body_to_world

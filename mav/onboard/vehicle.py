@@ -29,6 +29,7 @@ from mav import wire
 from mav.airframe import Airframe, get_airframe
 from mav.battery import BATTERIES, Battery
 from mav.estimator import Estimator
+from mav.onboard.channels import Chan, LinkInput, Outbox, Stream
 from mav.onboard.commander import Commander
 from mav.onboard.commands import Commands
 from mav.onboard.config import OnboardConfig
@@ -51,7 +52,6 @@ from mav.onboard.defs import (
 )
 from mav.onboard.failsafe import Failsafe
 from mav.onboard.inject import battery_failure
-from mav.onboard.links import Chan, LinkInput, Outbox, Stream
 from mav.onboard.manual import Manual
 from mav.onboard.mission import Mission
 from mav.onboard.navigator import Navigator

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cosim.load import load_scenario, with_set
-from cosim.outputs.progress import track_progress
+from cosim.outputs.coverage import track_progress
 from cosim.outputs.report import summarize
 from cosim.sim.master import ExitReason, RunOptions, run_scenario
 
