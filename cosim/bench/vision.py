@@ -3,8 +3,9 @@ its timing helpers)."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
+
+from cosim.bench.common import ROOT
 
 
 def bench_vision(n: int, repeats: int, per_call_us, stat) -> dict[str, Any]:
@@ -26,7 +27,7 @@ def bench_vision(n: int, repeats: int, per_call_us, stat) -> dict[str, Any]:
     from cosim.load import load_scenario
     from cosim.sensors.front import FrontCamera
 
-    sc = load_scenario(Path(__file__).resolve().parents[3] / "scenarios" / "bebop2_vs_e1.toml")
+    sc = load_scenario(ROOT / "scenarios" / "bebop2_vs_e1.toml")
     cam = FrontCamera(sc.world, sc.camera)
     K = sc.camera.K()
     frames = [gray_of(cam.render((0.6 * i / n, 0.3 * i / n, -1.0 + 0.4 * i / n),
