@@ -153,10 +153,26 @@ def test_a_full_disk_ends_a_study_in_one_line_and_keeps_its_table(tmp_path, monk
     table holds the rows written before, and the same command then finishes the study."""
     import csv
 
+    def argv_for(out):
+        return ["montecarlo", str(HOVER), "-n", "3", "--vary",
+                "timing.t_final_s=uniform(0.2,0.3)", "--executor", "serial", "--quiet",
+                "--out", str(out)]
+
+    # the same study once with room, into a folder of the same name length: the bytes it
+    # writes up to its first row (study.json records the command line, whose length is this
+    # machine's paths'); the full disk then leaves room for that and not for the second row
+    probe = tmp_path / "m0"
+    monkeypatch.setattr("sys.argv", ["cosim", *argv_for(probe)])
+    assert main(argv_for(probe)) == 0
+    capsys.readouterr()
+    header, first, *_ = (probe / "results.csv").read_text().splitlines(keepends=True)
+    log_first = (probe / "runs.log").read_text().splitlines(keepends=True)[0]
+    free = ((probe / "study.json").stat().st_size + len(header) + len(first)
+            + len(log_first) + 8)
     out = tmp_path / "mc"
-    argv = ["montecarlo", str(HOVER), "-n", "3", "--vary", "timing.t_final_s=uniform(0.2,0.3)",
-            "--executor", "serial", "--quiet", "--out", str(out)]
-    full_disk(monkeypatch, tmp_path.resolve(), 900)
+    argv = argv_for(out)
+    monkeypatch.setattr("sys.argv", ["cosim", *argv])
+    full_disk(monkeypatch, tmp_path.resolve(), free)
     rc = main(argv)
     monkeypatch.undo()
     err = capsys.readouterr().err
