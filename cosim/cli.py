@@ -30,10 +30,11 @@ EXAMPLES = {
   cosim sweep scenarios/mambo_seed_track.toml --set app.alpha=0.002,0.0038,0.006,0.008,0.010
   cosim sweep scenarios/mambo_textured.toml --set seed=0,1,2,3 --set app.k_t=100,150
   cosim sweep scenarios/scripted_square.toml --set seed=0,1 --executor serial
-  cosim sweep scenarios/mambo_turns.toml --set app.alpha=0.004,0.006,0.008 --executor dask
-study options (--executor dask, --scheduler, --resume, --keep-runs, --retry-failed, --limit):
-  the run goes through the study engine (cosim/studies): results.csv streamed and resumable
-  with the same command, report.md with statistics; see `cosim montecarlo --help`.""",
+  cosim sweep scenarios/mambo_turns.toml --set app.alpha=0.004,0.006,0.008 --workers 2
+a sweep is a study (cosim/studies), on a local Dask cluster by default: results.csv streamed
+and resumable with the same command, report.md with statistics, sweep.png with one swept
+key; study options (--executor, --scheduler, --keep-runs, --retry-failed, --limit): see
+`cosim montecarlo --help`.""",
     "sitl": """examples:
   cosim sitl                                  then connect QGroundControl (UDP 14550)
   cosim sitl --vehicle bebop2 --world turns   MAVSDK / scripts on UDP 14540
@@ -134,12 +135,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--set", action="append", required=True, metavar="KEY=V1,V2,...")
     s.add_argument("--mode", choices=("mil", "sil"), default="mil")
     s.add_argument("--out", type=Path, help="sweep folder (default runs/sweep-<scenario>)")
-    # issue 15: studies at scale (cosim/studies); the plain form below is unchanged
+    # a study (cosim/studies): results.csv, report.md, sweep.png; the same command continues
     from cosim.studies.command import add_montecarlo, add_study_options
 
-    add_study_options(s, default_executor="local")
+    add_study_options(s, default_executor="dask")
     s.add_argument("--resume", action="store_true",
-                   help="through the study engine: continue the study in --out")
+                   help="continue the study in --out (what the same command always does)")
     add_montecarlo(add)
 
     t = add("sitl", help="vehicles in a world, real time, for ground stations")
@@ -317,9 +318,9 @@ def _dispatch(args) -> int:
     if args.cmd == "run":
         return _run(args)
     if args.cmd == "sweep":
-        from cosim.studies.command import sweep, uses_study_engine
+        from cosim.studies.command import sweep
 
-        return sweep(args) if uses_study_engine(args) else _sweep(args)
+        return sweep(args)
     if args.cmd == "montecarlo":
         from cosim.studies.command import montecarlo
 
@@ -404,43 +405,6 @@ def _run(args) -> int:
     if res.exit_reason is ExitReason.INTERRUPTED:    # Ctrl-C (SIGTERM: 143, below)
         return 130
     return 0 if summary["passed"] else 1
-
-
-def _sweep(args) -> int:
-    from cosim.load import load_scenario, with_set
-    from cosim.studies.study import check_grid
-    from cosim.studies.sweep import (
-        EXECUTORS,
-        make_jobs,
-        parse_sets,
-        plot_sweep,
-        run_job,
-        write_table,
-    )
-
-    sc = enter_numerics(args, load_scenario(args.scenario))
-    grid = parse_sets(args.set, multi=True)
-    check_grid(grid)
-    for key, values in grid.items():  # validate every value before starting any run
-        for v in values:
-            with_set(sc, {key: v})
-    if args.workers is not None and args.workers < 1:
-        raise ScenarioError("--workers", args.workers, "an integer >= 1")
-    out = args.out or Path("runs") / f"sweep-{sc.name}"
-    check_out_dir(out, "--out")
-    from cosim.outputs.folder import claim_run_folder
-
-    with claim_run_folder(out, "--out", what="study"):   # one sweep per folder at a time
-        jobs = make_jobs(args.scenario, grid, out, args.mode)
-        print(f"sweep: {len(jobs)} runs of {sc.name} ({args.executor} executor)",
-              file=sys.stderr)
-        results = EXECUTORS[args.executor](args.workers).map(run_job, jobs)
-        keys = list(grid)
-        table = write_table(results, keys, out)
-        plot_sweep(results, keys[0], out)
-    print(table.read_text())
-    print(f"sweep outputs in {out}")
-    return 0 if all(r["passed"] for r in results) else 1
 
 
 if __name__ == "__main__":

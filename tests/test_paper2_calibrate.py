@@ -7,6 +7,23 @@ import math
 
 from cosim.apps.vs import calibrate as C
 
+PARAMS = ["app.params.low_level", "camera.latency_s"]
+
+
+def _study(folder, runs):
+    """A sweep's study folder as `cosim sweep` writes it: study.json and results.csv."""
+    folder.mkdir()
+    (folder / "study.json").write_text(json.dumps({"kind": "sweep", "params": PARAMS}))
+    cols = ["run_id", *PARAMS, "seed", "status", "exit_reason", "passed", *C.METRICS]
+    lines = [",".join(cols)]
+    for i, r in enumerate(runs):
+        m = r["metrics"]
+        cells = [str(i), *(str(r["overrides"][k]) for k in PARAMS), "0", "ok", r["exit_reason"],
+                 str(r["passed"]), str(m["goal_reached"]), repr(m["goal_time_s"]),
+                 repr(m["repeat_time_s"]), '"' + json.dumps(m["switch_times_s"]) + '"']
+        lines.append(",".join(cells))
+    (folder / "results.csv").write_text("\n".join(lines) + "\n")
+
 
 def _run(lat, goal, rep, switches, passed=True, exit_reason="mission_complete"):
     return {"overrides": {"app.params.low_level": "moveby", "camera.latency_s": lat},
@@ -34,8 +51,7 @@ def test_fit_and_ratio_commands(tmp_path, capsys):
                        ("e2", [_run(0.1, 46.0, 36.0, [22.0, 25.0, 36.0, 46.0])]),
                        ("e3", [_run(0.1, 110.0, 100.0, []), _run(0.2, 110.0, 100.0, [])]),
                        ("e4", [_run(0.1, 60.0, 40.0, []), _run(0.2, 60.0, 50.0, [])])):
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "sweep.json").write_text(json.dumps(runs))
+        _study(tmp_path / name, runs)
     assert C.main(["fit", str(tmp_path / "e1"), str(tmp_path / "e2")]) == 0
     assert "within 30%" in capsys.readouterr().out
     assert C.main(["fit", str(tmp_path / "e1"), str(tmp_path / "e2"),

@@ -279,11 +279,11 @@ def test_a_study_on_an_existing_cluster_via_scheduler(tmp_path):
 
 @pytest.mark.flight
 def test_sweep_through_the_study_engine(tmp_path):
-    """`cosim sweep` with a study option: streamed table, one seed column, report, same bytes
-    from the local pool and serially."""
+    """`cosim sweep`: streamed table, one seed column, report, same bytes from a local Dask
+    cluster and serially."""
     base = ["sweep", SEED_TRACK, "--set", "seed=0,1", "--set", "wind.n_mps=0,0.3",
             "--set", "sensors.flow.flow_noise_rad_s=0.03", "--set", "timing.t_final_s=5"]
-    r = _cli(*base, "--executor", "local", "--workers", "2", "--resume",
+    r = _cli(*base, "--executor", "dask", "--workers", "2", "--resume",
              "--out", str(tmp_path / "pool"))
     assert r.returncode in (0, 1), r.stderr
     assert _cli(*base, "--executor", "serial", "--resume",

@@ -8,7 +8,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from cosim.errors import ScenarioError
 from cosim.outputs.tlog import Tlog, read_tlog
-from cosim.studies.sweep import make_jobs, parse_sets, split_values
+from cosim.scenario.sets import parse_sets, split_values
 
 
 def test_tlog_roundtrip_readable_by_pymavlink(tmp_path):
@@ -41,10 +41,3 @@ def test_split_and_parse_sets():
     assert parse_sets(["app.name=scripted"], multi=False) == {"app.name": ["scripted"]}
     with pytest.raises(ScenarioError, match="--set"):
         parse_sets(["alpha"], multi=True)
-
-
-def test_make_jobs_is_cartesian(tmp_path):
-    jobs = make_jobs("s.toml", {"a": [1, 2], "b": ["x", "y", "z"]}, tmp_path, "mil")
-    assert len(jobs) == 6
-    assert len({j.out_dir for j in jobs}) == 6
-    assert jobs[0].overrides == (("a", 1), ("b", "x"))

@@ -25,7 +25,7 @@ exit status: 0 study done, 1 some runs failed (raised or a component error), 2 b
 
 
 def add_study_options(p: argparse.ArgumentParser, *, default_executor: str) -> None:
-    p.add_argument("--executor", choices=("dask", "local", "serial"), default=default_executor,
+    p.add_argument("--executor", choices=("dask", "serial"), default=default_executor,
                    help=f"where runs go (default {default_executor})")
     p.add_argument("--scheduler", metavar="tcp://HOST:8786",
                    help="an existing Dask scheduler (or env COSIM_DASK_SCHEDULER); "
@@ -57,15 +57,11 @@ def add_montecarlo(add) -> None:
     add_study_options(m, default_executor="dask")
 
 
-def uses_study_engine(args) -> bool:
-    """`cosim sweep` goes through the study engine with any of the study options."""
-    return (args.executor == "dask" or args.scheduler is not None or args.resume
-            or args.keep_runs or args.retry_failed or args.limit is not None)
-
-
 def _engine_kw(args) -> dict:
     if args.limit is not None and args.limit < 0:
         raise ScenarioError("--limit", args.limit, "an integer >= 0")
+    if args.workers is not None and args.workers < 1:
+        raise ScenarioError("--workers", args.workers, "an integer >= 1")
     if args.scheduler is not None and args.executor != "dask":
         raise ScenarioError("--scheduler", args.scheduler, "only with --executor dask")
     if args.scheduler is not None:
@@ -160,6 +156,10 @@ def _go(jobs, manifest, out: Path, args, title: str) -> int:
           f"report in {out / 'report.md'}")
     if report["failed"]:
         return 1
+    if manifest["kind"] == "sweep" and len(manifest["params"]) == 1:
+        from cosim.studies.sweep import plot_sweep
+
+        print(f"sweep figure in {plot_sweep(rows, manifest['params'][0], out)}")
     if manifest["kind"] == "sweep" and s["passed"] < s["runs"]:
         return 1
     return 0

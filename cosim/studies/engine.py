@@ -1,15 +1,15 @@
-"""Run a study's jobs on one of three executors and stream the rows into the results table.
+"""Run a study's jobs (a Monte Carlo study's or a sweep's) and stream the rows into the results
+table; the one engine of both.
 
-- `serial`: in this process, one after the other (debugging, the reference for tests);
-- `local`: a process pool of this machine (`concurrent.futures`);
-- `dask` (the default of `cosim montecarlo`): dask.distributed. With no address, a
+- `dask` (the default): dask.distributed. With no address, a
   `LocalCluster` of one single-threaded worker process per core (or `workers`); with
   `--scheduler tcp://HOST:8786` or the environment variable COSIM_DASK_SCHEDULER, the
   existing cluster behind that scheduler. A job whose worker dies is re-run on another worker
   by the scheduler (Dask's `distributed.scheduler.allowed-failures`: 1 on our local cluster,
   the scheduler's own setting on a remote one); when it has killed more workers than that, it
   is a failed row (KilledWorker). A task that raises outside `run_job` is retried once
-  (`retries=1`).
+  (`retries=1`);
+- `serial`: in this process, one after the other (debugging, the reference for tests).
 
 Rows come back as runs finish (`as_completed`) and are appended to the table at once, so a
 study stopped anywhere (Ctrl-C, a lost worker, a reboot) resumes with the same command and
@@ -37,7 +37,7 @@ from cosim.errors import ScenarioError, output_error
 from cosim.studies.jobs import Job, run_job
 from cosim.studies.table import ResultsTable
 
-EXECUTORS = ("dask", "local", "serial")
+EXECUTORS = ("dask", "serial")
 SCHEDULER_ENV = "COSIM_DASK_SCHEDULER"
 
 
@@ -99,7 +99,7 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
 
     try:
         if todo:
-            runner = {"serial": _serial, "local": _pool, "dask": _dask}[executor]
+            runner = {"serial": _serial, "dask": _dask}[executor]
             for row in runner(todo, fn, workers=workers, scheduler=scheduler):
                 record(row)
     except KeyboardInterrupt:
@@ -128,26 +128,6 @@ _ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx|inproc)://)?"
 def _serial(jobs, fn, **_) -> Iterator[dict[str, Any]]:
     for j in jobs:
         yield fn(j)
-
-
-def _pool(jobs, fn, *, workers, **_) -> Iterator[dict[str, Any]]:
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from concurrent.futures.process import BrokenProcessPool
-
-    n = min(workers or os.cpu_count() or 1, len(jobs))
-    # spawn: no fork of a parent that has threads (the progress bar's monitor)
-    with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn")) as ex:
-        futs = [ex.submit(fn, j) for j in jobs]
-        try:
-            for f in as_completed(futs):
-                yield f.result()
-        except BrokenProcessPool:
-            raise StudyError("a worker process of the local pool died; re-run the same "
-                             "command to continue (finished runs are kept)") from None
-        finally:
-            for f in futs:
-                f.cancel()
 
 
 # the variables Dask's nanny sets in a worker that change how its libraries compute

@@ -13,6 +13,7 @@ import copy
 import ctypes
 import ctypes.util
 import gc
+import json
 import os
 import shutil
 import socket
@@ -168,7 +169,8 @@ def _rss_mb() -> float | None:
 
 
 def flat_metrics(metrics: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Scalar metrics as columns; nested tables as `name.key`; lists stay in the run folder."""
+    """Scalar metrics as columns; nested tables as `name.key`; a list of numbers (e.g. a key's
+    switch times) as its JSON text; other lists stay in the run folder."""
     out: dict[str, Any] = {}
     for k, v in metrics.items():
         name = f"{prefix}{k}"
@@ -180,6 +182,9 @@ def flat_metrics(metrics: dict[str, Any], prefix: str = "") -> dict[str, Any]:
             out[name] = v
         elif hasattr(v, "item") and not hasattr(v, "__len__"):  # numpy scalar
             out[name] = v.item()
+        elif isinstance(v, list | tuple) and all(
+                isinstance(x, int | float) and not isinstance(x, bool) for x in v):
+            out[name] = json.dumps([float(x) for x in v])
     return out
 
 

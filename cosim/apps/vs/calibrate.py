@@ -2,7 +2,8 @@
 
 The constants nobody published (how the Bebop 2's firmware flies a relative move, how late its
 video reaches the laptop) are fitted on E1 and E2 only, then frozen, and E3/E4 are predicted
-with them. Both steps read the `sweep.json` that `cosim sweep` writes (every run's summary):
+with them. Both steps read the study folder `cosim sweep` writes (study.json: the swept keys;
+results.csv: a row per run, with its metrics):
 
     cosim sweep scenarios/bebop2_vs_e1.toml --set camera.latency_s=... --set K=... --out A
     cosim sweep scenarios/bebop2_vs_e2.toml --set (the same grid) --out B
@@ -23,6 +24,7 @@ shared/reference/paper2-visual-servoing.md §3):
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import math
 import sys
@@ -36,14 +38,35 @@ PAPER_E4_OVER_E3 = 0.25
 TOLERANCE = 0.30           # issue 28: within 30 % of each of the paper's times
 
 
-def _runs(folder: Path) -> list[dict[str, Any]]:
-    path = Path(folder) / "sweep.json"
+METRICS = ("goal_reached", "goal_time_s", "repeat_time_s", "switch_times_s")
+
+
+def _value(text: str | None) -> Any:
+    """A value of results.csv: empty -> None, True/False, a number or a JSON list, or text."""
+    if text is None or text == "":
+        return None
+    if text in ("True", "False"):
+        return text == "True"
     try:
-        runs = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise SystemExit(f"{path}: not a sweep's results ({type(exc).__name__}); run `cosim "
-                         "sweep ... --out` first") from None
-    return runs
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def _runs(folder: Path) -> list[dict[str, Any]]:
+    """The runs of a sweep's study folder: each one's swept values ('overrides'), passed,
+    exit_reason and the metrics the fit reads."""
+    folder = Path(folder)
+    try:
+        params = json.loads((folder / "study.json").read_text())["params"]
+        with open(folder / "results.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise SystemExit(f"{folder}: not a sweep's study folder ({type(exc).__name__}); run "
+                         "`cosim sweep ... --out` first") from None
+    return [{"overrides": {k: _value(r.get(k)) for k in params},
+             "passed": _value(r.get("passed")) is True, "exit_reason": r.get("exit_reason"),
+             "metrics": {k: _value(r.get(k)) for k in METRICS}} for r in rows]
 
 
 def _key(run: dict[str, Any]) -> tuple:
