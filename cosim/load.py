@@ -13,13 +13,13 @@ from pathlib import Path
 from typing import Any
 
 from cosim.apps.registry import BUILTIN_APPS, check_app, check_inputs
+from cosim.faults.core import parse_faults
 from cosim.plant.mapping import parse_plant
 from cosim.scenario import parse as _parse
 from cosim.scenario.records import Scenario
 from cosim.sensors.camera import parse_camera
 from cosim.sensors.spec import TABLES as SENSOR_TABLES
 from cosim.sensors.spec import parse_sensors
-from cosim.sim.faults import parse_faults
 from cosim.world.floor import World
 from cosim.world.wind import parse_wind
 

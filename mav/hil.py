@@ -86,7 +86,7 @@ class HilSimulatorCodec:
 
     def encode_odometry_lost(self, t_us: int, m: tuple[float, ...]) -> bytes:
         """The same with quality -1 (MAVLink: odometry has failed): the position and velocity
-        in `m` are stale, attitude and rates live (a fault: cosim.sim.faults)."""
+        in `m` are stale, attitude and rates live (a fault: cosim.faults.core)."""
         return odometry(self.mav, t_us, m, True)
 
     def decode_actuators(self, data: bytes) -> tuple[int, float, float, float, float]:

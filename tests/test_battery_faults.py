@@ -1,4 +1,4 @@
-"""Battery faults of the `[faults]` table (cosim/sim/faults_battery.py): parsing names the bad
+"""Battery faults of the `[faults]` table (cosim/faults/battery.py): parsing names the bad
 field; the schedule of MAV_CMD_INJECT_FAILURE commands sent on the HIL link; a run with a sag
 and a drain is the same in MIL and SIL, bit for bit, and its telemetry shows both. The
 vehicle's side: tests/test_onboard_battery_faults.py."""
@@ -14,9 +14,9 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from cosim.apps.scripted import ScriptedApp
 from cosim.errors import ScenarioError
+from cosim.faults.battery import schedule
+from cosim.faults.core import FaultHooks, parse_faults
 from cosim.load import load_scenario, with_set
-from cosim.sim.faults import FaultHooks, parse_faults
-from cosim.sim.faults_battery import schedule
 from cosim.sim.master import ExitReason, RunOptions, run_scenario
 from mav.hil import INJECT_COMPID, SIM_SYSID
 from mav.links import MemoryLink

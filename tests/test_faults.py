@@ -1,4 +1,4 @@
-"""Fault injection ([faults], cosim/sim/faults.py): each fault kind does what it says, from a
+"""Fault injection ([faults], cosim/faults/core.py): each fault kind does what it says, from a
 seeded stream; the shipped fault scenarios pass their criteria; MIL == SIL with faults; the
 onboard stack's answer to a failed estimate (ODOMETRY quality -1)."""
 
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from test_onboard_auto import flying_rig, pos
 
+from cosim.faults.core import FaultHooks, parse_faults
 from cosim.load import load_scenario
-from cosim.sim.faults import FaultHooks, parse_faults
 from cosim.sim.master import ExitReason, RunOptions, run_scenario
 from mav import wire
 from mav.links import MemoryLink

@@ -94,7 +94,7 @@ def test_flight_software_stands_alone():
 LAYERS = (
     ("errors", "numerics", "cvthreads", "cache"),
     ("scenario",),
-    ("world",),
+    ("world", "faults"),
     ("plant",),
     ("sensors",),
     ("apps",),

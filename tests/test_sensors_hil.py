@@ -240,7 +240,7 @@ def test_estimator_status_flags_follow_the_aiding():
 
 
 def SensorFaultFor(kind: str, start_s: float):
-    from cosim.sensors.faults import SensorFault
+    from cosim.faults.sensors import SensorFault
 
     return SensorFault(kind, start_s, 1e9, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 

@@ -100,7 +100,7 @@ class Scenario:
     raw: dict[str, Any] = field(default_factory=dict, repr=False)  # the TOML, for re-parsing
     world_table: dict[str, Any] = field(default_factory=dict, repr=False)  # [world], file merged
     wind: Any = None                          # cosim.world.wind.WindSpec (mean = wind_ned_mps)
-    faults: Any = None                        # cosim.sim.faults.FaultSpec ([faults]; falsy: none)
+    faults: Any = None                        # cosim.faults.core.FaultSpec ([faults]; falsy: none)
     onboard_params: tuple[tuple[str, float], ...] = ()   # [onboard.params]: set at start
     plant: Any = None                         # cosim.plant.mapping.PlantSpec ([vehicle] fmu
                                               # or fmi = 3); None: the FMI 2.0 plant

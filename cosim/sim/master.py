@@ -196,7 +196,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         gusty = WindField(sc.wind, h, sc.seed).at
     hooks = opts.hooks
     if hooks is None and sc.faults:
-        from cosim.sim.faults import FaultHooks
+        from cosim.faults.core import FaultHooks
 
         hooks = FaultHooks(sc.faults, sc.seed)
     fps = 1.0 / (cam_every * h)

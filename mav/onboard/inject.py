@@ -2,7 +2,7 @@
 
 The battery model lives in the flight stack (`mav/battery.py`), as PX4's SITL battery
 simulator lives in PX4, out of the master's reach; the master's `[faults]` table
-(`cosim/sim/faults_battery.py`) reaches it the way every other byte does, as MAVLink on the
+(`cosim/faults/battery.py`) reaches it the way every other byte does, as MAVLink on the
 HIL link, so MIL (in-memory) and SIL (UDP) carry the same bytes at the same simulated time.
 
 The message: COMMAND_LONG MAV_CMD_INJECT_FAILURE (420), sent by the simulator (system 250,

@@ -37,7 +37,7 @@
 
     [[faults.battery]]         # the flight stack's battery, over the HIL link as MAVLink
     kind = "sag"               # sag: voltage sag over [start_s, end_s) | drain: the charge
-    start_s = 20.0             #   drops to `remaining` at start_s (cosim/sim/faults_battery.py)
+    start_s = 20.0             #   drops to `remaining` at start_s (cosim/faults/battery.py)
     r_factor = 3.0             # sag: internal resistance x this; drop_v: a fixed drop (V)
 
 Wind gusts are `[[wind.gust]]` (cosim/world/wind.py). Every random choice comes from one
@@ -61,8 +61,8 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import ScenarioError
+from cosim.faults.battery import END, BatteryFault, HilInjector, parse_battery
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string
-from cosim.sim.faults_battery import END, BatteryFault, HilInjector, parse_battery
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,7 @@ class FaultSpec:
     camera: tuple[CameraFault, ...] = ()
     motors: tuple[MotorFault, ...] = ()
     battery: tuple[BatteryFault, ...] = ()
-    sensors: tuple = ()       # cosim.sensors.faults.SensorFault: played by the sensor models
+    sensors: tuple = ()       # cosim.faults.sensors.SensorFault: played by the sensor models
 
     def __bool__(self) -> bool:
         return bool(self.links or self.odometry or self.camera or self.motors or self.battery)
@@ -188,7 +188,7 @@ def parse_faults(raw: Mapping) -> FaultSpec:
         start, end = _window(e, w)
         mot.append(MotorFault(integer(e, "motor", w, lo=1, hi=4),
                               number(e, "thrust", w, lo=0.0, hi=1.0), start, end))
-    from cosim.sensors.faults import parse_sensor_faults
+    from cosim.faults.sensors import parse_sensor_faults
 
     return FaultSpec(tuple(links), tuple(odo), tuple(cam), tuple(mot),
                      parse_battery(_entries(raw, "battery"), _window),
