@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import time
 
+import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 from test_onboard_rig import UdpSim
@@ -155,6 +156,7 @@ def gcs_script(gcs, sim: UdpSim, log: list[str]):
     log.append(f"{sim.t:6.2f} s  landed and disarmed at {sim.pos[0]:.2f}, {sim.pos[1]:.2f}")
 
 
+@pytest.mark.flight
 def test_pymavlink_gcs_flies_a_sil_mambo(tmp_path):
     gcs = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=255,
                                      source_component=190)

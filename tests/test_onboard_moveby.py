@@ -199,6 +199,7 @@ print(compiled.describe().split()[0], h, rig.ob.offboard.moveby.moves)
 """
 
 
+@pytest.mark.flight
 def test_interpreted_and_compiled_fly_relative_moves_bit_for_bit():
     """The executor is compiled with the per-tick path (mav/__init__.py COMPILED): the same
     flight of relative moves, interpreted and compiled, gives the same motor commands."""

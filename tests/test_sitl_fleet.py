@@ -296,6 +296,7 @@ def test_a_signal_is_a_normal_stop_with_outputs_and_no_child_left(tmp_path, sig)
     assert not (folder / ".series.f64").exists()
 
 
+@pytest.mark.flight
 def test_duration_is_a_normal_stop_and_a_failed_part_is_status_1(tmp_path):
     (gcs_port, api_port), socks = free_ports(2)
     links = ("--api-remote", f"127.0.0.1:{api_port}", "--api-bind", "127.0.0.1:0")
