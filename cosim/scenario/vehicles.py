@@ -84,14 +84,11 @@ BEBOP2 = VehicleParams(**asdict(airframe.BEBOP2),
                        # paper 2's E1 (reference/paper2-visual-servoing.md, [ours])
                        body_radius=0.25)
 
+# one preset per airframe, by the same names
 PRESETS: dict[str, VehicleParams] = {v.name: v for v in (MAMBO, BEBOP2)}
 
 
 def get_vehicle(name: str) -> VehicleParams:
-    """The preset called `name` ('mambo' or 'bebop2'); ValueError names the choices."""
-    try:
-        return PRESETS[name]
-    except KeyError:
-        raise ValueError(
-            f"unknown vehicle {name!r}; choose one of {', '.join(sorted(PRESETS))}"
-        ) from None
+    """The preset called `name` ('mambo' or 'bebop2'); ValueError names the choices (the
+    airframes', which are the presets')."""
+    return PRESETS[airframe.get_airframe(name).name]
