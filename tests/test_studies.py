@@ -254,8 +254,11 @@ def test_a_study_on_an_existing_cluster_via_scheduler(tmp_path):
     procs = [subprocess.Popen([dask_cli, "scheduler", "--port", "0", "--no-dashboard",
                                "--scheduler-file", str(sfile)], stdout=logs, stderr=logs)]
     try:
+        # no nanny: the worker is this test's child with its environment as it is (a nanny
+        # would set OPENBLAS_NUM_THREADS=1 where none is set, and under an emulated CPU that
+        # turns the worker portable, which check_workers then rightly refuses)
         procs.append(subprocess.Popen([dask_cli, "worker", "--scheduler-file", str(sfile),
-                                       "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+                                       "--no-nanny", "--nthreads", "1", "--no-dashboard"],
                                       stdout=logs, stderr=logs))
         for _ in range(1200):                  # the scheduler writes its address when up
             if sfile.is_file() and sfile.stat().st_size:
