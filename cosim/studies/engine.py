@@ -99,8 +99,8 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
 
     try:
         if todo:
-            runner = {"serial": _serial, "dask": _dask}[executor]
-            for row in runner(todo, fn, workers=workers, scheduler=scheduler):
+            for row in map_jobs(todo, fn, executor=executor, workers=workers,
+                                scheduler=scheduler):
                 record(row)
     except KeyboardInterrupt:
         raise StudyInterrupted(f"interrupted after {stats.ran} of {len(todo)} runs") from None
@@ -125,6 +125,18 @@ _ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx|inproc)://)?"
 
 
 # ---------------------------------------------------------------------- executors
+def map_jobs(jobs: list, fn: Callable[[Any], dict[str, Any]], *, executor: str = "dask",
+             workers: int | None = None, scheduler: str | None = None,
+             lost: Callable[[Any, BaseException], dict[str, Any]] | None = None,
+             ) -> Iterator[dict[str, Any]]:
+    """`fn(job)` of each job (each has a `run_id`), as they finish, on the executor; `lost`
+    makes the row of a job whose worker died (default: a study's failed row)."""
+    if executor not in EXECUTORS:
+        raise ScenarioError("--executor", executor, f"one of {', '.join(EXECUTORS)}")
+    runner = {"serial": _serial, "dask": _dask}[executor]
+    return runner(jobs, fn, workers=workers, scheduler=scheduler, lost=lost or lost_row)
+
+
 def _serial(jobs, fn, **_) -> Iterator[dict[str, Any]]:
     for j in jobs:
         yield fn(j)
@@ -158,7 +170,7 @@ def local_cluster(n: int):
                             dashboard_address=None, silence_logs=logging.ERROR)
 
 
-def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
+def _dask(jobs, fn, *, workers, scheduler, lost, **_) -> Iterator[dict[str, Any]]:
     from dask.distributed import Client, as_completed
 
     addr = scheduler_address(scheduler)
@@ -184,7 +196,7 @@ def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
             try:
                 row = f.result()
             except Exception as exc:  # the worker died twice (KilledWorker) or the task broke
-                row = lost_row(job, exc)
+                row = lost(job, exc)
             f.release()
             del f
             yield row
