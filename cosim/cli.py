@@ -201,6 +201,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="--fly: pass through N,E,D (m) before key K, e.g. round an obstacle")
     te.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
 
+    from cosim.regress.command import add_test
+
+    add_test(add)
+
     b = add("bench", help="measure the speed of every part")
     b.add_argument("--quick", action="store_true", help="fewer repeats (a smoke test)")
     b.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
@@ -337,6 +341,10 @@ def _dispatch(args) -> int:
         from cosim.cli_teach import teach_command
 
         return teach_command(args)
+    if args.cmd == "test":
+        from cosim.regress.command import test_command
+
+        return test_command(args)
     if args.cmd == "bench":
         from cosim.bench.command import main as bench_main
 

@@ -103,6 +103,7 @@ LAYERS = (
     ("load",),
     ("cli_checks", "bench", "cli_render", "cli_teach"),
     ("studies", "cli_sitl"),
+    ("regress",),
     ("cli",),
 )
 
