@@ -30,6 +30,8 @@ demo: setup
 test: setup
 	$(VENV)/bin/ruff check .
 	$(PY) -m cosim.numerics portable -- $(PY) -m pytest -m "not slow" --durations=25
+	$(VENV)/bin/cosim test tests/regress/shipped.toml --require-baselines --quiet \
+		--out runs/test-shipped --junit runs/test-shipped/junit.xml --report runs/test-shipped/report
 
 # the fast lane for development: unit tests of the parts, no whole flights (tests marked
 # `flight` or `slow` are left out; one that flies anyway fails, tests/conftest.py)

@@ -106,7 +106,7 @@ def test_general_is_the_default_and_released_is_unchanged():
 def test_the_released_preset_fails_where_general_flies(name):
     """Each new track defeats the released code (the reason the preset exists): measured
     2026-11-25 (gap: coverage 32 %, thin_dark: never sees the line, hairpin: 72 %, offset
-    start: never finds the line); general flies them (tests/test_scenarios.py)."""
+    start: never finds the line); general flies them (tests/regress/shipped.toml)."""
     sc = with_set(load_scenario(ROOT / "scenarios" / f"{name}.toml"),
                   {"app.params.preset": "released", "timing.t_final_s": 60.0})
     s = summarize(run_scenario(sc))
@@ -124,7 +124,7 @@ def test_the_ring_of_issue_12_fails_where_the_along_line_look_ahead_flies(name):
     look-ahead along the line and the line's width (measured 2026-11-26, MIL, truth-fed:
     figure-eight cut at a crossing, time limit at coverage 88 %; hairpins, time limit at
     53 %; the 5 cm line eroded away on its diagonal leg, 41 %); with both they pass
-    (tests/test_scenarios.py)."""
+    (tests/regress/shipped.toml)."""
     sc = with_set(load_scenario(ROOT / "scenarios" / f"{name}.toml"),
                   {"app.params.along_line": False, "app.params.measured_width": False,
                    "sensors.feed": "truth"})     # as measured (on the estimate, seed 0, the
