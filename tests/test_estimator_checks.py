@@ -116,3 +116,23 @@ def test_a_barometer_of_noise_flies_on_the_sonar():
 
     assert np.isfinite(res.estimate[:, :9]).all()
     assert abs(res.estimate[-1, 2] - res.series[-1, 3]) < 0.1
+
+
+@pytest.mark.flight
+def test_a_lost_position_is_regained_only_by_aiding_not_by_descending():
+    """Over a plain floor (no usable flow from the start): before, below 0.5 m the estimator
+    said "Position estimate regained" with nothing fused, the app's pending take-off was
+    accepted, and the climb-lose cycle went on until the vehicle left the arena 4.5 m away.
+    Now the failsafe's landing goes on to the floor, and the position stays lost."""
+    from test_faults import _statustexts
+
+    sc = with_set(load_scenario(ROOT / "scenarios" / "mambo_hover.toml"),
+                  {"sensors.flow_floor": "plain", "timing.t_final_s": 15.0})
+    res = run_scenario(sc, RunOptions())
+    texts = _statustexts(res)[::2]
+    assert "Position estimate regained" not in texts, texts
+    assert texts.count("Failsafe: no position estimate, landing") == 1
+    assert res.exit_reason is not ExitReason.LEFT_ARENA, res.message
+    z = res.series[:, 3]
+    t_land = res.series[z < -0.5, 0].max()
+    assert (z[res.series[:, 0] > t_land + 3.0] > -0.05).all()     # down, and stays down

@@ -24,7 +24,8 @@ EKF2: sensor messages in, a state estimate out, in plain floats (200 Hz in the v
 
 Every reading that is NaN or outside its sensor's range is rejected and counted (`stats`),
 never propagated. The position estimate is `lost` when no flow or GPS was fused for
-EKF2_NOAID_TOUT while above 0.5 m.
+EKF2_NOAID_TOUT while above 0.5 m, and stays lost until one is fused again (at any height: a
+descent below 0.5 m on dead reckoning regains nothing).
 """
 
 from __future__ import annotations
@@ -186,7 +187,10 @@ class TemplateEstimator:
                        + self.pitch + self.yaw + self.p + self.q + self.r + self.bz + self.pzz
                        + self.pvv + self.pbb + self.pvx + self.pvy):
             self._reset()
-        lost = self.z < -0.5 and t_us - self.aid_us > self.noaid_us
+        if self.lost:        # regained only by an aiding source fused, never by descending
+            lost = self.aid_us != t_us      # below 0.5 m on dead reckoning (issue 43)
+        else:
+            lost = self.z < -0.5 and t_us - self.aid_us > self.noaid_us
         if lost != self.lost:
             self.lost = lost
         if imu is not None:
