@@ -136,3 +136,39 @@ def test_a_lost_position_is_regained_only_by_aiding_not_by_descending():
     z = res.series[:, 3]
     t_land = res.series[z < -0.5, 0].max()
     assert (z[res.series[:, 0] > t_land + 3.0] > -0.05).all()     # down, and stays down
+
+
+def _gps(mav, k: int, n_m: float, eph_cm: int = 50, nsat: int = 10) -> bytes:
+    geo = FlatEarth(42.3, -71.35, 71.0)
+    lat, lon, alt = geo.to_int(n_m, 0.0, 0.0)
+    rest = hs._GPS_REST(lat, lon, alt, eph_cm, 2 * eph_cm, 0, 0, 0, 0, 65535, 3, nsat, 0, 0)
+    return hs.stamped(mav, hs.HIL_GPS, k * 5000, rest)
+
+
+def test_gps_fixes_pass_ekf2s_checks_and_gate_or_are_rejected():
+    """Fixes 100 m off for 3 s moved the estimate 2.6 km before (no check at all). Now EKF2's
+    quality checks (EKF2_REQ_EPH 3 m, EKF2_REQ_NSATS 6) and its innovation gate
+    (EKF2_GPS_P_GATE 5 sd) reject them; another system's fix is not read."""
+    est, st = _estimator()
+    other = M.MAVLink(None, 77, M.MAV_COMP_ID_SYSTEM_CONTROL)
+    k = 0
+
+    def tick(gps: bytes = b"") -> None:
+        nonlocal k
+        est.on_hil(_sensor(k, None) + gps)
+        k += 1
+
+    for _ in range(200):
+        tick(_gps(SIM, k, 0.0) if k % 40 == 0 else b"")
+    assert st["est_gps_fused"] == 5 and st["est_rej_gps"] == 0
+    for _ in range(600):                               # 3 s of fixes 100 m off, at 5 Hz
+        tick(_gps(SIM, k, 100.0) if k % 40 == 0 else b"")
+    assert st["est_rej_gps"] == 15 and st["est_gps_fused"] == 5
+    assert abs(est.impl.x) < 0.1
+    for eph, nsat in ((500, 10), (50, 4)):             # 5 m accuracy; 4 satellites
+        tick(_gps(SIM, k, 1.0, eph, nsat))
+    assert st["est_rej_gps"] == 17
+    tick(_gps(other, k, 1.0))
+    assert st["est_rej_gps"] == 17 and st["est_gps_fused"] == 5 and st["est_bad_frames"] == 0
+    tick(_gps(SIM, k, 1.0))                            # a good fix: fused
+    assert st["est_gps_fused"] == 6

@@ -13,7 +13,7 @@ cdef double wrap(double a)
 cdef class TemplateEstimator:
     cdef public dict stats
     cdef public long n, nb, resets
-    cdef public object t_us, aid_us, rng_us, gps_us, rng_rej_since, noaid_us, imu_us
+    cdef public object t_us, aid_us, rng_us, gps_us, rng_rej_since, noaid_us, imu_us, gps_rej_since
     cdef public double x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r
     cdef public double bg0, bg1, bg2, alp0, alp1, alp2
     cdef public double p0_hpa, pzz, pzv, pvv, pzb, pvb, pbb, bz, pvx, pvy

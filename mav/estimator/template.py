@@ -72,7 +72,16 @@ _TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
 
 STATS = ("est_imu", "est_rej_imu", "est_rej_baro", "est_baro_fused", "est_rej_rng",
          "est_rng_fused", "est_rng_none", "est_rej_flow", "est_flow_fused", "est_rej_mag",
-         "est_gps_fused", "est_rej_gps", "est_rng_resets", "est_resets")
+         "est_gps_fused", "est_rej_gps", "est_rng_resets", "est_resets", "est_gps_resets")
+# EKF2's GPS checks with PX4's defaults (ekf2 module.yaml): quality EKF2_REQ_EPH 3 m,
+# EKF2_REQ_NSATS 6, a 3D fix; the position innovation gate EKF2_GPS_P_GATE 5 standard
+# deviations of max(eph, EKF2_GPS_P_NOISE 0.5 m); a reset to GPS after ekf's reset timeout
+# (7 s of fixes rejected in a row)
+GPS_REQ_EPH_CM = 300
+GPS_REQ_NSATS = 6
+GPS_P_GATE = cython.declare(cython.double, 5.0)
+GPS_P_NOISE_M = cython.declare(cython.double, 0.5)
+GPS_RESET_US = 7_000_000
 
 
 def _finite(s: float) -> bool:
@@ -131,6 +140,7 @@ class TemplateEstimator:
         self.gps_us = 0                                    # last GPS fix fused
         self.imu_us = -1                                   # last IMU reading used
         self.rng_rej_since = -1
+        self.gps_rej_since = -1                            # fixes gated out since
         self.lost = False
 
     def configure(self, own: dict[str, float]) -> None:
@@ -422,14 +432,28 @@ class TemplateEstimator:
         return True
 
     def _gps(self, m: Payload, geo, t_us: int) -> None:
-        # m: time_usec, lat, lon, alt, eph, epv, vel, vn, ve, vd, cog, fix_type, ...
+        # m: time_usec, lat, lon, alt, eph, epv, vel, vn, ve, vd, cog, fix_type,
+        #    satellites_visible, ...
         st = self.stats
-        lat, lon, alt, fix = m.i(1), m.i(2), m.i(3), m.i(11)
-        if fix < 3 or not (-900_000_000 <= lat <= 900_000_000
-                           and -1_800_000_000 <= lon <= 1_800_000_000):
-            st["est_rej_gps"] += 1
+        lat, lon, alt, eph, fix, nsat = m.i(1), m.i(2), m.i(3), m.i(4), m.i(11), m.i(12)
+        if fix < 3 or eph > GPS_REQ_EPH_CM or nsat < GPS_REQ_NSATS or not (
+                -900_000_000 <= lat <= 900_000_000 and -1_800_000_000 <= lon <= 1_800_000_000):
+            st["est_rej_gps"] += 1                 # EKF2's quality checks
             return
         n, e, _ = geo.to_ned(lat * 1e-7, lon * 1e-7, alt * 1e-3)
+        # EKF2's innovation gate: EKF2_GPS_P_GATE standard deviations of the fix's accuracy
+        # (at least EKF2_GPS_P_NOISE); rejected for GPS_RESET_US in a row, the position is
+        # reset to the fix (as EKF2 resets to GPS when its fusion has timed out)
+        sd = max(eph * 0.01, GPS_P_NOISE_M)
+        if (n - self.x) ** 2 + (e - self.y) ** 2 > (GPS_P_GATE * sd) ** 2:
+            if self.gps_rej_since < 0:
+                self.gps_rej_since = t_us
+            if t_us - self.gps_rej_since < GPS_RESET_US:
+                st["est_rej_gps"] += 1
+                return
+            st["est_gps_resets"] += 1
+            self.x, self.y = n, e
+        self.gps_rej_since = -1
         w = self.w_gps
         self.x += w * (n - self.x)
         self.y += w * (e - self.y)
