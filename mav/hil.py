@@ -20,6 +20,32 @@ from mav.fields import Layout, copy_of, done, put_f, put_i
 
 SIM_SYSID = 250
 SIM_COMPID = mavlink2.MAV_COMP_ID_SYSTEM_CONTROL
+# The lockstep clock: a HIL datagram that would make a tick (ODOMETRY, or a sensor datagram
+# led by HIL_SENSOR) must be stamped later than the last tick, by at most HIL_MAX_STEP_US.
+# 20 ms: PX4's EKF never integrates a longer IMU interval (ecl's EstimatorInterface::setIMUData
+# constrains it to 0.1..20 ms), a lockstep simulator at 50 Hz or more stays within it (this
+# project's steps by 5 ms and never skips a tick: a real-time stall moves the wall clock, not
+# the stamps), and it is shorter than every timer of the vehicle (COM_OF_LOSS_T >= 0.1 s, the
+# land detector's 0.2 s), so no one datagram can fire a timer or step the battery by more
+# than 20 ms of flight. A simulator whose clock jumps further (a restart) restarts the vehicle.
+HIL_MAX_STEP_US = 20_000
+
+
+def tick_refusal(sysid: int, t_us: int, last_us: int) -> str | None:
+    """Why a HIL datagram of system `sysid` stamped t_us (us) cannot be the tick after the one
+    at last_us (-1: no tick yet, any stamp starts the clock): the vehicle's counter of such
+    drops, or None (a tick). Another system than the simulator's: `dropped_foreign_hil`; a
+    stamp not later than the last (a repeat, a replay, a clock gone back):
+    `dropped_stale_hil`; later by more than HIL_MAX_STEP_US: `dropped_jump_hil`."""
+    if sysid != SIM_SYSID:
+        return "dropped_foreign_hil"
+    if last_us < 0:
+        return None
+    if t_us <= last_us:
+        return "dropped_stale_hil"
+    if t_us - last_us > HIL_MAX_STEP_US:
+        return "dropped_jump_hil"
+    return None
 INJECT_COMPID = mavlink2.MAV_COMP_ID_USER1   # the simulator's fault injector (own sequence)
 MAX_R_SCALE = 1000.0       # battery sag: the largest resistance factor the vehicle accepts
 MAX_V_DROP = 100.0         # V, battery sag: the largest fixed drop

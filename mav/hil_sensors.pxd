@@ -30,7 +30,7 @@ cdef class Payload:
 
 cdef class Bundle:
     cdef public Payload imu, flow, rng, gps
-    cdef public long bad
+    cdef public long bad, foreign
     cpdef read(self, bytes data)
 
 

@@ -28,6 +28,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
 from mav.fields import Layout, done, get_f, get_i, new_payload, put_f, put_i
+from mav.hil import SIM_SYSID
 
 HIL_SENSOR = wire.FastMsg(mavlink2.MAVLink_hil_sensor_message)
 HIL_OPTICAL_FLOW = wire.FastMsg(mavlink2.MAVLink_hil_optical_flow_message)
@@ -245,28 +246,34 @@ class Bundle:
     (the last of each type if repeated), and `bad`, the number of frames that were not
     well-formed sensor messages (a datagram that is not all frames stops at the first thing
     that is not one, which counts). HIL_STATE_QUATERNION (the truth, for the simulator's logs;
-    the vehicle never reads it) is checked like the others but not kept."""
+    the vehicle never reads it) is checked like the others but not kept. Frames from another
+    system than the simulator's (SIM_SYSID) are not read: `foreign` counts them."""
 
-    __slots__ = ("imu", "flow", "rng", "gps", "bad")
+    __slots__ = ("imu", "flow", "rng", "gps", "bad", "foreign")
 
     def __init__(self) -> None:
         self.imu = Payload(HIL_SENSOR)
         self.flow = Payload(HIL_OPTICAL_FLOW)
         self.rng = Payload(DISTANCE_SENSOR)
         self.gps = Payload(HIL_GPS)
-        self.bad = 0
+        self.bad = self.foreign = 0
 
     @cython.locals(i=cython.Py_ssize_t, n=cython.Py_ssize_t, end=cython.Py_ssize_t,
-                   bad=cython.long, mid=cython.long, m=wire.FastMsg, v=Payload)
+                   bad=cython.long, foreign=cython.long, mid=cython.long, m=wire.FastMsg,
+                   v=Payload)
     def read(self, data: bytes) -> None:
         self.imu.data = self.flow.data = self.rng.data = self.gps.data = None
-        bad = 0
+        bad = foreign = 0
         i, n = 0, len(data)
         while i < n:
             end = wire.frame_end(data, i)
             if end < 0:
                 bad += 1
                 break
+            if data[i] == _MAGIC2 and data[i + 5] != _SIM_SYSID:
+                foreign += 1               # another system's frame (a v1 frame: bad below)
+                i = end
+                continue
             mid = wire.msgid_of(data, i)
             v = None
             if mid == _ID_SENSOR:
@@ -289,8 +296,11 @@ class Bundle:
                 v.data, v.p0, v.plen, v.at, v.end = data, i + _HDR2, data[i + 1], i, end
             i = end
         self.bad = bad
+        self.foreign = foreign
 
 
+_SIM_SYSID = cython.declare(cython.long, SIM_SYSID)
+_MAGIC2 = cython.declare(cython.long, wire.MAGIC_V2)
 _M_SENSOR = cython.declare(wire.FastMsg, HIL_SENSOR)
 _M_FLOW = cython.declare(wire.FastMsg, HIL_OPTICAL_FLOW)
 _M_DIST = cython.declare(wire.FastMsg, DISTANCE_SENSOR)

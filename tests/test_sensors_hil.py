@@ -153,10 +153,10 @@ def test_outliers_are_rejected_and_counted_never_propagated():
     for k in range(50):
         est.on_hil(su.encode(k * 5000, _y(-1.0)))
     nan = float("nan")
-    imu = hs.encode_hil_sensor(su.mav, 300_000, (nan, 0.0, -9.8), (0.0, 0.0, 0.0),
+    imu = hs.encode_hil_sensor(su.mav, 250_000, (nan, 0.0, -9.8), (0.0, 0.0, 0.0),
                                (0.2, 0.0, 0.4), 1012.0, 1.0, 25.0, 0x3FFF)
-    flow = hs.encode_flow(su.mav, 300_000, 5000, nan, 1e9, 0.0, 0.0, 0.0, 255)
-    rng = hs.encode_distance(su.mav, 300_000, 44, 400, 350, 100)   # 3.5 m: a jump
+    flow = hs.encode_flow(su.mav, 250_000, 5000, nan, 1e9, 0.0, 0.0, 0.0, 255)
+    rng = hs.encode_distance(su.mav, 250_000, 44, 400, 350, 100)   # 3.5 m: a jump
     before = dict(st)
     od = est.on_hil(imu + flow + rng + b"\xfd\x01garbage")
     grew = {k for k in st if st[k] != before[k]}

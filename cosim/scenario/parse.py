@@ -200,6 +200,11 @@ def parse_scenario(raw: dict, parts: Parts, *, source: str = "",
                             "feed = 'truth' in [sensors] (these are faults of the truth "
                             "ODOMETRY; on the default feed 'hil' use [[faults.sensor]], e.g. "
                             "kind = 'flow_loss')")
+    if not sensors.hil and faults.sensors:
+        raise ScenarioError("faults.sensor", len(faults.sensors),
+                            "feed = 'hil' in [sensors] (these are faults of the sensor "
+                            "messages, which the truth feed does not send; on feed = 'truth' "
+                            "use [[faults.odometry]], e.g. kind = 'dropout')")
     if sensors.hil:             # the vehicle must run its estimator on the sensor messages
         ekf = dict(onboard_params).get("EKF2_TYPE")
         if ekf is None:

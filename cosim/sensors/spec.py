@@ -87,6 +87,22 @@ TRIPLES = {"acc_scale", "gyro_scale", "acc_bias", "gyro_bias", "acc_noise", "gyr
            "mag_field"}
 INTS = {"delay_ticks": (0, 10), "range_every": (1, 200), "flow_every": (1, 200),
         "gps_every": (1, 2000)}
+# Bounds a field's reading must keep to be sent at all (the wire format of its message) or to
+# be the sensor it names (physics): (lo, hi, why). Outside, the sensor models could not encode
+# the first tick (a struct error blamed on the flight stack, issue 43) or would model nothing.
+WIRE_BOUNDS = {
+    # DISTANCE_SENSOR min/max/current_distance: uint16 cm, UINT16_MAX = unknown
+    "range_min_m": (0.0, 655.34, "DISTANCE_SENSOR carries cm in a uint16"),
+    "range_max_m": (0.0, 655.34, "DISTANCE_SENSOR carries cm in a uint16"),
+    # HIL_GPS eph (= the noise) and epv (= 2 eph) in uint16 cm, UINT16_MAX = unknown
+    "gps_noise_m": (0.0, 327.67, "HIL_GPS carries epv = 2 x eph in a uint16 of cm"),
+    # HIL_GPS vn/ve/vd: int16 cm/s (+-327.67 m/s): a 6-sigma draw of 50 m/s fits with the
+    # vehicle's own speed (and a larger one saturates); more is no velocity measurement
+    "gps_vel_noise_mps": (0.0, 50.0, "HIL_GPS carries vn/ve/vd in an int16 of cm/s"),
+    # Pa per m of height = air density x g: 0.1 (~18 km up) .. 2 kg/m^3 (1.225 at sea level);
+    # the pressure altitude is the pressure over it (a float32 overflows near 0)
+    "baro_gain": (1.0, 20.0, "air density 0.1..2 kg/m^3 times g"),
+}
 # the sensor table each field is set in, [sensors.<table>]
 TABLES = {"imu": ("imu_wn", "imu_zeta", "acc_scale", "gyro_scale", "acc_bias", "gyro_bias",
                   "acc_noise", "gyro_noise", "acc_max", "gyro_max", "delay_ticks"),
@@ -161,5 +177,14 @@ def _value(t: Mapping, k: str, where: str) -> Any:
         return number(t, k, where, lo=1.0, hi=600.0)
     if k in ("flow_quality_textured", "flow_quality_plain"):
         return number(t, k, where, lo=0.0, hi=255.0)
-    lo_open = k in ("imu_wn", "imu_zeta", "acc_max", "gyro_max", "baro_gain", "range_max_m")
+    if k in WIRE_BOUNDS:
+        lo, hi, why = WIRE_BOUNDS[k]
+        v = t[k]
+        open_lo = k == "range_max_m"
+        if (isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v)
+                or not lo <= v <= hi or (open_lo and v == lo)):
+            raise ScenarioError(f"{where}.{k}", v, f"a finite number in {'(' if open_lo else '['}"
+                                                   f"{lo:g}, {hi:g}] ({why})")
+        return float(v)
+    lo_open = k in ("imu_wn", "imu_zeta", "acc_max", "gyro_max")
     return number(t, k, where, lo=0.0, hi=1e6, lo_open=lo_open)

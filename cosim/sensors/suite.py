@@ -312,9 +312,8 @@ class SensorSuite:
                                         y[Y_Y] - self.home_e + sp * g[1], y[Y_Z] + sp * g[2])
         self.n_gps += 1
         return [hs.HIL_GPS, hs.gps_rest(lat, lon, alt, _round(sp * 100),
-                                        _round((y[Y_VX] + sv * g[3]) * 100),
-                                        _round((y[Y_VY] + sv * g[4]) * 100),
-                                        _round((y[Y_VZ] + sv * g[5]) * 100))]
+                                        _cms(y[Y_VX] + sv * g[3]), _cms(y[Y_VY] + sv * g[4]),
+                                        _cms(y[Y_VZ] + sv * g[5]))]
 
     def _update_faults(self, t: float) -> None:
         self.active = [f for f in self.faults if f.start_s <= t < f.end_s]

@@ -10,7 +10,7 @@ from pymavlink.dialects.v20 import common as M
 
 from mav import hil_sensors as hs
 from mav.estimator.template import CAL_TICKS, TemplateEstimator
-from mav.hil import odometry_of
+from mav.hil import odometry_of, tick_refusal
 from mav.rotations import quat_from_euler
 
 FRAME_LOCAL_NED = 1
@@ -23,8 +23,10 @@ class Estimator:
         self.bundle = hs.Bundle()          # the sensor messages of a tick, read in place
         # read once, when the vehicle starts (as PX4 picks its estimator at boot)
         self.enabled = own.get("EKF2_TYPE", 0.0) >= 1.0
-        stats.setdefault("est_bad_frames", 0)
-        stats.setdefault("est_lost", 0)
+        for k in ("est_bad_frames", "est_lost", "dropped_stale_hil", "dropped_jump_hil",
+                  "dropped_foreign_hil"):
+            stats.setdefault(k, 0)
+        self.refused = False               # the last datagram was a sensor datagram refused
 
     @property
     def aligned(self) -> bool:
@@ -59,20 +61,34 @@ class Estimator:
     @cython.locals(e=TemplateEstimator, b=hs.Bundle, imu=hs.Payload)
     def estimate(self, data: bytes) -> bool:
         """Run on a HIL datagram: True if it was a sensor datagram with a HIL_SENSOR (the
-        estimate moved on: `odometry`), False for anything else (nothing done)."""
+        estimate moved on: `odometry`), False for anything else (nothing done). A sensor
+        datagram that cannot be the next tick (`mav.hil.tick_refusal`: another system's, a
+        stamp not later than the last or too far ahead) is counted by its reason and sets
+        `refused` (nothing else done: no step of the estimate, no tick of the vehicle)."""
+        self.refused = False
         if not self.enabled or not hs.is_sensor_bundle(data):
             return False
         b = self.bundle
         b.read(data)
+        st = self.stats
         if b.bad:
-            self.stats["est_bad_frames"] += b.bad
+            st["est_bad_frames"] += b.bad
         imu = b.imu
-        if imu.data is None:
-            return False
         e = self.impl
+        if imu.data is None:
+            if b.foreign:                          # the HIL_SENSOR was another system's
+                st["dropped_foreign_hil"] += 1
+                self.refused = True
+            return False
+        t_us = imu.i(0)
+        why = tick_refusal(data[imu.at + 5], t_us, e.t_us)
+        if why is not None:
+            st[why] += 1
+            self.refused = True
+            return False
         e.update(imu, b.flow if b.flow.data is not None else None,
                  b.rng if b.rng.data is not None else None,
-                 b.gps if b.gps.data is not None else None, self.geo, imu.i(0))
+                 b.gps if b.gps.data is not None else None, self.geo, t_us)
         if e.lost:
             self.stats["est_lost"] += 1
         return True

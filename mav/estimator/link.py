@@ -6,7 +6,9 @@ reads, so the tick (`Onboard.poll`) is unchanged:
 
 - `recv()`: a sensor datagram (HIL_SENSOR first) from the simulator -> the estimator runs ->
   an ODOMETRY of the estimate stamped with the HIL_SENSOR's time_usec (quality -1 when the
-  position estimate is lost); anything else passes through untouched;
+  position estimate is lost); a sensor datagram the estimator refused (not the next tick:
+  `mav.hil.tick_refusal`, counted there) -> None, as if nothing had come (it is counted in
+  `rx_hil` too); anything else passes through untouched;
 - `send(data)`: the tick's HIL answer, followed (after a sensor tick) by that ODOMETRY, so the
   simulator logs the estimate beside the truth;
 - `decoded(data)`: the tick's decoder of what `recv` returned (`wire.decode_odometry`'s
@@ -39,9 +41,17 @@ class EstimatorLink:
         est = self.est
         if not est.estimate(data):    # ODOMETRY (motion capture), a fault command, garbage
             self._frame = b""
+            if est.refused:           # not the next tick (counted by its reason): no tick
+                est.stats["rx_hil"] = est.stats.get("rx_hil", 0) + 1
+                return None
             return data
         self._frame = fr = est.odometry(self.mav)   # quality -1 when lost
         return fr
+
+    def made(self, data: bytes) -> bool:
+        """Whether `data` is the ODOMETRY this link made of the estimate (the vehicle's own
+        system's frame, not the simulator's)."""
+        return data is self._frame
 
     def decoded(self, data: bytes) -> tuple | None:
         if data is self._frame and len(data) == _ODO_LEN:

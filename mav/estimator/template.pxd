@@ -12,8 +12,8 @@ cdef double wrap(double a)
 
 cdef class TemplateEstimator:
     cdef public dict stats
-    cdef public long n
-    cdef public object t_us, aid_us, rng_us, gps_us, rng_rej_since, noaid_us
+    cdef public long n, nb, resets
+    cdef public object t_us, aid_us, rng_us, gps_us, rng_rej_since, noaid_us, imu_us, gps_rej_since
     cdef public double x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r
     cdef public double bg0, bg1, bg2, alp0, alp1, alp2
     cdef public double p0_hpa, pzz, pzv, pvv, pzb, pvb, pbb, bz, pvx, pvy
@@ -24,6 +24,7 @@ cdef class TemplateEstimator:
     cpdef update(self, imu, flow, rng, gps, geo, t_us)
     cdef _imu(self, Payload m, double dt)
     cdef _z_fuse(self, double zm, double r)
+    cpdef _reset(self)
     cdef _range(self, Payload m, t_us)
     cdef bint _flow(self, Payload m, t_us) except -1
     cdef _gps(self, Payload m, geo, t_us)

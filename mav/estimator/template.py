@@ -24,7 +24,8 @@ EKF2: sensor messages in, a state estimate out, in plain floats (200 Hz in the v
 
 Every reading that is NaN or outside its sensor's range is rejected and counted (`stats`),
 never propagated. The position estimate is `lost` when no flow or GPS was fused for
-EKF2_NOAID_TOUT while above 0.5 m.
+EKF2_NOAID_TOUT while above 0.5 m, and stays lost until one is fused again (at any height: a
+descent below 0.5 m on dead reckoning regains nothing).
 """
 
 from __future__ import annotations
@@ -60,12 +61,27 @@ GYRO_MAX = cython.declare(cython.double, 35.0)
 ZUPT_DECAY = cython.declare(cython.double, 0.9)   # per tick, on the ground
 _G = cython.declare(cython.double, G)
 _CAL = cython.declare(cython.long, CAL_TICKS)
+# HIL_SENSOR fields_updated (MAVLink HIL_SENSOR_UPDATED_FLAGS), as PX4's simulator interface
+# reads them: accel bits 0-2 and gyro 3-5, mag 6-8, baro = abs pressure 9, pressure alt 11,
+# temperature 12 (SensorSource::BARO)
+_F_IMU = cython.declare(cython.long, 0x3F)
+_F_MAG = cython.declare(cython.long, 0x1C0)
+_F_BARO = cython.declare(cython.long, 0x1A00)
 _PI = cython.declare(cython.double, math.pi)
 _TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
 
 STATS = ("est_imu", "est_rej_imu", "est_rej_baro", "est_baro_fused", "est_rej_rng",
          "est_rng_fused", "est_rng_none", "est_rej_flow", "est_flow_fused", "est_rej_mag",
-         "est_gps_fused", "est_rej_gps", "est_rng_resets")
+         "est_gps_fused", "est_rej_gps", "est_rng_resets", "est_resets", "est_gps_resets")
+# EKF2's GPS checks with PX4's defaults (ekf2 module.yaml): quality EKF2_REQ_EPH 3 m,
+# EKF2_REQ_NSATS 6, a 3D fix; the position innovation gate EKF2_GPS_P_GATE 5 standard
+# deviations of max(eph, EKF2_GPS_P_NOISE 0.5 m); a reset to GPS after ekf's reset timeout
+# (7 s of fixes rejected in a row)
+GPS_REQ_EPH_CM = 300
+GPS_REQ_NSATS = 6
+GPS_P_GATE = cython.declare(cython.double, 5.0)
+GPS_P_NOISE_M = cython.declare(cython.double, 0.5)
+GPS_RESET_US = 7_000_000
 
 
 def _finite(s: float) -> bool:
@@ -109,6 +125,8 @@ class TemplateEstimator:
         self.bg0 = self.bg1 = self.bg2 = 0.0              # gyro bias
         self.alp0, self.alp1, self.alp2 = 0.0, 0.0, -G     # low-passed specific force
         self.p0_hpa = math.nan
+        self.nb = 0                                        # barometer readings in p0_hpa
+        self.resets = 0                                    # non-finite states reset
         self.bz = 0.0                                      # accelerometer bias, world down
         # altitude covariance (z, vz, bz): it starts at rest on the floor, z = vz = 0 known
         # (a variance of 1 m^2 made the first barometer reading, 2.5 sigma of noise at seed 0,
@@ -120,7 +138,9 @@ class TemplateEstimator:
         self.aid_us = 0                                    # last flow / GPS fused
         self.rng_us = -(1 << 62)                           # last sonar fused
         self.gps_us = 0                                    # last GPS fix fused
+        self.imu_us = -1                                   # last IMU reading used
         self.rng_rej_since = -1
+        self.gps_rej_since = -1                            # fixes gated out since
         self.lost = False
 
     def configure(self, own: dict[str, float]) -> None:
@@ -173,7 +193,14 @@ class TemplateEstimator:
             self._gps(gps, geo, t_us)
         self.x += self.vx * dt
         self.y += self.vy * dt
-        lost = self.z < -0.5 and t_us - self.aid_us > self.noaid_us
+        if not _finite(self.x + self.y + self.z + self.vx + self.vy + self.vz + self.roll
+                       + self.pitch + self.yaw + self.p + self.q + self.r + self.bz + self.pzz
+                       + self.pvv + self.pbb + self.pvx + self.pvy):
+            self._reset()
+        if self.lost:        # regained only by an aiding source fused, never by descending
+            lost = self.aid_us != t_us      # below 0.5 m on dead reckoning (issue 43)
+        else:
+            lost = self.z < -0.5 and t_us - self.aid_us > self.noaid_us
         if lost != self.lost:
             self.lost = lost
         if imu is not None:
@@ -184,17 +211,20 @@ class TemplateEstimator:
                    fn=f64, w=f64, er=f64, ep=f64, mx=f64, my=f64, mz=f64, hx=f64, hy=f64,
                    yaw_m=f64, fx_w=f64, fy_w=f64, fz_w=f64, az_w=f64, qa=f64, pzz=f64,
                    pzv=f64, pvv=f64, pzb=f64, pvb=f64, pbb=f64, h=f64, a0=f64, a1=f64, a2=f64,
-                   b1=f64, b2=f64, hpa=f64, z_b=f64)
+                   b1=f64, b2=f64, hpa=f64, z_b=f64, fields=cython.long)
     def _imu(self, m: Payload, dt: float) -> None:
         # m: time_usec, xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag, abs_pressure,
         #    diff_pressure, pressure_alt, temperature, fields_updated, id
         st = self.stats
         ax, ay, az, gx, gy, gz = m.f(1), m.f(2), m.f(3), m.f(4), m.f(5), m.f(6)
-        if not (_finite(ax + ay + az + gx + gy + gz) and abs(ax) < ACC_MAX
+        fields = m.i(14)                  # fields_updated: what this message carries new
+        if not ((fields & _F_IMU) == _F_IMU and _finite(ax + ay + az + gx + gy + gz)
+                and abs(ax) < ACC_MAX
                 and abs(ay) < ACC_MAX and abs(az) < ACC_MAX and abs(gx) < GYRO_MAX
                 and abs(gy) < GYRO_MAX and abs(gz) < GYRO_MAX):
             st["est_rej_imu"] += 1
             return
+        self.imu_us = self.t_us
         n = self.n
         self.n = n + 1
         if n < _CAL:                               # at rest: gyro bias and initial attitude
@@ -235,7 +265,9 @@ class TemplateEstimator:
                 self.bg1 -= BIAS_KI * ep
         # heading from the compass
         mx, my, mz = m.f(7), m.f(8), m.f(9)
-        if _finite(mx + my + mz) and 0.05 < mx * mx + my * my + mz * mz < 4.0:
+        if (fields & _F_MAG) != _F_MAG:
+            pass                                   # no new magnetometer reading
+        elif _finite(mx + my + mz) and 0.05 < mx * mx + my * my + mz * mz < 4.0:
             ph, th = self.roll, self.pitch
             sph, cph, sth, cth = _sin(ph), _cos(ph), _sin(th), _cos(th)
             hx = mx * cth + my * sph * sth + mz * cph * sth
@@ -272,13 +304,22 @@ class TemplateEstimator:
             self.vy += fy_w * dt
             self.pvx += self.of_q
             self.pvy += self.of_q
-        # barometer: altitude from the pressure drop since the start (the floor)
+        # barometer: altitude from the pressure drop since the start (the floor); the
+        # reference is the mean of the readings accepted at rest, or, with none by the end of
+        # the alignment, the first accepted one at the altitude estimated then
+        if (fields & _F_BARO) != _F_BARO:
+            return                                 # no new pressure (PX4: the same bits)
         hpa = m.f(10)
         if not (_finite(hpa) and 300.0 < hpa < 1200.0):
             st["est_rej_baro"] += 1
             return
         if n < _CAL:
-            self.p0_hpa = hpa if n == 0 else self.p0_hpa + (hpa - self.p0_hpa) / (n + 1)
+            self.nb += 1
+            self.p0_hpa = hpa if self.nb == 1 else self.p0_hpa + (hpa - self.p0_hpa) / self.nb
+            return
+        if self.nb == 0:
+            self.nb = 1
+            self.p0_hpa = hpa + self.z * (1.225 * _G) / 100.0
             return
         z_b = (hpa - self.p0_hpa) * 100.0 / (1.225 * _G)
         if abs(z_b - self.z) > self.baro_gate:
@@ -286,6 +327,24 @@ class TemplateEstimator:
             return
         st["est_baro_fused"] += 1
         self._z_fuse(z_b, self.r_baro)
+
+    def _reset(self) -> None:
+        """A state that is no longer finite (no reading may make one; if one ever does): each
+        part that is not finite starts again as at rest, and `resets` counts it (the vehicle
+        says so)."""
+        self.resets += 1
+        self.stats["est_resets"] += 1
+        if not _finite(self.roll + self.pitch + self.yaw + self.p + self.q + self.r):
+            self.roll = self.pitch = self.yaw = self.p = self.q = self.r = 0.0
+        if not _finite(self.z + self.vz + self.bz + self.pzz + self.pvv + self.pbb):
+            self.z, self.vz, self.bz = min(0.0, self.z) if _finite(self.z) else 0.0, 0.0, 0.0
+            self.pzz, self.pzv, self.pvv, self.pzb, self.pvb = 1.0, 0.0, 1.0, 0.0, 0.0
+            self.pbb = self.abl_lim * self.abl_lim
+        if not _finite(self.x + self.y + self.vx + self.vy + self.pvx + self.pvy):
+            self.x = self.x if _finite(self.x) else 0.0
+            self.y = self.y if _finite(self.y) else 0.0
+            self.vx = self.vy = 0.0
+            self.pvx = self.pvy = 1.0
 
     @cython.locals(pzz=f64, pzv=f64, pvv=f64, pzb=f64, pvb=f64, s=f64, kz=f64, kv=f64,
                    kb=f64, e=f64, lim=f64)
@@ -373,14 +432,28 @@ class TemplateEstimator:
         return True
 
     def _gps(self, m: Payload, geo, t_us: int) -> None:
-        # m: time_usec, lat, lon, alt, eph, epv, vel, vn, ve, vd, cog, fix_type, ...
+        # m: time_usec, lat, lon, alt, eph, epv, vel, vn, ve, vd, cog, fix_type,
+        #    satellites_visible, ...
         st = self.stats
-        lat, lon, alt, fix = m.i(1), m.i(2), m.i(3), m.i(11)
-        if fix < 3 or not (-900_000_000 <= lat <= 900_000_000
-                           and -1_800_000_000 <= lon <= 1_800_000_000):
-            st["est_rej_gps"] += 1
+        lat, lon, alt, eph, fix, nsat = m.i(1), m.i(2), m.i(3), m.i(4), m.i(11), m.i(12)
+        if fix < 3 or eph > GPS_REQ_EPH_CM or nsat < GPS_REQ_NSATS or not (
+                -900_000_000 <= lat <= 900_000_000 and -1_800_000_000 <= lon <= 1_800_000_000):
+            st["est_rej_gps"] += 1                 # EKF2's quality checks
             return
         n, e, _ = geo.to_ned(lat * 1e-7, lon * 1e-7, alt * 1e-3)
+        # EKF2's innovation gate: EKF2_GPS_P_GATE standard deviations of the fix's accuracy
+        # (at least EKF2_GPS_P_NOISE); rejected for GPS_RESET_US in a row, the position is
+        # reset to the fix (as EKF2 resets to GPS when its fusion has timed out)
+        sd = max(eph * 0.01, GPS_P_NOISE_M)
+        if (n - self.x) ** 2 + (e - self.y) ** 2 > (GPS_P_GATE * sd) ** 2:
+            if self.gps_rej_since < 0:
+                self.gps_rej_since = t_us
+            if t_us - self.gps_rej_since < GPS_RESET_US:
+                st["est_rej_gps"] += 1
+                return
+            st["est_gps_resets"] += 1
+            self.x, self.y = n, e
+        self.gps_rej_since = -1
         w = self.w_gps
         self.x += w * (n - self.x)
         self.y += w * (e - self.y)

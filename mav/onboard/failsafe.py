@@ -9,7 +9,9 @@
   for EKF2_NOAID_TOUT): held level, at its altitude on the estimator (sonar, baro), at hover
   thrust on a lost ODOMETRY feed; after COM_POS_FS_DELAY while flying, land;
 - geofence: a cylinder about home, GF_MAX_HOR_DIST radius and GF_MAX_VER_DIST height (0: no
-  limit), checked while flying: GF_ACTION (0 none, 1 warn, 2 hold, 3 return, 5 land).
+  limit), checked while flying: GF_ACTION (0 none, 1 warn, 2 hold, 3 return, 5 land);
+- IMU failed (the onboard estimator without a usable IMU reading for IMU_FAIL_US in flight):
+  land, blind (`imu_missing`).
 
 An action fires once per event (the link lost, a battery level crossed, the fence breached);
 the user can take over with a new mode at once, as on PX4. Nothing fires on the ground."""
@@ -23,6 +25,21 @@ from mav.onboard.commander import Commander
 from mav.onboard.defs import LAND, LOITER, ON_GROUND, RTL, M
 from mav.onboard.status import VehicleStatus
 
+# A tick of the onboard estimator without a usable IMU reading (NaN, out of range) leaves the
+# estimate where it was: nothing that reads it runs (modes, land detector, controller; PX4's
+# rate controller too runs only on a new gyro sample) and the motors keep their collective
+# thrust without torque (held commands, with the attitude loop's last torque in them, tip a
+# Mambo in tenths of a second).
+# Without one for IMU_FAIL_US in flight, the IMU has failed: the vehicle descends blind, all
+# motors at the thrust of PX4's descent without a vertical estimate (FlightTaskDescend: a
+# constant BLIND_ACC down, "crash landing"; no attitude is left to hold, so no mode can run),
+# and disarms once that descent has had time to reach the floor from the last height
+# estimated, plus BLIND_MARGIN_M. 0.1 s (PX4 declares the attitude invalid after 1 s without
+# an estimate, commander's estimatorCheck, but its vehicle is still controlled meanwhile).
+IMU_FAIL_US = 100_000
+BLIND_ACC = 0.15             # m/s^2, downward (PX4 FlightTaskDescend)
+BLIND_MARGIN_M = 0.3         # m, added to the height the descent must cover
+
 
 class Failsafe:
     def __init__(self, vs: VehicleStatus, outbox: Outbox, commander: Commander,
@@ -31,6 +48,9 @@ class Failsafe:
         self.out = outbox
         self.cmd = commander
         self.apply_params = apply_params   # recomputes the limits that derive from params
+        self.blind_us = -1         # the IMU failsafe's blind descent: since when (-1: none)
+        self.blind_end_us = 0      # ... and when it disarms
+        self.u_blind = 0.0         # ... at this command on every motor
 
     def offboard_lost(self, t: int) -> None:
         """OFFBOARD without a setpoint for COM_OF_LOSS_T: hold position."""
@@ -104,6 +124,30 @@ class Failsafe:
                 and t - vs.pos_lost_us > int(vs.own["COM_POS_FS_DELAY"] * 1e6)):
             vs.pos_fs_done = True
             self.act(3, "no position estimate")
+
+    # ------------------------------------------------------------------ IMU
+    def imu_missing(self, t: int, e, airframe) -> None:
+        """A tick whose IMU reading the estimator `e` rejected (see IMU_FAIL_US): the blind
+        descent once the IMU has been silent IMU_FAIL_US in flight, its disarm when it has
+        had time to reach the floor."""
+        vs = self.vs
+        if self.blind_us < 0:
+            if vs.armed and vs.landed_state != ON_GROUND and t - e.imu_us > IMU_FAIL_US:
+                self.blind_us = t
+                h = max(0.0, -e.z)                  # m above the floor it started on
+                self.blind_end_us = t + int(math.sqrt(2.0 * (h + BLIND_MARGIN_M)
+                                                      / BLIND_ACC) * 1e6)
+                self.u_blind = airframe.u_hover * math.sqrt(1.0 - BLIND_ACC / airframe.g)
+                vs.stats["failsafe_imu"] += 1
+                self.act(3, "no valid IMU data")
+        elif t >= self.blind_end_us and vs.armed:
+            self.cmd.set_landed(ON_GROUND)
+            self.cmd.disarm("Blind descent over, disarmed")
+
+    def imu_back(self) -> None:
+        """An IMU reading again: the blind descent ends (the landing goes on, estimated)."""
+        self.blind_us = -1
+        self.out.statustext("IMU data back", M.MAV_SEVERITY_WARNING)
 
     # ------------------------------------------------------------------ geofence
     def check_geofence(self) -> None:

@@ -29,6 +29,7 @@ from mav import wire
 from mav.airframe import Airframe, get_airframe
 from mav.battery import BATTERIES, Battery
 from mav.estimator import Estimator
+from mav.hil import SIM_SYSID, tick_refusal
 from mav.onboard.channels import Chan, LinkInput, Outbox, Stream
 from mav.onboard.commander import Commander
 from mav.onboard.commands import Commands
@@ -66,11 +67,12 @@ M = mavlink2
 
 MAX_TIME_US = 1 << 62        # an ODOMETRY stamped later than this (146,000 years) is refused
 STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
-         "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "hil_ignored", "hil_bad_values",
+         "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "dropped_stale_hil",
+         "dropped_jump_hil", "dropped_foreign_hil", "hil_ignored", "hil_bad_values",
          "unknown_msgs", "unhandled_msgs", "not_for_us", "unsigned_rejected", "badsig_rejected",
          "setpoints", "rejected_setpoints", "commands", "commands_unsupported", "param_sets",
          "param_rejected", "param_denied_armed", "drain_deferred", "handler_errors",
-         "odometry_lost", "faults_injected", "inject_denied")
+         "odometry_lost", "faults_injected", "inject_denied", "failsafe_imu")
 
 
 class Onboard:
@@ -156,9 +158,11 @@ class Onboard:
         # between the HIL link and the tick, it turns sensor datagrams into ODOMETRY
         self.estimator = tel.estimator = Estimator(vs.own, self.stats, self.geo)
         self._decode_hil = wire.decode_odometry    # the tick's reader of a HIL datagram
+        self._est_link = None
         if self.estimator.enabled:
-            self._hil = self.estimator.link(self._hil, self._hil_mav)
+            self._hil = self._est_link = self.estimator.link(self._hil, self._hil_mav)
             self._decode_hil = self._hil.decoded   # its estimate, not decoded again
+        self._est_resets = 0          # the estimator's resets of a non-finite state, said
         # what a lost position keeps: the estimator's `lost` is its horizontal aiding (flow,
         # GPS), its altitude stays; an ODOMETRY feed's quality -1 (motion capture) loses all
         self._vertical_kept = self.estimator.enabled
@@ -284,7 +288,8 @@ class Onboard:
                    qw=cython.double, qx=cython.double, qy=cython.double, qz=cython.double,
                    vx=cython.double, vy=cython.double, vz=cython.double, p=cython.double,
                    q=cython.double, r=cython.double, chk=cython.double, frame_id=cython.int,
-                   child=cython.int, quality=cython.int, lost=cython.bint, u=list)
+                   child=cython.int, quality=cython.int, lost=cython.bint, u=list,
+                   own=cython.bint, imu_ok=cython.bint)
     def poll(self) -> bool:
         """Handle one waiting HIL datagram (see module docstring). False if none was waiting
         or it was not a usable ODOMETRY (then nothing else is touched)."""
@@ -303,6 +308,15 @@ class Onboard:
             return False
         if not 0 <= od[0] < MAX_TIME_US:      # a clock beyond any flight: not a tick
             st["hil_bad_values"] += 1
+            return False
+        # the lockstep clock: the simulator's, later than the last tick by at most
+        # HIL_MAX_STEP_US (mav/hil.py); the estimator's ODOMETRY was checked as its sensor
+        # datagram (refused ones never get here), and is the vehicle's own system's frame
+        own = self._est_link is not None and self._est_link.made(data)
+        why = tick_refusal(SIM_SYSID if own else data[5], od[0],
+                           vs.t_us if vs.have_state else -1)
+        if why is not None:
+            st[why] += 1
             return False
         (t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r, frame_id, child, quality) = od
         chk = x + y + z + qw + qx + qy + qz + vx + vy + vz + p + q + r
@@ -351,17 +365,33 @@ class Onboard:
             vs.have_state = True
             self.commander.set_home()
             self.commander.hold_here()
-        # 3. modes, failsafes, ground detection, controller
-        self._step_modes(t_us)
+        # 3. modes, failsafes, ground detection, controller: on an estimate that moved on
+        # (the onboard estimator's with a usable IMU reading this tick; failsafe.IMU_FAIL_US)
+        fs = self.failsafe
+        imu_ok = not own or self.estimator.impl.imu_us == t_us
+        if own and self.estimator.impl.resets != self._est_resets:   # (no reading may do it)
+            self._est_resets = self.estimator.impl.resets
+            self.outbox.statustext("Estimator reset: its state was not finite",
+                                   M.MAV_SEVERITY_CRITICAL)
+        if imu_ok:
+            if fs.blind_us >= 0:
+                fs.imu_back()
+            self._step_modes(t_us)
+        else:
+            fs.imu_missing(t_us, self.estimator.impl, self.vehicle)
         u = vs.u
         if vs.armed:
-            if vs.landed_state == ON_GROUND and self.commander.motors_idle():
+            if fs.blind_us >= 0:
+                u[0] = u[1] = u[2] = u[3] = fs.u_blind
+            elif vs.landed_state == ON_GROUND and self.commander.motors_idle():
                 idle = vs.own["MOT_IDLE_RATIO"] * self.vehicle.u_hover
                 u[0] = u[1] = u[2] = u[3] = idle
-            else:
+            elif imu_ok:
                 sp = vs.setpoint
                 sp.armed = True
                 vs.ctrl.update(self._blind(s, sp) if lost else s, sp, u)
+            else:       # the collective thrust held, no torque: no attitude to correct
+                u[0] = u[1] = u[2] = u[3] = 0.25 * (u[0] + u[1] + u[2] + u[3])
         else:
             u[0] = u[1] = u[2] = u[3] = 0.0
         if dt_us > 0:
