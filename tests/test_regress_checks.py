@@ -178,3 +178,24 @@ def test_junit_xml_is_read_by_a_junit_parser(tmp_path):
     assert "metric x" in res.text
     (err,) = cases["c2"].result
     assert isinstance(err, junitparser.Error) and "<boom> &" in err.message
+
+
+def test_the_longest_cases_are_flown_first(tmp_path):
+    """A suite on n workers ends near its runs spread over them: the last run's wall times
+    in --out order the jobs, else the baselines' simulated times."""
+    from cosim.regress.cases import Case
+    from cosim.regress.runner import jobs_for
+
+    base = tmp_path / "b"
+    base.mkdir()
+    cases = [Case(id=n, scenario=SQUARE, baselines=base) for n in ("a", "b", "c", "d")]
+    for n, sim in (("a", 10.0), ("b", 80.0), ("c", 30.0)):
+        (base / f"{n}.json").write_text(f'{{"sim_time_s": {sim}}}')
+    out = tmp_path / "out"
+    assert [j.case.id for j in jobs_for(cases, out)] == ["b", "c", "a", "d"]
+    assert [j.run_id for j in jobs_for(cases, out)] == [1, 2, 0, 3]
+    out.mkdir()
+    (out / "verdicts.json").write_text(
+        '[{"suite": "cosim", "id": "a", "wall_s": 50.0}, {"suite": "cosim", "id": "d", '
+        '"wall_s": 1.0}]')
+    assert [j.case.id for j in jobs_for(cases, out)] == ["a", "b", "c", "d"]

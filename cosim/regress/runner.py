@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,8 +64,31 @@ def lost_case(job: CaseJob, exc: BaseException) -> dict[str, Any]:
 
 def jobs_for(cases: list[Case], out: Path, *, equivalence: tuple[str, str] | None = None,
              timeout_s: float | None = None) -> list[CaseJob]:
-    return [CaseJob(i, c, out / c.suite / c.id, equivalence, timeout_s)
+    """One job a case, the longest first (the last run's wall time in `out`, else the
+    baseline's simulated time): a suite on n workers then ends near the time of its runs
+    spread over them, not with one long run alone at the end."""
+    last = _last_walls(out / "verdicts.json")
+    jobs = [CaseJob(i, c, out / c.suite / c.id, equivalence, timeout_s)
             for i, c in enumerate(cases)]
+    return sorted(jobs, key=lambda j: -last.get((j.case.suite, j.case.id),
+                                                _sim_time(j.case)))
+
+
+def _last_walls(path: Path) -> dict[tuple[str, str], float]:
+    try:
+        return {(v["suite"], v["id"]): float(v["wall_s"]) for v in json.loads(path.read_text())
+                if v.get("wall_s")}
+    except (OSError, ValueError, TypeError, KeyError):
+        return {}
+
+
+def _sim_time(case: Case) -> float:
+    """A case's cost in wall seconds, estimated from its baseline's simulated seconds at 10x
+    real time (a shipped mission runs 10-100x); 0 without a baseline."""
+    try:
+        return float(json.loads(case.baseline.read_text()).get("sim_time_s") or 0.0) / 10.0
+    except (OSError, ValueError, TypeError, AttributeError):
+        return 0.0
 
 
 def run_cases(jobs: list[CaseJob], *, executor: str = "dask", workers: int | None = None,
