@@ -101,7 +101,8 @@ def _run(cmd: list[str], out: Path, env: dict[str, str], timeout_s: float | None
     not end, and gets status -9. The run stays in our process group: Ctrl-C at the terminal
     reaches it too."""
     with open(out / LOG, "wb") as log:
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                preexec_fn=_child_setup)
         try:
             return proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
@@ -111,6 +112,32 @@ def _run(cmd: list[str], out: Path, env: dict[str, str], timeout_s: float | None
         except BaseException:            # Ctrl-C / SIGTERM of `cosim test`: the run ends too
             _stop(proc)
             raise
+
+
+def _child_setup() -> None:
+    """In the run's process before it starts: Ctrl-C stops it even where our process ignores
+    it (a study worker of a local Dask cluster does: cosim/studies/engine.py), and it is sent
+    SIGTERM (a normal stop: it writes what it recorded) if the thread that started it dies,
+    e.g. a worker closed with its cluster, instead of flying on as an orphan (Linux)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    if _PRCTL is not None:
+        _PRCTL(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+
+
+def _prctl():
+    import ctypes
+    import ctypes.util
+
+    try:
+        fn = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    fn.restype = ctypes.c_int
+    return fn
+
+
+_PRCTL = _prctl() if sys.platform.startswith("linux") else None
+_PR_SET_PDEATHSIG = 1        # linux/prctl.h
 
 
 def _stop(proc: subprocess.Popen) -> None:
