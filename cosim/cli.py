@@ -220,6 +220,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--numerics", action="store_true",
                    help="only what the portable numerics cost: the seed mission and E2, native "
                         "and portable in fresh processes, alternately (~1.5 minutes)")
+    b.add_argument("--peers", action="store_true",
+                   help="only the lead over a peer: the seed mission against RotorPy side by "
+                        "side (pip install '.[peers]')")
     return p
 
 
@@ -348,17 +351,17 @@ def _dispatch(args) -> int:
     if args.cmd == "bench":
         from cosim.bench.command import main as bench_main
 
-        only = [f"--{k}" for k in ("instructions", "flood", "live", "numerics")
+        only = [f"--{k}" for k in ("instructions", "flood", "live", "numerics", "peers")
                 if getattr(args, k)]
         if len(only) > 1:
             raise ScenarioError("bench", " ".join(only), "one of --instructions, --flood, "
-                                "--live, --numerics")
+                                "--live, --numerics, --peers")
         if args.json is not None and args.json.is_dir():
             raise ScenarioError("--json", str(args.json), "a file path (this is a folder)")
 
         return bench_main(quick=args.quick, json_path=args.json, flood_only=args.flood,
                           instructions=args.instructions, live_only=args.live,
-                          numerics_only=args.numerics)
+                          numerics_only=args.numerics, peers_only=args.peers)
     raise AssertionError(args.cmd)
 
 

@@ -33,9 +33,14 @@ def test_bench_quick_reports_every_figure(tmp_path):
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
     expected = ["plant_step", "controller_update", "udp_hil_roundtrip", "render", "ips",
-                "mission_mil", "mission_sil", "vision", "flood"]
+                "mission_mil", "mission_sil", "vision", "flood", "peers"]
     for key in expected:
         assert key in res, key
+    peers = res["peers"]                                # RotorPy flown side by side
+    assert peers["ours_x_real_time"] > 0 and peers["rotorpy_x_real_time"] > 0
+    assert peers["ratio"] == pytest.approx(peers["ours_x_real_time"]
+                                           / peers["rotorpy_x_real_time"])
+    assert "ours / RotorPy" in r.stdout
     figs = dict(_figures(res))
     assert len(figs) >= len(expected) + 5 + 2          # + codec figures + end-to-end figures
     for name, d in figs.items():
@@ -89,3 +94,12 @@ def test_bench_quick_reports_every_figure(tmp_path):
     assert p2["breakdown"]["rendered"] < p2["breakdown"]["frames"]   # take-off not rendered
     pl = p2["breakdown"]["pipelined"]            # the same mission flown whole, pipelined
     assert pl["wall_s"] > 0.5 and pl["main_cpu_s"] > 0.5 and pl["worker_cpu_s"] > 0.5
+
+
+def test_the_peer_row_says_how_to_install_a_missing_peer(monkeypatch):
+    from cosim.bench import peers
+
+    monkeypatch.setitem(sys.modules, "rotorpy", None)       # as if not installed
+    d = peers.bench_peers(1)
+    assert d == {"missing": "RotorPy is not installed: pip install '.[peers]'"}
+    assert peers.format_peers(d) == [f"against a peer: {d['missing']}"]

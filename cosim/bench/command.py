@@ -312,6 +312,9 @@ def run(quick: bool = False) -> dict[str, Any]:
 
     if not quick:                  # issue 39: what portable costs (--numerics alone: 1.5 min)
         res["numerics"] = bench_numerics(3)
+    from cosim.bench.peers import bench_peers
+
+    res["peers"] = bench_peers(*((1, 20.0) if quick else (4,)))   # the lead over RotorPy
     return res
 
 
@@ -407,12 +410,22 @@ def format_report(res: dict[str, Any]) -> str:
         from cosim.bench.numerics import format_numerics
 
         lines += format_numerics(res["numerics"])
+    if "peers" in res:
+        from cosim.bench.peers import format_peers
+
+        lines += format_peers(res["peers"])
     return "\n".join(lines)
 
 
 def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = False,
          instructions: bool = False, live_only: bool = False,
-         numerics_only: bool = False) -> int:
+         numerics_only: bool = False, peers_only: bool = False) -> int:
+    if peers_only:     # the lead over a peer simulator (bench/peers.py)
+        from cosim.bench.peers import bench_peers, format_peers
+
+        res = {"machine": machine(), "peers": bench_peers(*((1, 20.0) if quick else (4,)))}
+        print("\n".join(format_peers(res["peers"])))
+        return _write(res, json_path or Path("runs") / "bench_peers.json")
     if numerics_only:  # what the portable numerics cost (bench_numerics.py)
         from cosim.bench.numerics import bench_numerics, format_numerics
 
