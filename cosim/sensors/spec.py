@@ -3,7 +3,7 @@ scenario's `[sensors]` table (validated; a bad value names its field, exit 2).
 
     [sensors]
     feed = "hil"               # hil (default): HIL_SENSOR, HIL_OPTICAL_FLOW, DISTANCE_SENSOR,
-                               # HIL_GPS and the vehicle's own estimator (EKF2_TYPE 1) |
+                               # HIL_GPS and the vehicle's own estimator (TPL_EST_TYPE 1) |
                                # truth: ODOMETRY (the plant's state, like PX4 on motion capture)
     flow_floor = "auto"        # auto (a room's floor by its texture; a flat world's floor
                                # stands in for the template's aerial photograph: textured)
