@@ -135,6 +135,17 @@ def test_sonar_has_no_reading_below_its_minimum():
             assert abs(d[3] - 100) <= 5     # cm
 
 
+def test_distance_sensor_carries_the_range_noise_variance():
+    """DISTANCE_SENSOR's covariance is the variance in cm^2 (common.xml; PX4 reads it as the
+    variance, 0 = an exact sensor), 255 when it does not fit (issue 44, item 3)."""
+    su = SensorSuite(SensorsSpec(feed="hil"), 0, 0.005, (0.0, 0.0), True)
+    for k in range(3):
+        msgs, _ = hs.decode_bundle(su.encode(k * 5000, _y(-1.0)))
+    assert msgs[hs.DISTANCE_SENSOR.id][7] == 1                  # range_noise_m 0.01: 1 cm^2
+    assert [hs.range_covariance(n) for n in (0.0, 0.001, 0.01, 0.05, 0.159, 0.16, 1.0)] == [
+        0, 1, 1, 25, 253, 255, 255]
+
+
 def test_imu_at_rest_reads_gravity_with_the_template_noise():
     su = SensorSuite(SensorsSpec(feed="hil"), 3, 0.005, (0.0, 0.0), True)
     acc = np.array([hs.decode_bundle(su.encode(k * 5000, _y()))[0][hs.HIL_SENSOR.id][1:4]
@@ -324,7 +335,7 @@ def test_a_sensor_datagram_framed_at_once_is_its_frames_one_by_one(signed):
             sg.secret_key, sg.sign_outgoing, sg.link_id, sg.timestamp = bytes(32), True, 1, 7
     rests = [(hs.HIL_SENSOR, hs.hil_sensor_rest(0.1, -0.2, -9.8, 0.01, 0.0, 0.0, 0.2, 0.0, 0.4,
                                                 1013.2, 1.5, 25.0, 0x1FFF)),
-             (hs.DISTANCE_SENSOR, hs.distance_rest(44, 400, 0, hs.NO_ECHO)),
+             (hs.DISTANCE_SENSOR, hs.distance_rest(44, 400, 0, hs.NO_ECHO, 1)),
              (hs.HIL_OPTICAL_FLOW, hs.flow_rest(20000, 0.0, 0.0, 0.0, 0.0, 0.0, 0)),
              ]
     parts = []
