@@ -67,6 +67,12 @@ class ParamSpec:
     # a flight gain: while armed it stays within a factor of its default (mav/params.py
     # flight_envelope), so a vehicle in the air is never handed a gain that cannot fly
     flight_gain: bool = False
+    # MAVLink param_type of PARAM_VALUE: "REAL32", or "INT32" where PX4's metadata types the
+    # parameter int32 (sent byte-wise, PX4's encoding; mav/onboard/parameters.py)
+    ptype: str = "REAL32"
+    # a PX4-named parameter whose default is not PX4's: why (the airframe's or the room's own
+    # value, as PX4's airframe files set theirs); "" = PX4's default (tests/test_px4_params.py)
+    own_default: str = ""
 
 
 class Controller(Protocol):

@@ -33,6 +33,7 @@ from typing import NamedTuple
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
+from mav.params import float_as_int32
 
 M = mavlink2
 NAN = math.nan
@@ -276,7 +277,10 @@ class OffboardClient:
         name = msg.param_id
         if isinstance(name, bytes | bytearray):
             name = bytes(name).decode("ascii", errors="replace")
-        self.params[name.rstrip("\x00")] = msg.param_value
+        v = msg.param_value
+        if msg.param_type == M.MAV_PARAM_TYPE_INT32:      # byte-wise, as PX4 sends it
+            v = float(float_as_int32(v))
+        self.params[name.rstrip("\x00")] = v
         self.param_count = msg.param_count
 
     # ------------------------------------------------------------------ send
@@ -407,7 +411,8 @@ class OffboardClient:
                           1e6 / hz if hz > 0 else -1.0)
 
     def set_param(self, name: str, value: float) -> None:
-        """PARAM_SET (REAL32); the vehicle's PARAM_VALUE echo updates `params[name]`."""
+        """PARAM_SET typed REAL32 (the vehicle reads it by value, an INT32 parameter too);
+        the vehicle's PARAM_VALUE echo updates `params[name]` (an INT32 decoded byte-wise)."""
         self._send_msg(M.MAVLink_param_set_message(
             self.target_system, self.target_component, name.encode(), float(value),
             M.MAV_PARAM_TYPE_REAL32))

@@ -14,7 +14,8 @@ cpdef bytes hil_sensor_rest(double ax, double ay, double az, double gx, double g
                             double temp_c, long fields_updated)
 cpdef bytes flow_rest(long long dt_us, double ix, double iy, double gx, double gy, double gz,
                       long quality)
-cpdef bytes distance_rest(long min_cm, long max_cm, long cur_cm, long quality)
+cpdef bytes distance_rest(long min_cm, long max_cm, long cur_cm, long quality,
+                          long covariance)
 cpdef bytes truth_payload(t_us, double qw, double qx, double qy, double qz, double p,
                           double q, double r, long long lat_e7, long long lon_e7,
                           long long alt_mm, long vn_cms, long ve_cms, long vd_cms)

@@ -161,15 +161,29 @@ def flow_rest(dt_us: int, ix: float, iy: float, gx: float, gy: float, gz: float,
     return done(b)
 
 
-def distance_rest(min_cm: int, max_cm: int, cur_cm: int, quality: int) -> bytes:
+def range_covariance(noise_m: float) -> int:
+    """DISTANCE_SENSOR's covariance for a range noise of standard deviation `noise_m`: the
+    variance in cm^2 (common.xml: uint8, UINT8_MAX = unknown), at least 1 cm^2 for any noise
+    (PX4 reads the field as the variance, covariance * 1e-4 m^2: a 0 would claim an exact
+    sensor), 255 (unknown) when it exceeds 254 cm^2 (a standard deviation over 15.9 cm)."""
+    var = (noise_m * 100.0) ** 2
+    if not var > 0.0:
+        return 0
+    return min(255, max(1, round(var))) if var <= 254.0 else 255
+
+
+def distance_rest(min_cm: int, max_cm: int, cur_cm: int, quality: int,
+                  covariance: int) -> bytes:
     """DISTANCE_SENSOR less time_boot_ms: min, max, current (cm), type ultrasound, id 0,
-    orientation down, covariance 0, fovs and quaternion 0, signal_quality."""
+    orientation down, covariance (cm^2, `range_covariance`), fovs and quaternion 0,
+    signal_quality."""
     b = new_payload(_DIST_L.size)
     put_i(b, _DIST_L, 0, min_cm)
     put_i(b, _DIST_L, 1, max_cm)
     put_i(b, _DIST_L, 2, cur_cm)
     put_i(b, _DIST_L, 3, RANGE_ULTRASOUND)
     put_i(b, _DIST_L, 5, ORIENT_DOWN)
+    put_i(b, _DIST_L, 6, covariance)
     put_i(b, _DIST_L, 13, quality)
     return done(b)
 
@@ -217,8 +231,9 @@ def encode_flow(mav, t_us: int, dt_us: int, ix: float, iy: float, gx: float, gy:
 
 
 def encode_distance(mav, t_us: int, min_cm: int, max_cm: int, cur_cm: int,
-                    quality: int) -> bytes:
-    return stamped(mav, DISTANCE_SENSOR, t_us, distance_rest(min_cm, max_cm, cur_cm, quality))
+                    quality: int, covariance: int = 255) -> bytes:
+    return stamped(mav, DISTANCE_SENSOR, t_us,
+                   distance_rest(min_cm, max_cm, cur_cm, quality, covariance))
 
 
 class Payload:

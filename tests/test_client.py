@@ -68,7 +68,7 @@ def test_commands_are_encoded_as_px4_expects(pair):
     c.set_mode("AUTO.LAND")
     c.request_message(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
     c.set_message_interval(M.MAVLINK_MSG_ID_ATTITUDE, 25.0)
-    c.set_param("MPC_LAND_SPEED", 0.3)
+    c.set_param("TPL_LAND_SPEED", 0.3)
     c.request_params()
     with pytest.raises(ValueError, match="unknown mode"):
         c.set_mode("ACRO!")
@@ -85,7 +85,7 @@ def test_commands_are_encoded_as_px4_expects(pair):
     assert (cl[-2].command, cl[-2].param1) == (512, 148)
     assert (cl[-1].command, cl[-1].param1, cl[-1].param2) == (511, 30, 40000)
     ps = [m for m in msgs if m.get_type() == "PARAM_SET"][0]
-    assert (ps.param_id, ps.param_value, ps.param_type) == ("MPC_LAND_SPEED", pytest.approx(0.3),
+    assert (ps.param_id, ps.param_value, ps.param_type) == ("TPL_LAND_SPEED", pytest.approx(0.3),
                                                              M.MAV_PARAM_TYPE_REAL32)
     assert [m.get_type() for m in msgs][-1] == "PARAM_REQUEST_LIST"
 
@@ -137,7 +137,7 @@ def test_telemetry_lands_in_attributes(pair):
     v.send(M.MAVLink_sys_status_message(0, 0, 0, 0, 4100, 450, 87, 0, 0, 0, 0, 0, 0))
     v.send(M.MAVLink_statustext_message(4, b"Takeoff complete", 0, 0))
     v.send(M.MAVLink_command_ack_message(400, 0, 0, 0, 1, 191))
-    v.send(M.MAVLink_param_value_message(b"MPC_LAND_SPEED", 0.4, 9, 42, 7))
+    v.send(M.MAVLink_param_value_message(b"TPL_LAND_SPEED", 0.4, 9, 42, 7))
     assert c.poll(2.0) == 11
     assert c.heartbeat_seen and c.armed and c.mode == "AUTO.LOITER"
     assert c.landed_state == "IN_AIR"
@@ -149,7 +149,7 @@ def test_telemetry_lands_in_attributes(pair):
     assert c.battery == pytest.approx((4.1, 4.5, 0.87))
     assert list(c.statustext) == [(2.0, 4, "Takeoff complete")]
     assert c.ack(400) == 0 and c.acks[400].t == 2.0
-    assert c.params == {"MPC_LAND_SPEED": pytest.approx(0.4)} and c.param_count == 42
+    assert c.params == {"TPL_LAND_SPEED": pytest.approx(0.4)} and c.param_count == 42
     c.arm()                                # a new command forgets its old ack
     assert c.ack(400) is None
 

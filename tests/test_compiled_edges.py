@@ -68,7 +68,7 @@ CASES = [
     "hil_sensors.is_sensor_bundle(b'\xfd' * 11)",
     "hil_sensors.stamp(ODO, 2**64, b'')", "hil_sensors.stamp(ODO, -1, b'')",
     "hil_sensors.frames(mav, [HB, bytes(300)])", "hil_sensors.frames(mav, [HB, b'\x01' * 255])",
-    "hil_sensors.distance_rest(2**40, 0, 0, 0)", "hil_sensors.flow_rest(-1, 0., 0., 0., 0., 0., 300)",
+    "hil_sensors.distance_rest(2**40, 0, 0, 0, 0)", "hil_sensors.flow_rest(-1, 0., 0., 0., 0., 0., 300)",
 ]
 """
 

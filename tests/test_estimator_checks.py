@@ -29,7 +29,7 @@ SIM = M.MAVLink(None, SIM_SYSID, M.MAV_COMP_ID_SYSTEM_CONTROL)
 
 def _estimator() -> tuple[Estimator, dict]:
     own = {p.name: p.default for p in ONBOARD_PARAMS}
-    own["EKF2_TYPE"] = 1.0
+    own["TPL_EST_TYPE"] = 1.0
     stats: dict[str, int] = {}
     return Estimator(own, stats, FlatEarth(42.3, -71.35, 71.0)), stats
 

@@ -85,7 +85,7 @@ def hostile_valid(rng: random.Random, mav, target: int = 1) -> bytes:
                                                     M.MAVLink_command_int_message)):
         msg.command = rng.choice(COMMANDS)
     if isinstance(msg, M.MAVLink_param_set_message) and rng.random() < 0.5:
-        msg.param_id = rng.choice([b"COM_OF_LOSS_T", b"MPC_LAND_SPEED", b"MIS_TAKEOFF_ALT",
+        msg.param_id = rng.choice([b"COM_OF_LOSS_T", b"TPL_LAND_SPEED", b"MIS_TAKEOFF_ALT",
                                    b"BAT1_CAPACITY", b"X" * 16])
     if isinstance(msg, M.MAVLink_set_position_target_local_ned_message):
         msg.coordinate_frame = rng.choice([1, 8, 0, 7, 255])

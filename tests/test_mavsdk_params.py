@@ -47,14 +47,14 @@ async def _session(api_port: int, log: list[str]) -> None:
         drone = await _step(mavsdk.first_autopilot(timeout_s=10.0), "autopilot discovered")
         assert drone is not None, "MAVSDK: no autopilot heard"
         param = ParamAsync(drone)
-        await _step(param.set_param_float("MPC_LAND_SPEED", 0.3), "a good set")
-        assert await _step(param.get_param_float("MPC_LAND_SPEED"), "get") == pytest.approx(0.3)
+        await _step(param.set_param_float("TPL_LAND_SPEED", 0.3), "a good set")
+        assert await _step(param.get_param_float("TPL_LAND_SPEED"), "get") == pytest.approx(0.3)
 
         took = []
         for name, value, want in (
                 ("NO_SUCH_PARAM", 1.0, ParamResult.DOES_NOT_EXIST),
-                ("MPC_LAND_SPEED", 50.0, ParamResult.VALUE_OUT_OF_RANGE),     # max 2 m/s
-                ("MPC_LAND_SPEED", -1.0, ParamResult.VALUE_OUT_OF_RANGE),
+                ("TPL_LAND_SPEED", 50.0, ParamResult.VALUE_OUT_OF_RANGE),     # max 2 m/s
+                ("TPL_LAND_SPEED", -1.0, ParamResult.VALUE_OUT_OF_RANGE),
                 ("MC_THR_MAX", math.inf, ParamResult.VALUE_OUT_OF_RANGE)):
             result, dt = await _refused(param.set_param_float(name, value))
             log.append(f"set {name}={value}: {result.name} in {dt * 1000:.1f} ms")
@@ -65,7 +65,7 @@ async def _session(api_port: int, log: list[str]) -> None:
         assert result == ParamResult.DOES_NOT_EXIST
         took.append(dt)
         # the refused sets changed nothing
-        assert await _step(param.get_param_float("MPC_LAND_SPEED"), "get") == pytest.approx(0.3)
+        assert await _step(param.get_param_float("TPL_LAND_SPEED"), "get") == pytest.approx(0.3)
         # armed: a thrust limit below the flight envelope is not allowed, one inside is
         action, tel = ActionAsync(drone), TelemetryAsync(drone)
 
@@ -91,7 +91,7 @@ async def _session(api_port: int, log: list[str]) -> None:
             await _step(silent.select_component(1, ProtocolVersion.EXT), "select component")
         except ParamError as exc:
             assert exc.result == ParamResult.UNKNOWN, exc
-        result, timeout_s = await _refused(silent.get_param_float("MPC_LAND_SPEED"))
+        result, timeout_s = await _refused(silent.get_param_float("TPL_LAND_SPEED"))
         log.append(f"MAVSDK timeout: {result.name} after {timeout_s * 1000:.0f} ms")
         assert result == ParamResult.TIMEOUT
         assert max(took) < timeout_s / 3, (took, timeout_s)

@@ -83,7 +83,7 @@ def test_goto_flies_at_the_cruise_speed_and_change_speed_applies_in_flight():
     assert rig.ob.mode_name == "AUTO.LOITER"
     t = rig.run_until(lambda r: math.dist(pos(r), (4.0, 0.0, -1.2)) < AT_M, 15.0, peak)
     fast = vmax[0]
-    # MPC_XY_CRUISE 1 m/s (overshoot < 8 %), MPC_ACC_HOR 1 m/s^2: 4 m in about 5.5 s
+    # TPL_XY_CRUISE 1 m/s (overshoot < 8 %), TPL_ACC_HOR 1 m/s^2: 4 m in about 5.5 s
     assert 0.95 < fast < 1.08 and 4.5 < t < 8.0, (fast, t)
     rig.cmd(M.MAV_CMD_DO_CHANGE_SPEED, 1, 0.4, -1)
     rig.tick(2)
@@ -235,7 +235,7 @@ def test_posctl_sticks_take_off_fly_hold_and_land():
     assert abs(pos(rig)[2] - z_hold) < 0.05 and rig.ob.landed_state == M.MAV_LANDED_STATE_IN_AIR
     sticks[0] = 1000                                         # full pitch forward: north
     rig.tick(600, joystick)
-    assert 0.8 < rig.plant.y[Y_VX] < 1.2                      # MPC_VEL_MANUAL 1 m/s
+    assert 0.8 < rig.plant.y[Y_VX] < 1.2                      # TPL_VEL_MANUAL 1 m/s
     sticks[0] = 0
     rig.tick(600, joystick)
     held = pos(rig)

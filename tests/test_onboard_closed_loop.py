@@ -40,7 +40,7 @@ def takeoff_and_hold(rig: Rig, alt: float = 1.0) -> None:
     assert c.ack(M.MAV_CMD_NAV_TAKEOFF) == M.MAV_RESULT_ACCEPTED
     rig.run_until(lambda r: c.mode == "AUTO.TAKEOFF" and c.landed_state == "TAKEOFF", 1.0)
     took = rig.run_until(lambda r: c.mode == "AUTO.LOITER" and c.landed_state == "IN_AIR", 8.0)
-    assert took > alt / 1.0                          # climbed at MPC_TKO_SPEED, not a jump
+    assert took > alt / 1.0                          # climbed at TPL_TKO_SPEED, not a jump
     rig.tick(400)                                    # settle 2 s, then hold 3 s
     worst = 0.0
     for _ in range(600):

@@ -267,7 +267,7 @@ def test_takeoff_before_arm_waits_and_yaw_param():
     rig.tick()
     assert rig.ob.landed_state == M.MAV_LANDED_STATE_TAKEOFF
     assert rig.ob.setpoint.yaw == pytest.approx(math.pi / 2)
-    assert rig.ob.setpoint.vz == -0.8          # the ramp climbs at MPC_TKO_SPEED (fed forward)
+    assert rig.ob.setpoint.vz == -0.8          # the ramp climbs at TPL_TKO_SPEED (fed forward)
     assert min(rig.u) > 0.3
 
 
@@ -574,18 +574,20 @@ def test_param_protocol_over_memory_links(tmp_path):
     assert len(pv) == n and n > 10
     assert sorted(m.param_index for m in pv) == list(range(n))
     assert {m.param_count for m in pv} == {n}
-    assert all(m.param_type == M.MAV_PARAM_TYPE_REAL32 for m in pv)
+    int32 = {n for n in rig.ob.params.names() if rig.ob.params.spec(n).ptype == "INT32"}
+    assert {m.param_id for m in pv if m.param_type == M.MAV_PARAM_TYPE_INT32} == int32
+    assert all(m.param_type == M.MAV_PARAM_TYPE_REAL32 for m in pv if m.param_id not in int32)
     names = [m.param_id for m in pv]
     assert names == sorted(names) and "COM_OF_LOSS_T" in names and "MIS_TAKEOFF_ALT" in names
     ctrl_names = [s.name for s in rig.ob.status.ctrl.param_table()]
     assert set(ctrl_names) <= set(names)
     # read by name and by index
-    rig.send("gcs", M.MAVLink_param_request_read_message(1, 1, b"MPC_LAND_SPEED", -1))
+    rig.send("gcs", M.MAVLink_param_request_read_message(1, 1, b"TPL_LAND_SPEED", -1))
     idx = rig.ob.params.index("COM_OF_LOSS_T")
     rig.send("gcs", M.MAVLink_param_request_read_message(1, 1, b"", idx))
     rig.tick()
     a, b = rig.msgs("gcs", "PARAM_VALUE")[-2:]
-    assert (a.param_id, a.param_value) == ("MPC_LAND_SPEED", pytest.approx(0.4))
+    assert (a.param_id, a.param_value) == ("TPL_LAND_SPEED", pytest.approx(0.4))
     assert (b.param_id, b.param_index) == ("COM_OF_LOSS_T", idx)
     # set: takes effect at once, echoed on both links
     rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"COM_OF_LOSS_T", 2.5,
@@ -616,15 +618,15 @@ def test_param_protocol_over_memory_links(tmp_path):
 def test_param_file_both_formats(tmp_path):
     f = tmp_path / "v.params"
     f.write_text("# QGC export\n1\t1\tMIS_TAKEOFF_ALT\t1.5\t9\n"
-                 "MPC_LAND_SPEED 0.3  # plain\n\nSOME_PX4_PARAM 7\n")
+                 "TPL_LAND_SPEED 0.3  # plain\n\nSOME_PX4_PARAM 7\n")
     rig = Rig(param_file=str(f))
     assert rig.ob.params.get("MIS_TAKEOFF_ALT") == 1.5
-    assert rig.ob.params.get("MPC_LAND_SPEED") == pytest.approx(0.3)
+    assert rig.ob.params.get("TPL_LAND_SPEED") == pytest.approx(0.3)
     assert "SOME_PX4_PARAM" in rig.ob.warnings[0]
-    f.write_text("MPC_LAND_SPEED 99\n")
-    with pytest.raises(ValueError, match="MPC_LAND_SPEED"):
+    f.write_text("TPL_LAND_SPEED 99\n")
+    with pytest.raises(ValueError, match="TPL_LAND_SPEED"):
         Rig(param_file=str(f))
-    f.write_text("MPC_LAND_SPEED\n")
+    f.write_text("TPL_LAND_SPEED\n")
     with pytest.raises(ValueError, match=":1:"):
         Rig(param_file=str(f))
 
@@ -689,7 +691,7 @@ def test_set_airframe_rebuilds_controller_and_keeps_user_params():
     new = spec.max if spec.max != spec.default else spec.min
     rig.send("gcs", M.MAVLink_param_set_message(1, 1, name.encode(), new,
                                                 M.MAV_PARAM_TYPE_REAL32))
-    rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"MPC_LAND_SPEED", 0.25,
+    rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"TPL_LAND_SPEED", 0.25,
                                                 M.MAV_PARAM_TYPE_REAL32))
     rig.tick()
     old_ctrl = rig.ob.status.ctrl
@@ -697,7 +699,7 @@ def test_set_airframe_rebuilds_controller_and_keeps_user_params():
     rig.ob.set_airframe(heavier)
     assert rig.ob.status.ctrl is not old_ctrl and rig.ob.status.ctrl.vehicle.mass == 0.07
     assert rig.ob.params.get(name) == pytest.approx(new, rel=1e-6)
-    assert rig.ob.params.get("MPC_LAND_SPEED") == pytest.approx(0.25)
+    assert rig.ob.params.get("TPL_LAND_SPEED") == pytest.approx(0.25)
     assert rig.ob.battery.u_hover == pytest.approx(heavier.u_hover)
     rig.tick()
 

@@ -15,7 +15,7 @@ FORCE = 21196
 def test_a_rebooted_vehicle_is_disarmed_on_the_ground_on_the_same_links():
     rig = Rig(sysid=3)
     rig.tick(5)
-    rig.send("gcs", M.MAVLink_param_set_message(3, 1, b"MPC_LAND_SPEED", 0.5,
+    rig.send("gcs", M.MAVLink_param_set_message(3, 1, b"TPL_LAND_SPEED", 0.5,
                                                 M.MAV_PARAM_TYPE_REAL32))
     rig.cmd(M.MAV_CMD_COMPONENT_ARM_DISARM, 1, target=3)
     rig.cmd(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, float("nan"), float("nan"), float("nan"),
@@ -34,8 +34,8 @@ def test_a_rebooted_vehicle_is_disarmed_on_the_ground_on_the_same_links():
     rig.tick(3)
     ob = rig.ob
     assert not ob.armed and ob.landed_state == ON_GROUND and ob.mode_name == "POSCTL"
-    assert ob.params.get("MPC_LAND_SPEED") == 0.5           # the user's parameter kept
-    assert Rig().ob.params.get("MPC_LAND_SPEED") != 0.5     # (not the default)
+    assert ob.params.get("TPL_LAND_SPEED") == 0.5           # the user's parameter kept
+    assert Rig().ob.params.get("TPL_LAND_SPEED") != 0.5     # (not the default)
     hb = rig.last("gcs", "HEARTBEAT")
     assert hb is not None and hb.get_srcSystem() == 3       # same sysid, same links
     assert rig.last("api", "HEARTBEAT") is not None

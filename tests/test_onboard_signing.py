@@ -94,19 +94,19 @@ def test_a_packet_captured_on_one_link_is_a_replay_on_the_other():
     API link (each link kept its own replay table)."""
     rig = Rig(signing_key=KEY, app_key=KEY, gcs_key=KEY)
     rig.tick()
-    data = rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"MPC_LAND_SPEED", 0.25,
+    data = rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"TPL_LAND_SPEED", 0.25,
                                                        M.MAV_PARAM_TYPE_REAL32))
     rig.tick()
-    assert rig.ob.params.get("MPC_LAND_SPEED") == 0.25
+    assert rig.ob.params.get("TPL_LAND_SPEED") == 0.25
     st = rig.ob.stats
     rejected = st["badsig_rejected"]
-    rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"MPC_LAND_SPEED", 0.5,
+    rig.send("gcs", M.MAVLink_param_set_message(1, 1, b"TPL_LAND_SPEED", 0.5,
                                                 M.MAV_PARAM_TYPE_REAL32))
     rig.tick()
-    assert rig.ob.params.get("MPC_LAND_SPEED") == 0.5
+    assert rig.ob.params.get("TPL_LAND_SPEED") == 0.5
     rig.send_raw("api", data)                        # the captured 0.25, on the other link
     rig.tick()
-    assert rig.ob.params.get("MPC_LAND_SPEED") == 0.5
+    assert rig.ob.params.get("TPL_LAND_SPEED") == 0.5
     assert st["badsig_rejected"] == rejected + 1
 
 

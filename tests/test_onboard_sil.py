@@ -62,7 +62,7 @@ class Sil:
 
 def test_ports_line_and_param_round_trip(tmp_path):
     pfile = tmp_path / "mambo.params"
-    pfile.write_text("MIS_TAKEOFF_ALT 1.25\n1\t1\tMPC_LAND_SPEED\t0.35\t9\n")
+    pfile.write_text("MIS_TAKEOFF_ALT 1.25\n1\t1\tTPL_LAND_SPEED\t0.35\t9\n")
     s = Sil(tmp_path, "--params", str(pfile))
     try:
         assert set(s.proc.ports) == {"hil", "api", "gcs"} and all(s.proc.ports.values())
@@ -76,13 +76,13 @@ def test_ports_line_and_param_round_trip(tmp_path):
         n = pv[0].param_count
         assert sorted(m.param_index for m in pv) == list(range(n)) and n > 10
         assert gcs.params["MIS_TAKEOFF_ALT"] == 1.25                  # from the file
-        assert gcs.params["MPC_LAND_SPEED"] == pytest.approx(0.35)
-        gcs.param_set_send("MPC_LAND_SPEED", 0.3)
-        s.until(lambda: gcs.params["MPC_LAND_SPEED"] == pytest.approx(0.3), 0.5)
-        gcs.param_set_send("MPC_LAND_SPEED", 50.0)                    # out of range
+        assert gcs.params["TPL_LAND_SPEED"] == pytest.approx(0.35)
+        gcs.param_set_send("TPL_LAND_SPEED", 0.3)
+        s.until(lambda: gcs.params["TPL_LAND_SPEED"] == pytest.approx(0.3), 0.5)
+        gcs.param_set_send("TPL_LAND_SPEED", 50.0)                    # out of range
         s.until(lambda: any("Param rejected" in m.text for m in s.of("STATUSTEXT")), 0.5)
         s.pump(2)
-        assert gcs.params["MPC_LAND_SPEED"] == pytest.approx(0.3)
+        assert gcs.params["TPL_LAND_SPEED"] == pytest.approx(0.3)
         gcs.param_fetch_one("COM_OF_LOSS_T")
         n_before = len(s.of("PARAM_VALUE"))
         s.until(lambda: len(s.of("PARAM_VALUE")) > n_before, 0.5)

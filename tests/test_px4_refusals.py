@@ -41,7 +41,7 @@ def test_change_speed_below_the_minimum_is_denied_and_above_the_maximum_clamped(
     assert nav.leg.done
 
 
-@pytest.mark.parametrize("name", ["BAT1_CAPACITY", "COM_RC_LOSS_T", "MPC_HOLD_DZ",
+@pytest.mark.parametrize("name", ["BAT1_CAPACITY", "COM_RC_LOSS_T", "TPL_HOLD_DZ",
                                   "MPC_MAN_Y_MAX"])
 @pytest.mark.parametrize("value", [1e-40, -1e-42, 1.4e-45])
 def test_a_subnormal_param_value_is_refused_with_param_error(name, value):

@@ -39,7 +39,7 @@ def _y(z: float = 0.0) -> list[float]:
 
 def _estimator() -> tuple[Estimator, dict]:
     own = {p.name: p.default for p in ONBOARD_PARAMS}
-    own["EKF2_TYPE"] = 1.0
+    own["TPL_EST_TYPE"] = 1.0
     stats: dict[str, int] = {}
     return Estimator(own, stats, FlatEarth(42.3, -71.35, 71.0)), stats
 
@@ -70,9 +70,9 @@ def test_same_seed_same_flight_other_seed_other_noise():
 @pytest.mark.flight
 def test_the_sensors_are_the_default_feed_and_the_truth_an_option():
     sc = load_scenario(SQUARE)
-    assert sc.sensors.hil and dict(sc.onboard_params)["EKF2_TYPE"] == 1.0
+    assert sc.sensors.hil and dict(sc.onboard_params)["TPL_EST_TYPE"] == 1.0
     truth = with_set(sc, {"sensors.feed": "truth", "timing.t_final_s": 2.0})
-    assert not truth.sensors.hil and dict(truth.onboard_params).get("EKF2_TYPE") is None
+    assert not truth.sensors.hil and dict(truth.onboard_params).get("TPL_EST_TYPE") is None
     assert run_scenario(truth, RunOptions()).estimate is None
     # the ODOMETRY's noise belongs to the truth feed: on the sensors it is an error, named
     with pytest.raises(ScenarioError, match="sensors.odometry_noise"):
@@ -90,9 +90,9 @@ def test_the_sensors_are_the_default_feed_and_the_truth_an_option():
 @pytest.mark.flight
 def test_a_lost_position_keeps_the_altitude_and_refuses_the_position_modes():
     """Over a plain floor the flow gives nothing: the position is lost once above 0.5 m
-    (EKF2_NOAID_TOUT). The vehicle holds level at its estimated altitude (sonar, baro), as
+    (TPL_NOAID_TOUT). The vehicle holds level at its estimated altitude (sonar, baro), as
     PX4 falls back to altitude mode; before, it saw no vertical error either and kept the
-    take-off's climb rate up to 5 m. It lands by COM_POS_FS_DELAY and meanwhile refuses
+    take-off's climb rate up to 5 m. It lands by TPL_POS_FS_DELAY and meanwhile refuses
     take-off and the modes that need a position."""
     from test_faults import _statustexts
 
@@ -110,7 +110,7 @@ def test_a_lost_position_keeps_the_altitude_and_refuses_the_position_modes():
     assert "AUTO.TAKEOFF denied: no local position" in texts[fs:]   # the app's retry
     t_lost = t[np.argmax(lost > 0)]
     held, landing = z[t > t_lost + 1.0][0], z[t > t_lost + 2.5][0]
-    assert landing > held + 0.2                  # COM_POS_FS_DELAY after: descending
+    assert landing > held + 0.2                  # TPL_POS_FS_DELAY after: descending
 
 
 @pytest.mark.flight
@@ -133,6 +133,17 @@ def test_sonar_has_no_reading_below_its_minimum():
         assert (d[14] != hs.NO_ECHO) is echo
         if echo:
             assert abs(d[3] - 100) <= 5     # cm
+
+
+def test_distance_sensor_carries_the_range_noise_variance():
+    """DISTANCE_SENSOR's covariance is the variance in cm^2 (common.xml; PX4 reads it as the
+    variance, 0 = an exact sensor), 255 when it does not fit (issue 44, item 3)."""
+    su = SensorSuite(SensorsSpec(feed="hil"), 0, 0.005, (0.0, 0.0), True)
+    for k in range(3):
+        msgs, _ = hs.decode_bundle(su.encode(k * 5000, _y(-1.0)))
+    assert msgs[hs.DISTANCE_SENSOR.id][7] == 1                  # range_noise_m 0.01: 1 cm^2
+    assert [hs.range_covariance(n) for n in (0.0, 0.001, 0.01, 0.05, 0.159, 0.16, 1.0)] == [
+        0, 1, 1, 25, 253, 255, 255]
 
 
 def test_imu_at_rest_reads_gravity_with_the_template_noise():
@@ -207,8 +218,8 @@ def test_bad_sensor_fields_are_named(table, value, field):
 
 def test_a_sensor_feed_needs_the_estimator():
     with pytest.raises(ScenarioError) as ei:
-        _square(**{"onboard.params.EKF2_TYPE": 0})
-    assert ei.value.field == "onboard.params.EKF2_TYPE"
+        _square(**{"onboard.params.TPL_EST_TYPE": 0})
+    assert ei.value.field == "onboard.params.TPL_EST_TYPE"
 
 
 def test_bad_sensor_fault_is_named():
@@ -276,7 +287,7 @@ def test_flow_lost_in_flight_is_a_lost_position_and_the_vehicle_lands():
     t = res.series[:, 0]
     assert lost[t < 8.0].sum() == 0 and lost[(t > 9.5) & (t < 10.0)].all()
     assert st["odometry_lost"] > 0                   # the vehicle's failsafe saw it
-    assert res.series[-1, 3] > -0.05                 # landed (z ~ 0), COM_POS_FS_DELAY later
+    assert res.series[-1, 3] > -0.05                 # landed (z ~ 0), TPL_POS_FS_DELAY later
 
 
 @pytest.mark.flight
@@ -324,7 +335,7 @@ def test_a_sensor_datagram_framed_at_once_is_its_frames_one_by_one(signed):
             sg.secret_key, sg.sign_outgoing, sg.link_id, sg.timestamp = bytes(32), True, 1, 7
     rests = [(hs.HIL_SENSOR, hs.hil_sensor_rest(0.1, -0.2, -9.8, 0.01, 0.0, 0.0, 0.2, 0.0, 0.4,
                                                 1013.2, 1.5, 25.0, 0x1FFF)),
-             (hs.DISTANCE_SENSOR, hs.distance_rest(44, 400, 0, hs.NO_ECHO)),
+             (hs.DISTANCE_SENSOR, hs.distance_rest(44, 400, 0, hs.NO_ECHO, 1)),
              (hs.HIL_OPTICAL_FLOW, hs.flow_rest(20000, 0.0, 0.0, 0.0, 0.0, 0.0, 0)),
              ]
     parts = []

@@ -73,7 +73,7 @@ def flood_pool(seed: int = 14, n: int = POOL_SIZE) -> list[bytes]:
             M.MAVLink_set_position_target_local_ned_message(
                 rng.randrange(1 << 31), ts, 1, 1, 0xDF8, f(-50, 50), f(-50, 50), f(-5, 0),
                 0, 0, 0, 0, 0, 0, 0, 0),
-            M.MAVLink_param_set_message(ts, 1, b"MPC_LAND_SPEED", f(0, 3), 9),
+            M.MAVLink_param_set_message(ts, 1, b"TPL_LAND_SPEED", f(0, 3), 9),
             M.MAVLink_param_request_list_message(ts, 1),
             M.MAVLink_mission_count_message(ts, 1, rng.randrange(1, 100), 0),
             M.MAVLink_set_mode_message(ts, 1, rng.choice((4 << 16 | 6 << 24, 6 << 16))),

@@ -47,7 +47,7 @@ def summarize(res: RunResult) -> dict[str, Any]:
         "vehicle": sc.vehicle.name,
         "app": sc.app.name,
         "sensors": sc.sensors.describe() if sc.sensors is not None else "truth ODOMETRY",
-        "estimator": ("template (EKF2_TYPE 1)" if sc.sensors is not None and sc.sensors.hil
+        "estimator": ("template (TPL_EST_TYPE 1)" if sc.sensors is not None and sc.sensors.hil
                       else "none (truth ODOMETRY)"),
         "seed": sc.seed,
         "mode": res.mode,

@@ -206,11 +206,11 @@ def parse_scenario(raw: dict, parts: Parts, *, source: str = "",
                             "messages, which the truth feed does not send; on feed = 'truth' "
                             "use [[faults.odometry]], e.g. kind = 'dropout')")
     if sensors.hil:             # the vehicle must run its estimator on the sensor messages
-        ekf = dict(onboard_params).get("EKF2_TYPE")
+        ekf = dict(onboard_params).get("TPL_EST_TYPE")
         if ekf is None:
-            onboard_params += (("EKF2_TYPE", 1.0),)
+            onboard_params += (("TPL_EST_TYPE", 1.0),)
         elif ekf < 1.0:
-            raise ScenarioError("onboard.params.EKF2_TYPE", ekf,
+            raise ScenarioError("onboard.params.TPL_EST_TYPE", ekf,
                                 "1 with [sensors] feed = 'hil' (the vehicle gets no ODOMETRY)")
 
     # criteria
@@ -265,15 +265,16 @@ def parse_scenario(raw: dict, parts: Parts, *, source: str = "",
 def _onboard_params(p: dict, vehicle: str) -> tuple[tuple[str, float], ...]:
     """`[onboard.params]` NAME = value: each name known to the vehicle's flight stack, each
     value a finite number within the parameter's bounds (a fault names the field)."""
-    from mav.params import ParamError, UnknownParamError, check_values
+    from mav.params import RENAMED, ParamError, UnknownParamError, check_values
 
     pairs = [(k, number(p, k, "onboard.params")) for k in p]
     for k, v in pairs:
         try:
             check_values(vehicle, [(k, v)])
         except UnknownParamError:
-            raise ScenarioError(f"onboard.params.{k}", v,
-                                f"a parameter of the {vehicle} flight stack") from None
+            want = (f"{RENAMED[k]} (the new name of this stack's {k}, whose meaning is not "
+                    "PX4's)" if k in RENAMED else f"a parameter of the {vehicle} flight stack")
+            raise ScenarioError(f"onboard.params.{k}", v, want) from None
         except ParamError as exc:
             raise ScenarioError(f"onboard.params.{k}", v,
                                 str(exc).split("; ", 1)[-1]) from None

@@ -3,7 +3,7 @@ scenario's `[sensors]` table (validated; a bad value names its field, exit 2).
 
     [sensors]
     feed = "hil"               # hil (default): HIL_SENSOR, HIL_OPTICAL_FLOW, DISTANCE_SENSOR,
-                               # HIL_GPS and the vehicle's own estimator (EKF2_TYPE 1) |
+                               # HIL_GPS and the vehicle's own estimator (TPL_EST_TYPE 1) |
                                # truth: ODOMETRY (the plant's state, like PX4 on motion capture)
     flow_floor = "auto"        # auto (a room's floor by its texture; a flat world's floor
                                # stands in for the template's aerial photograph: textured)
@@ -18,10 +18,15 @@ Mambo numbers: reference/minidrone.md §2.1 (the template's sensorsVars.m): IMU 
 of power weight * sigma^2 sampled at 5 ms (std = sigma * sqrt(weight / 0.005)), sonar with no
 reading below 0.44 m, pressure = 101270.95 - 1.225 g h, all delayed one 5 ms sample. The
 biases are illustrative (the template reads them from a calibration file the reference does
-not give); the magnetic field is the WMM's at the template's origin (42.30 N, 71.35 W:
-declination -14.3 deg, inclination 66.5 deg, 0.52 G). Bebop 2: the same structure with its
-sonar (up to 8 m: Parrot's spec says "ultrasound sensor, 8 m range"), a barometer and its
-vertical camera's flow; numbers not published are the Mambo's.
+not give). The magnetic field: the World Magnetic Model WMM2020 at its epoch 2020.0, at the
+template's origin (42.30 N, 71.35 W, sea level), chosen as the model of the template's time.
+Checked against WMM2020's coefficients (docs/sensors.md): X 0.1971, Y -0.0502, Z 0.4765 G,
+declination -14.30 deg, inclination 66.89 deg; ours has that declination (-14.31 deg, as
+EKF2_MAG_DECL) and a horizontal field 1.8 % stronger (inclination 66.53 deg, 0.520 G), kept
+so that the flights do not move (the estimator uses only the heading). Bebop 2: the same
+structure with its sonar (up to 8 m: Parrot's spec says "ultrasound sensor, 8 m range"), a
+barometer and its vertical camera's flow; numbers not published are the Mambo's. What parts
+these numbers stand for, and how they compare with the parts' datasheets: docs/sensors.md.
 """
 
 from __future__ import annotations
@@ -59,7 +64,7 @@ class SensorParams:
     baro_gain: float = 1.225 * 9.81                         # Pa per m of height
     baro_noise_pa: float = 1.5                              # Pa (~0.12 m)
     # magnetometer (gauss, world NED; body reading = R^T m)
-    mag_field: tuple[float, ...] = (0.2007, -0.0512, 0.4769)
+    mag_field: tuple[float, ...] = (0.2007, -0.0512, 0.4769)  # WMM2020 at 2020.0 (above)
     mag_noise: float = 0.004                                # gauss
     # downward range finder (ultrasonic)
     range_min_m: float = 0.44

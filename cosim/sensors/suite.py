@@ -118,7 +118,9 @@ class SensorSuite:
             p.flow_noise_rad_s, p.flow_max_tilt_rad, p.flow_max_rate_rad_s)
         self.delay = p.delay_ticks
         self.gps = spec.gps
-        self.range_cm = (int(p.range_min_m * 100), int(p.range_max_m * 100))
+        # min, max (cm) and the covariance (cm^2, the range noise's variance; 255 unknown)
+        self.range_cm = (int(p.range_min_m * 100), int(p.range_max_m * 100),
+                         hs.range_covariance(p.range_noise_m))
         self.flow_base = p.flow_quality_textured if floor_textured else p.flow_quality_plain
         self.fa0 = self.fa1 = self.fa2 = self.fa3 = self.fa4 = 0.0   # integrated flow x, y,
         self.flow_n = 0                                              # gyro x, y, z
@@ -249,10 +251,10 @@ class SensorSuite:
                 self.n_echo += 1
             else:
                 self.n_none += 1
-            lo, hi = self.range_cm
+            lo, hi, cov = self.range_cm
             parts.append(_M_DIST)
             parts.append(hs.distance_rest(lo, hi, _round(rng * 100) if echo else 0,
-                                          100 if echo else _NO_ECHO))
+                                          100 if echo else _NO_ECHO, cov))
         # optical flow: body velocity over the slant distance, plus the body rates
         vx, vy, vz = y[_YVX], y[_YVY], y[_YVZ]
         vbx = r00 * vx + r10 * vy + r20 * vz

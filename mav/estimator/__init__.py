@@ -11,7 +11,7 @@ sensor-fed HIL datagram, it answers the state estimate.
                                tick (link.py: sensor datagrams in, ODOMETRY of the estimate
                                to the tick, appended to the HIL answer for the logs)
 
-Which estimator: the parameter EKF2_TYPE (0: none, the vehicle flies on ODOMETRY; 1: the
+Which estimator: the parameter TPL_EST_TYPE (0: none, the vehicle flies on ODOMETRY; 1: the
 Minidrone template's filters, `template.py`, for both the Mambo and the Bebop 2: the same
 sensor set, so the same structure; an EKF is future work). The truth in HIL_STATE_QUATERNION
 is never read here.

@@ -1,5 +1,5 @@
 """The estimator's front (`Estimator`, re-exported by mav/estimator/__init__.py, which says
-what it does): EKF2_TYPE, the sensor bundle decoded, the estimate as ODOMETRY's fields,
+what it does): TPL_EST_TYPE, the sensor bundle decoded, the estimate as ODOMETRY's fields,
 ESTIMATOR_STATUS's flags. Its own module so the per-tick part is compiled (mav/__init__.py).
 """
 
@@ -22,7 +22,7 @@ class Estimator:
         self.impl = TemplateEstimator(own, stats)
         self.bundle = hs.Bundle()          # the sensor messages of a tick, read in place
         # read once, when the vehicle starts (as PX4 picks its estimator at boot)
-        self.enabled = own.get("EKF2_TYPE", 0.0) >= 1.0
+        self.enabled = own.get("TPL_EST_TYPE", 0.0) >= 1.0
         for k in ("est_bad_frames", "est_lost", "dropped_stale_hil", "dropped_jump_hil",
                   "dropped_foreign_hil"):
             stats.setdefault(k, 0)

@@ -1,4 +1,4 @@
-"""The estimator between the vehicle's HIL link and its tick (EKF2_TYPE 1).
+"""The estimator between the vehicle's HIL link and its tick (TPL_EST_TYPE 1).
 
 PX4's EKF2 publishes its estimate on uORB (`vehicle_odometry`) for the controllers to read;
 here the estimator hands the vehicle's tick its estimate as the ODOMETRY frame the tick already

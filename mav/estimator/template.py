@@ -3,20 +3,20 @@ EKF2: sensor messages in, a state estimate out, in plain floats (200 Hz in the v
 
 - Attitude: complementary filter on Euler angles. The gyro (less the bias measured at rest in
   the first `CAL_TICKS` ticks) is integrated; the low-passed accelerometer corrects roll and
-  pitch with weight EKF2_ACC_W per tick only while its norm is within EKF2_ACC_GATE of g; the
-  tilt-compensated compass corrects the heading with weight EKF2_MAG_W.
+  pitch with weight TPL_ACC_W per tick only while its norm is within TPL_ACC_GATE of g; the
+  tilt-compensated compass corrects the heading with weight TPL_MAG_W.
 - Altitude: Kalman filter on (z, vz) driven by the vertical acceleration, corrected by the
   barometer (altitude from the pressure drop since start) and the sonar (slant range times
-  cos roll cos pitch). Outlier rules of the template: sonar > EKF2_RNG_GATE (0.3 m) from the
-  estimate and pressure > EKF2_BARO_GATE (0.8 m) rejected; a sonar rejected for 0.5 s in a row
+  cos roll cos pitch). Outlier rules of the template: sonar > TPL_RNG_GATE (0.3 m) from the
+  estimate and pressure > TPL_BARO_GATE (0.8 m) rejected; a sonar rejected for 0.5 s in a row
   resets the altitude to it (the estimate, not the sonar, had gone wrong).
-- Horizontal velocity: per axis a Kalman filter (Q = EKF2_OF_Q, R = EKF2_OF_R: the template's
+- Horizontal velocity: per axis a Kalman filter (Q = TPL_OF_Q, R = TPL_OF_R: the template's
   0.09 / 5) driven by the horizontal acceleration, corrected by the flow velocity (flow rate
   less the flow sensor's gyro, times the distance to the floor along the optical axis). The
   flow is used only with quality >= EKF2_OF_QMIN, above 0.4 m, |roll|, |pitch| < 0.6 rad,
-  |p|, |q| < 7 rad/s, and within EKF2_OF_GATE (5 m/s) of the estimate (template rules).
+  |p|, |q| < 7 rad/s, and within TPL_OF_GATE (5 m/s) of the estimate (template rules).
 - Horizontal position: the velocity integrated (the template has no absolute position without
-  its marker); with a GPS, each fix pulls it by EKF2_GPS_W.
+  its marker); with a GPS, each fix pulls it by TPL_GPS_W.
 - On the ground (estimated height < 0.15 m, no flow) the velocity decays to zero (zero-velocity
   update, as PX4 does while landed); the floor the vehicle started on bounds the altitude (not
   below it, not descending through it: without that the estimate kept "descending" after a
@@ -24,7 +24,7 @@ EKF2: sensor messages in, a state estimate out, in plain floats (200 Hz in the v
 
 Every reading that is NaN or outside its sensor's range is rejected and counted (`stats`),
 never propagated. The position estimate is `lost` when no flow or GPS was fused for
-EKF2_NOAID_TOUT while above 0.5 m, and stays lost until one is fused again (at any height: a
+TPL_NOAID_TOUT while above 0.5 m, and stays lost until one is fused again (at any height: a
 descent below 0.5 m on dead reckoning regains nothing).
 """
 
@@ -144,21 +144,21 @@ class TemplateEstimator:
         self.lost = False
 
     def configure(self, own: dict[str, float]) -> None:
-        self.w_acc = own["EKF2_ACC_W"]
-        self.acc_gate = own["EKF2_ACC_GATE"]
-        self.w_mag = own["EKF2_MAG_W"]
+        self.w_acc = own["TPL_ACC_W"]
+        self.acc_gate = own["TPL_ACC_GATE"]
+        self.w_mag = own["TPL_MAG_W"]
         self.decl = math.radians(own["EKF2_MAG_DECL"])
-        self.q_acc = own["EKF2_ACC_NOISE"] ** 2
+        self.q_acc = own["TPL_ACC_NOISE"] ** 2
         self.q_ab = own["EKF2_ACC_B_NOISE"] ** 2
         self.abl_lim = own["EKF2_ABL_LIM"]
-        self.r_baro = own["EKF2_BARO_NOISE"] ** 2
-        self.baro_gate = own["EKF2_BARO_GATE"]
-        self.r_rng = own["EKF2_RNG_NOISE"] ** 2
-        self.rng_gate = own["EKF2_RNG_GATE"]
-        self.of_q, self.of_r = own["EKF2_OF_Q"], own["EKF2_OF_R"]
-        self.of_qmin, self.of_gate = own["EKF2_OF_QMIN"], own["EKF2_OF_GATE"]
-        self.noaid_us = int(own["EKF2_NOAID_TOUT"] * 1e6)
-        self.w_gps = own["EKF2_GPS_W"]
+        self.r_baro = own["TPL_BARO_NOISE"] ** 2
+        self.baro_gate = own["TPL_BARO_GATE"]
+        self.r_rng = own["TPL_RNG_NOISE"] ** 2
+        self.rng_gate = own["TPL_RNG_GATE"]
+        self.of_q, self.of_r = own["TPL_OF_Q"], own["TPL_OF_R"]
+        self.of_qmin, self.of_gate = own["EKF2_OF_QMIN"], own["TPL_OF_GATE"]
+        self.noaid_us = int(own["TPL_NOAID_TOUT"] * 1e6)
+        self.w_gps = own["TPL_GPS_W"]
 
     # ------------------------------------------------------------------ one tick
     @cython.locals(dt=f64, lost=cython.bint, fused=cython.bint)

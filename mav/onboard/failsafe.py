@@ -6,8 +6,8 @@
 - battery: warnings at BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR remaining; COM_LOW_BAT_ACT
   (0 warn only, 2 land at critical, 3 return at critical and land at emergency);
 - position estimate lost (ODOMETRY quality -1; the onboard estimator: no flow or GPS fused
-  for EKF2_NOAID_TOUT): held level, at its altitude on the estimator (sonar, baro), at hover
-  thrust on a lost ODOMETRY feed; after COM_POS_FS_DELAY while flying, land;
+  for TPL_NOAID_TOUT): held level, at its altitude on the estimator (sonar, baro), at hover
+  thrust on a lost ODOMETRY feed; after TPL_POS_FS_DELAY while flying, land;
 - geofence: a cylinder about home, GF_MAX_HOR_DIST radius and GF_MAX_VER_DIST height (0: no
   limit), checked while flying: GF_ACTION (0 none, 1 warn, 2 hold, 3 return, 5 land);
 - IMU failed (the onboard estimator without a usable IMU reading for IMU_FAIL_US in flight):
@@ -116,12 +116,12 @@ class Failsafe:
         self.out.statustext("Position estimate regained", M.MAV_SEVERITY_INFO)
 
     def check_position(self, t: int) -> None:
-        """No estimate for COM_POS_FS_DELAY while flying: land (it descends once an estimate
+        """No estimate for TPL_POS_FS_DELAY while flying: land (it descends once an estimate
         is back; a blind descent is not modelled)."""
         vs = self.vs
         vs.stats["odometry_lost"] += 1
         if (not vs.pos_fs_done and vs.armed and vs.landed_state != ON_GROUND
-                and t - vs.pos_lost_us > int(vs.own["COM_POS_FS_DELAY"] * 1e6)):
+                and t - vs.pos_lost_us > int(vs.own["TPL_POS_FS_DELAY"] * 1e6)):
             vs.pos_fs_done = True
             self.act(3, "no position estimate")
 

@@ -2,9 +2,9 @@
 MAVSDK's ManualControl): PX4's position mode.
 
 Sticks (MANUAL_CONTROL x, y, r in -1000..1000, z 0..1000 with 500 the centre): pitch and roll
-command a horizontal velocity in the heading frame (MPC_VEL_MANUAL at full stick), the throttle
+command a horizontal velocity in the heading frame (TPL_VEL_MANUAL at full stick), the throttle
 a climb or descent rate (MPC_Z_V_AUTO_UP / _DN at full stick), yaw a yaw rate (MPC_MAN_Y_MAX).
-Inside the deadzone MPC_HOLD_DZ an axis holds: once the vehicle has slowed down, position,
+Inside the deadzone TPL_HOLD_DZ an axis holds: once the vehicle has slowed down, position,
 height or heading is locked where it is. On the ground, throttle above the centre takes off;
 held down after touchdown, the land detector disarms as in AUTO.LAND. Sticks silent for
 COM_RC_LOSS_T count as centred (the vehicle holds; PX4's RC-loss action is not modelled).
@@ -57,7 +57,7 @@ class Manual:
         """POSCTL's tick (armed)."""
         vs = self.vs
         own = vs.own
-        dz = own["MPC_HOLD_DZ"]
+        dz = own["TPL_HOLD_DZ"]
         fresh = t - self.last_us <= int(own["COM_RC_LOSS_T"] * 1e6)
         fx, fy, thr, fr = self.sticks if fresh else (0.0, 0.0, 0.5, 0.0)
         fx, fy = _dead(fx, dz), _dead(fy, dz)
@@ -76,7 +76,7 @@ class Manual:
         sp, s = vs.sp, vs.state
         # horizontal: velocity in the heading frame, or hold
         if fx != 0.0 or fy != 0.0:
-            v = own["MPC_VEL_MANUAL"]
+            v = own["TPL_VEL_MANUAL"]
             psi = self.cmd.heading()
             c, si = math.cos(psi), math.sin(psi)
             sp.x = sp.y = NAN

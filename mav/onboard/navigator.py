@@ -45,7 +45,7 @@ RTL_IDLE, RTL_CLIMB, RTL_RETURN, RTL_DESCEND, RTL_WAIT, RTL_LAND, RTL_DONE = ran
 RTL_PHASE_NAMES = ("idle", "climb", "return", "descend", "wait", "land", "done")
 
 
-_SPEED_PARAMS = ("MPC_XY_CRUISE", "MPC_XY_CRUISE", "MPC_Z_V_AUTO_UP", "MPC_Z_V_AUTO_DN")
+_SPEED_PARAMS = ("TPL_XY_CRUISE", "TPL_XY_CRUISE", "MPC_Z_V_AUTO_UP", "MPC_Z_V_AUTO_DN")
 _RANGES = {p.name: (p.min, p.max) for p in ONBOARD_PARAMS}
 
 
@@ -166,13 +166,13 @@ class Navigator:
             if vs.landed_state == ON_GROUND:
                 vs.ctrl.reset()
                 self.cmd.set_landed(TAKING_OFF)
-        # the reference climbs at MPC_TKO_SPEED and eases into the target (first order,
+        # the reference climbs at TPL_TKO_SPEED and eases into the target (first order,
         # TKO_EASE_S), its velocity fed forward: no windup, no overshoot
         zt = self.tko_z
         rz = self.tko_ramp_z
         rem = zt - rz
         if rem != 0.0:
-            speed = vs.own["MPC_TKO_SPEED"]
+            speed = vs.own["TPL_TKO_SPEED"]
             v = abs(rem) / TKO_EASE_S
             if v > speed:
                 v = speed
@@ -199,7 +199,7 @@ class Navigator:
         parameters'."""
         own = self.vs.own
         xy, up, dn = self.speed_xy, self.speed_up, self.speed_dn
-        return (xy if xy == xy else own["MPC_XY_CRUISE"], up if up == up
+        return (xy if xy == xy else own["TPL_XY_CRUISE"], up if up == up
                 else own["MPC_Z_V_AUTO_UP"], dn if dn == dn else own["MPC_Z_V_AUTO_DN"])
 
     def fly_to(self, x: float, y: float, z: float, yaw: float = NAN,
@@ -221,7 +221,7 @@ class Navigator:
         sp.clear()
         sp.yaw = wrap_pi(yaw)
         own = vs.own
-        self.leg.start((s.x, s.y, s.z), (x, y, z), v_xy, v_up, v_dn, own["MPC_ACC_HOR"],
+        self.leg.start((s.x, s.y, s.z), (x, y, z), v_xy, v_up, v_dn, own["TPL_ACC_HOR"],
                        own["MPC_JERK_AUTO"])
         self.leg_active = True
         self.leg_acc_m = accept_m
@@ -387,7 +387,7 @@ class Navigator:
 
     # ------------------------------------------------------------------ landing
     def begin_land(self, x: float, y: float, yaw: float = NAN) -> None:
-        """Descend at MPC_LAND_SPEED over (x, y) to touchdown (AUTO.LAND, RTL, missions);
+        """Descend at TPL_LAND_SPEED over (x, y) to touchdown (AUTO.LAND, RTL, missions);
         yaw NaN: the present heading."""
         vs = self.vs
         self.leg_active = False
@@ -397,7 +397,7 @@ class Navigator:
             yaw = self.cmd.heading()
         sp.clear()
         sp.x, sp.y = x, y
-        sp.vz = vs.own["MPC_LAND_SPEED"]
+        sp.vz = vs.own["TPL_LAND_SPEED"]
         sp.yaw = yaw
         if vs.landed_state != ON_GROUND:
             self.cmd.set_landed(LANDING)

@@ -9,6 +9,11 @@ VALUE_OUT_OF_RANGE, PERMISSION_DENIED), which MAVSDK >= 4 turns into that result
 (sent after the echo it would first resend once), then every link the PARAM_VALUE of the value
 in effect (the MAVLink parameter protocol's echo, what QGroundControl and MAVProxy read), and a
 STATUSTEXT says why. ArduPilot answers with PARAM_ERROR the same way (GCS_Param.cpp).
+Types: each parameter's param_type is PX4's (REAL32, or INT32 where PX4's metadata says int32:
+mav/px4_params.json). An INT32 value travels byte-wise in the float field, as PX4 sends it
+(MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE, which this vehicle declares; QGroundControl
+and MAVSDK decode it so). A PARAM_SET typed INT32 is read byte-wise; one typed REAL32 is read
+by value (a client that sends every parameter as REAL32, as pymavlink's and ours do).
 """
 
 from __future__ import annotations
@@ -21,11 +26,15 @@ from mav.onboard.defs import M, text_of
 from mav.onboard.status import VehicleStatus
 from mav.params import (
     ONBOARD_PARAMS,
+    RENAMED,
     ParamError,
     ParamTable,
     f32,
     flight_envelope,
+    float_as_int32,
+    int32_as_float,
     read_param_file,
+    renamed_error,
 )
 
 FLT_MIN = 1.1754943508222875e-38      # the smallest normal float32 (IEEE 754)
@@ -113,6 +122,8 @@ class Parameters:
         """Apply a parameter file; unknown names are noted in `warnings`, bad values raise."""
         unknown = []
         for name, v in read_param_file(path):
+            if name in RENAMED:
+                raise ValueError(f"{path}: {renamed_error(name)}")
             if self.table.index(name) < 0:
                 unknown.append(name)
                 continue
@@ -129,8 +140,12 @@ class Parameters:
     def send_value(self, ch: Chan, index: int) -> None:
         t = self.table
         name = t.name_at(index)
+        if t.spec(name).ptype == "INT32":
+            value, ptype = int32_as_float(int(t.get(name))), M.MAV_PARAM_TYPE_INT32
+        else:
+            value, ptype = f32(t.get(name)), M.MAV_PARAM_TYPE_REAL32
         ch.send(wire.send_msg(ch.mav, M.MAVLink_param_value_message(
-            name.encode(), f32(t.get(name)), M.MAV_PARAM_TYPE_REAL32, len(t), index)))
+            name.encode(), value, ptype, len(t), index)))
 
     def on_request_list(self, ch: Chan, msg) -> None:
         if self.for_us(msg.target_system, msg.target_component):
@@ -171,9 +186,12 @@ class Parameters:
             self.out.warn_rate_limited("param", f"Unknown parameter {name!r}")
             return
         value = float(msg.param_value)
+        int32 = msg.param_type == M.MAV_PARAM_TYPE_INT32
+        if int32:               # byte-wise (PX4's encoding); by value when typed REAL32
+            value = float(float_as_int32(value))
         env = self.outside_envelope(name, value)
         error = text = None
-        if value != 0.0 and abs(value) < FLT_MIN:
+        if not int32 and value != 0.0 and abs(value) < FLT_MIN:
             # a subnormal float32 (< 1.18e-38 in magnitude) is no setting of any parameter
             # (a corrupted or hostile value; as a capacity or a timeout it acts as 0 or
             # divides into infinity): refused like a value out of range

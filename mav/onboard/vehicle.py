@@ -154,7 +154,7 @@ class Onboard:
         if cfg.param_file:
             prm.load_file(cfg.param_file)
         prm.apply()
-        # the estimator (EKF2_TYPE 1: the vehicle flies on HIL_SENSOR & co., mav/estimator/):
+        # the estimator (TPL_EST_TYPE 1: the vehicle flies on HIL_SENSOR & co., mav/estimator/):
         # between the HIL link and the tick, it turns sensor datagrams into ODOMETRY
         self.estimator = tel.estimator = Estimator(vs.own, self.stats, self.geo)
         self._decode_hil = wire.decode_odometry    # the tick's reader of a HIL datagram
@@ -384,7 +384,7 @@ class Onboard:
             if fs.blind_us >= 0:
                 u[0] = u[1] = u[2] = u[3] = fs.u_blind
             elif vs.landed_state == ON_GROUND and self.commander.motors_idle():
-                idle = vs.own["MOT_IDLE_RATIO"] * self.vehicle.u_hover
+                idle = vs.own["TPL_IDLE_RATIO"] * self.vehicle.u_hover
                 u[0] = u[1] = u[2] = u[3] = idle
             elif imu_ok:
                 sp = vs.setpoint
