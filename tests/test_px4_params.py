@@ -108,7 +108,7 @@ def test_param_value_carries_px4s_type_byte_wise():
     assert echo.param_id == "COM_DL_LOSS_T" and echo.param_value == bits
 
 
-def test_a_scenario_or_parameter_file_with_an_old_name_names_the_new_one(tmp_path):
+def test_a_scenario_with_an_old_name_names_the_new_one_a_px4_file_keeps_loading(tmp_path):
     from cosim.errors import ScenarioError
     from cosim.load import load_scenario, with_set
 
@@ -118,6 +118,9 @@ def test_a_scenario_or_parameter_file_with_an_old_name_names_the_new_one(tmp_pat
     assert ei.value.field == "onboard.params.EKF2_BARO_GATE"
     rig = Rig()
     f = tmp_path / "old.params"
-    f.write_text("MIS_TAKEOFF_ALT 1.2\nEKF2_NOAID_TOUT 2.0\n")
-    with pytest.raises(ValueError, match="EKF2_NOAID_TOUT is now TPL_NOAID_TOUT"):
-        rig.ob.load_params(str(f))
+    f.write_text("MIS_TAKEOFF_ALT 1.2\nEKF2_NOAID_TOUT 5000000\n")   # as a PX4 file has it
+    rig.ob.load_params(str(f))           # PX4's EKF2_NOAID_TOUT is not this vehicle's
+    assert rig.ob.parameters.table.get("MIS_TAKEOFF_ALT") == pytest.approx(1.2)
+    assert rig.ob.parameters.table.get("TPL_NOAID_TOUT") == pytest.approx(1.0)
+    assert any("ignored EKF2_NOAID_TOUT" in w and "TPL_NOAID_TOUT" in w
+               for w in rig.ob.parameters.warnings)
