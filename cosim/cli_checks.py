@@ -59,7 +59,9 @@ def live_view(args):
     try:
         yield live
     finally:
-        live.close()
+        if not live.close():
+            print("cosim: live view: a client did not let go in time; not waited for",
+                  file=sys.stderr, flush=True)
 
 
 def check_speed(speed: float) -> None:

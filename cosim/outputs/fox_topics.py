@@ -101,8 +101,11 @@ class Topics:
         self.pose = PoseInFrameChannel(p + "/vehicle/pose", context=ctx)
         self.model = SceneUpdateChannel(p + "/vehicle/model", context=ctx)
         self.scene = SceneUpdateChannel(p + "/world/scene", context=ctx)
-        self.image = RawImageChannel(p + "/camera/image", context=ctx)
-        self.calibration = CameraCalibrationChannel(p + "/camera/calibration", context=ctx)
+        # the camera's topics only for a vehicle with a camera (cosim sitl's have none)
+        cam = scenario.camera is not None
+        self.image = RawImageChannel(p + "/camera/image", context=ctx) if cam else None
+        self.calibration = CameraCalibrationChannel(p + "/camera/calibration",
+                                                    context=ctx) if cam else None
         self.json = {topic: _channel(ctx, p + topic, json_schema(title, fields, REQUIRED.get(
             topic, ()))) for topic, (title, fields) in JSON_SCHEMAS.items() if fields}
         self.vision_fields: tuple[str, ...] = ()
@@ -125,8 +128,8 @@ class Topics:
     # ------------------------------------------------------------------ per tick
     def watched(self) -> bool:
         """Whether any per-tick or per-frame topic has a taker (a live view's client)."""
-        return any(ch.has_sinks() for ch in (self.tf, self.pose, self.image, self.calibration,
-                                             *self.json.values()))
+        return any(ch is not None and ch.has_sinks() for ch in (
+            self.tf, self.pose, self.image, self.calibration, *self.json.values()))
 
     def row(self, r, phases: list[str], pose: bool = True, est=None) -> None:
         """One recorded tick (a row of the series, `recorder.SERIES_COLUMNS`); `pose`: also
