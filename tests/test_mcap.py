@@ -54,12 +54,25 @@ def test_topics_schemas_counts_and_sim_time(run):
     assert n["/vehicle/pose"] == n["/vehicle/motors"] == res.ticks == 1200
     assert n["/camera/image"] == n["/app/vision"] == len(res.frame_log) == 30   # 5 Hz
     assert n["/camera/calibration"] == 30 and n["/tf"] == 1200 + 30
-    assert n["/world/scene"] == n["/tf_static"] == n["/vehicle/model"] == 1
+    assert n["/world/scene"] == n["/tf_static"] == n["/vehicle/model"] == 6    # 1 Hz
     tlog = read_tlog(res.tlog.path)
     assert sum(n[t] for t in mav) == len(tlog)         # every datagram, on its type's topic
     pose_t = [m.log_time for m in msgs["/vehicle/pose"]]
     assert pose_t == [k * 5_000_000 for k in range(res.ticks)]    # simulation time, ns
     assert sorted(m.log_time for t in mav for m in msgs[t]) == sorted(t * 1000 for t, _ in tlog)
+
+
+def test_the_statics_are_in_every_second_of_playback(run):
+    """A viewer that plays the file keeps only what it read since its last seek: the scene,
+    the vehicle model, the static transforms and the camera's calibration are in every
+    1 s window of simulation time, the same message each time."""
+    res, out = run
+    _, msgs = _read(out / "run.mcap")
+    for topic in ("/world/scene", "/vehicle/model", "/tf_static", "/camera/calibration"):
+        seconds = {m.log_time // 1_000_000_000 for m in msgs[topic]}
+        assert seconds >= set(range(int(res.t_end_s))), (topic, sorted(seconds))
+        if topic != "/camera/calibration":
+            assert len({m.data for m in msgs[topic]}) == 1, topic
 
 
 def test_json_topics_carry_the_recorded_values(run):

@@ -17,7 +17,7 @@ queues it per subscribed client (up to `BACKLOG` messages; a slow client loses t
 and sends it from its own threads; nothing is encoded for a channel no client subscribed.
 What the loop pays is the logging call: the last recorded tick every `EVERY` ticks (50 Hz at
 h = 5 ms), each camera frame, the app's new vision records, and the static messages (frames,
-world, vehicle) again every `STATIC_EVERY` ticks for clients that connect later.
+world, vehicle) again every `STATIC_EVERY` ticks (1 s) for clients that connect later.
 `cosim bench --live` measures it.
 """
 
@@ -38,7 +38,7 @@ from cosim.plant.fmu import Y_QW, Y_QX, Y_QY, Y_QZ, Y_X, Y_Y, Y_Z
 
 DEFAULT_PORT = 8765          # Foxglove's default for a WebSocket connection
 EVERY = 4                    # ticks between two live ticks (50 Hz at h = 5 ms)
-STATIC_EVERY = 400           # ticks between two sends of the static messages (2 s)
+STATIC_EVERY = 200           # ticks between two sends of the static messages (1 s)
 BACKLOG = 256                # messages queued per client before the oldest are dropped
 STOP_S = 2.0                 # `close` returns within this, whatever the clients do
 

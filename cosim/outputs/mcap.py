@@ -6,8 +6,11 @@ The topics and their schemas are `fox_topics.TOPICS` (the frames and 3D scene:
 `fox_scene.py`), plus one `/mavlink/<NAME>` topic per MAVLink message type of the API and GCS
 links (from the tlog). Camera frames are added while the run goes (`frame`); the per-tick
 topics are written from the recorded series, block by block, after the run (`finish`), so the
-tick loop pays nothing for them. docs/viewers.md says how to open the file with the layout
-docs/cosim-layout.json.
+tick loop pays nothing for them. The static messages (the frames' static transforms, the
+world, the vehicle model) are written again every `STATIC_EVERY_S` of simulation time: a
+viewer playing the file keeps only what it read since its last seek, and drops a scene sent
+once when it plays on (Foxglove Studio 1.48: the room and the vehicle vanished on Play).
+docs/viewers.md says how to open the file with the layout docs/cosim-layout.json.
 """
 
 from __future__ import annotations
@@ -18,8 +21,11 @@ import foxglove
 from foxglove import Context
 
 from cosim.outputs.fox_topics import TOPICS, Topics
+from cosim.outputs.series import COL
 
 __all__ = ["TOPICS", "McapRun"]
+
+STATIC_EVERY_S = 1.0        # the static messages again every this many seconds of sim time
 
 
 class McapRun:
@@ -47,8 +53,15 @@ class McapRun:
         est = res.estimate
         n = 0 if est is None else len(est)
         k = 0
+        every = int(round(STATIC_EVERY_S * 1e9))
+        next_static = every                   # the first: at t = 0, when the file opened
+        t_col = COL["t"]
         for block in res.recorded.blocks():
             for row in block:
+                t_ns = int(round(float(row[t_col]) * 1e9))
+                if t_ns >= next_static:
+                    topics.static(t_ns)
+                    next_static = (t_ns // every + 1) * every
                 topics.row(row, phases, est=est[k] if k < n else None)
                 k += 1
         for r in res.frame_log:
