@@ -2,8 +2,9 @@
 `@foxglove/studio-base`) in headless Chromium (Debian's `chromium`, driven by Playwright's
 Python package), loading run.mcap over HTTP with the shipped layout docs/cosim-layout.json,
 the way a user opens a run (docs/viewers.md). Checks that a plot panel resolves a JSON field
-(its legend shows the recorded altitude at the chosen time, its line is drawn) and that the
-3D panel draws the vehicle above the floor.
+(its legend shows the recorded altitude at the chosen time, its line is drawn), that the
+3D panel draws the vehicle above the floor, and that both are still drawn after pressing Play
+for 5 s (a scene written once vanished then).
 
 Slow and optional: install what it needs first with `bash tests/viewer/setup.sh` (Debian
 chromium, the `viewer` extra, the npm packages into ~/.cache/cosim-viewer or
@@ -26,6 +27,7 @@ from cosim.outputs.series import COL
 from cosim.sim.master import RunOptions, run_scenario
 
 T_SEEK_S = 8.0        # hovering by then
+PLAY_S = 5.0          # then played for this long (the run lasts beyond: it does not stop)
 WAIT_S = float(os.environ.get("COSIM_VIEWER_WAIT_S", 180.0))
 
 pytestmark = pytest.mark.slow
@@ -56,7 +58,7 @@ def test_foxglove_studio_shows_the_run(tmp_path):
     from playwright.sync_api import sync_playwright
 
     sc = with_set(load_scenario(ROOT / "scenarios" / "mambo_seed_track.toml"),
-                  {"timing.t_final_s": 10.0})
+                  {"timing.t_final_s": T_SEEK_S + PLAY_S + 3.0})
     res = run_scenario(sc, RunOptions(out_dir=tmp_path / "run", mcap=True))
     k = int(round(T_SEEK_S / sc.timing.tick_s))
     alt = -float(res.series[k, COL["z"]])
@@ -101,23 +103,35 @@ def test_foxglove_studio_shows_the_run(tmp_path):
                 time.sleep(1.0)
             # the 3D panel: the vehicle (orange) above the floor (grey)
             scene = page.locator(".mosaic-window").filter(has_text="3D").first
-            while True:
-                png = scene.screenshot()
-                (tmp_path / "scene.png").write_bytes(png)
-                img = _rgb(png)
-                r, g, b = img[..., 0], img[..., 1], img[..., 2]
-                # the vehicle's orange, lit from one side: (188, 82, 0) down to (47, 21, 0)
-                orange = (r > 40) & (g > 0.25 * r) & (g < 0.7 * r) & (b < 0.15 * r + 5)
-                grey = (abs(r - g) < 10) & (abs(g - b) < 10) & (r > 90) & (r < 215)
-                if orange.sum() > 30 and (grey.sum(axis=1) > 0.6 * grey.shape[1]).any():
-                    break
-                assert time.monotonic() < end, (orange.sum(), grey.sum(), tmp_path / "scene.png",
-                                                errors)
-                time.sleep(1.0)
-            rows_v = np.nonzero(orange.any(axis=1))[0]
-            # floor rows: grey across most of the panel (not the grey of a tooltip)
-            rows_f = np.nonzero(grey.sum(axis=1) > 0.6 * grey.shape[1])[0]
-            assert rows_v.max() < rows_f.min(), (rows_v, rows_f, tmp_path / "scene.png")
+            _vehicle_above_floor(scene, tmp_path / "scene.png", end, errors)
+            # Play (the space bar) for PLAY_S, pause: time went on, the scene is still drawn
+            page.keyboard.press("Space")
+            time.sleep(PLAY_S)
+            page.keyboard.press("Space")
+            legend = plot.inner_text()
+            assert repr(alt) not in legend, legend              # it played
+            _vehicle_above_floor(scene, tmp_path / "played.png", time.monotonic() + 30, errors)
             assert not errors, errors
         finally:
             browser.close()
+
+
+def _vehicle_above_floor(scene, png_path: Path, end: float, errors: list[str]) -> None:
+    """Wait (until `end`) for the 3D panel to show the vehicle (orange) above the floor
+    (grey rows across the panel); the last screenshot is at `png_path`."""
+    while True:
+        png = scene.screenshot()
+        png_path.write_bytes(png)
+        img = _rgb(png)
+        r, g, b = img[..., 0], img[..., 1], img[..., 2]
+        # the vehicle's orange, lit from one side: (188, 82, 0) down to (47, 21, 0)
+        orange = (r > 40) & (g > 0.25 * r) & (g < 0.7 * r) & (b < 0.15 * r + 5)
+        grey = (abs(r - g) < 10) & (abs(g - b) < 10) & (r > 90) & (r < 215)
+        if orange.sum() > 30 and (grey.sum(axis=1) > 0.6 * grey.shape[1]).any():
+            break
+        assert time.monotonic() < end, (orange.sum(), grey.sum(), png_path, errors)
+        time.sleep(1.0)
+    rows_v = np.nonzero(orange.any(axis=1))[0]
+    # floor rows: grey across most of the panel (not the grey of a tooltip)
+    rows_f = np.nonzero(grey.sum(axis=1) > 0.6 * grey.shape[1])[0]
+    assert rows_v.max() < rows_f.min(), (rows_v, rows_f, png_path)
