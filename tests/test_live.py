@@ -17,6 +17,7 @@ import threading
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
@@ -120,7 +121,7 @@ class Client:
 @pytest.mark.flight
 def test_a_client_receives_the_run_live_and_the_run_is_unchanged(tmp_path):
     sc = with_set(load_scenario(SEED), {"timing.t_final_s": 4.0})
-    live = LiveView(port=0)
+    live = LiveView(port=0, fps=2.0)          # the camera runs at 5 Hz: 2 Hz sent
     try:
         assert live.port > 0 and live.url.startswith("ws://127.0.0.1:")
         # the protocol's first name, as Foxglove Studio 1.x and Lichtblick ask for it
@@ -164,10 +165,15 @@ def test_a_client_receives_the_run_live_and_the_run_is_unchanged(tmp_path):
     for t_ns, v in vision.items():                    # (t, flag_track, flag_marker, e_x_px, ..)
         assert v.get("flag_track") == log[t_ns][1] and v.get("e_x_px", log[t_ns][3]) == \
             log[t_ns][3]
+    # the frame rate cap: images at least 0.5 s of sim time apart, each with its calibration
+    t_img = [t for t, _ in client.got["/camera/image"]]
+    assert min(b - a for a, b in zip(t_img, t_img[1:])) >= 0.495e9, t_img
+    assert t_img == [t for t, _ in client.got["/camera/calibration"]][:len(t_img)]
     # an image with its calibration, both in the camera frame
     (_, img), (_, cal) = client.got["/camera/image"][0], client.got["/camera/calibration"][0]
-    assert (img.width, img.height, img.encoding) == (160, 120, "rgb8")
-    assert len(img.data) == 160 * 120 * 3 and img.frame_id == cal.frame_id == "camera"
+    assert img.format == "jpeg" and img.frame_id == cal.frame_id == "camera"    # compressed
+    assert cv2.imdecode(np.frombuffer(img.data, np.uint8), cv2.IMREAD_COLOR).shape == (
+        120, 160, 3)
     assert cal.K[0] > 0
     (_, scene), = client.got["/world/scene"][:1]
     assert scene.entities[0].frame_id == "world"

@@ -92,20 +92,42 @@ def test_json_topics_carry_the_recorded_values(run):
     assert sp and all(isinstance(d["type_mask"], int) for d in sp)
 
 
-def test_image_payload_is_the_rendered_frame(run):
-    """The first frame's pixels (the camera rendered again at the recorded pose) are the
-    RawImage payload, and the encoding is named (protobuf carries both as given)."""
+@pytest.mark.parametrize("images", ["jpeg", "png", "raw"])
+def test_image_payload_is_the_rendered_frame(run, images, tmp_path):
+    """The first frame (the camera rendered again at the recorded pose) is the image's
+    payload: JPEG by default (foxglove.CompressedImage, close to it), PNG (the same pixels),
+    or raw on request (foxglove.RawImage, the same bytes, the encoding named)."""
+    import cv2
     import numpy as np
 
     res, out = run
-    _, msgs = _read(out / "run.mcap")
+    if images != "jpeg":        # the default: the module's run
+        res = run_scenario(with_set(res.scenario, {"timing.t_final_s": 0.5}), RunOptions(
+            out_dir=tmp_path, mcap=True, images=images))
+        out = tmp_path
+    kinds, msgs = _read(out / "run.mcap")
     sc = res.scenario
     seed = int(np.random.SeedSequence([sc.seed, 2]).generate_state(1)[0])
     y = res.series[0]
     img = make_camera(sc.camera, sc.world, seed=seed).render(
         y[COL["x"]:COL["z"] + 1], tuple(y[COL["qw"]:COL["qz"] + 1]))
     data = msgs["/camera/image"][0].data
-    assert img.tobytes() in data and b"rgb8" in data and b"camera" in data
+    if images == "raw":
+        assert kinds["/camera/image"][0] == "foxglove.RawImage"
+        assert img.tobytes() in data and b"rgb8" in data and b"camera" in data
+        return
+    assert kinds["/camera/image"][0] == "foxglove.CompressedImage"
+    magic = b"\xff\xd8\xff" if images == "jpeg" else b"\x89PNG"
+    k = data.index(magic)
+    got = cv2.cvtColor(cv2.imdecode(np.frombuffer(data[k:], np.uint8), cv2.IMREAD_COLOR),
+                       cv2.COLOR_BGR2RGB)
+    assert images.encode() in data and b"camera" in data and got.shape == img.shape
+    err = np.abs(got.astype(int) - img.astype(int))
+    if images == "png":
+        assert not err.any()
+    else:
+        assert err.mean() < 3.0, err.mean()
+    assert len(data) < img.nbytes / 3
 
 
 @pytest.mark.flight

@@ -9,6 +9,10 @@ can plot it (`/vehicle/truth.z`). A value that is not a number (NaN: a setpoint 
 is left out of its message rather than sent as null: the schema says "number", and the
 viewers' JSON Schema readers take one type per field.
 
+Camera frames are `foxglove.CompressedImage` by default: JPEG (`JPEG_QUALITY`) or PNG
+(lossless) by the `images` setting (`cosim run --images`), `foxglove.RawImage` (rgb8) on
+request ("raw"): an E1 frame (856 x 480) is 1.2 MB raw, ~60 kB as JPEG.
+
 Frames and the 3D scene: `fox_scene.py`. Times are simulation time (ns since t = 0).
 """
 
@@ -22,6 +26,7 @@ import numpy as np
 from foxglove import Channel, Context, Schema
 from foxglove.channels import (
     CameraCalibrationChannel,
+    CompressedImageChannel,
     FrameTransformsChannel,
     PoseInFrameChannel,
     RawImageChannel,
@@ -29,6 +34,7 @@ from foxglove.channels import (
 )
 from foxglove.messages import (
     CameraCalibration,
+    CompressedImage,
     FrameTransforms,
     Pose,
     PoseInFrame,
@@ -40,6 +46,8 @@ from cosim.outputs import fox_scene as fs
 from cosim.outputs.series import COL, ESTIMATE_COLUMNS
 from mav.rotations import R_from_quat, euler_from_quat
 
+IMAGES = ("jpeg", "png", "raw")        # how camera frames are stored and sent; the first: default
+JPEG_QUALITY = 90
 NUM, INT, STR = "number", "integer", "string"
 # the JSON topics' fields; a number may be missing (not finite), the fields in REQUIRED not
 JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
@@ -62,7 +70,7 @@ TOPICS: dict[str, str] = {
     "/vehicle/pose": "foxglove.PoseInFrame",
     "/vehicle/model": "foxglove.SceneUpdate",
     "/world/scene": "foxglove.SceneUpdate",
-    "/camera/image": "foxglove.RawImage",
+    "/camera/image": "foxglove.CompressedImage",      # foxglove.RawImage with images="raw"
     "/camera/calibration": "foxglove.CameraCalibration",
     **{topic: name for topic, (name, _) in JSON_SCHEMAS.items()},
 }
@@ -87,13 +95,30 @@ def _finite(d: dict[str, float]) -> dict[str, float]:
     return {k: v for k, v in d.items() if math.isfinite(v)}
 
 
+def encode_image(img: np.ndarray, images: str) -> bytes:
+    """An H x W x 3 RGB frame as JPEG or PNG bytes (OpenCV's codecs: the same bytes for the
+    same frame)."""
+    import cv2
+
+    ext, params = ((".jpg", [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]) if images == "jpeg"
+                   else (".png", [cv2.IMWRITE_PNG_COMPRESSION, 3]))
+    ok, buf = cv2.imencode(ext, np.ascontiguousarray(img[..., ::-1]), params)
+    if not ok:
+        raise ValueError(f"cannot encode a {img.shape} frame as {images}")
+    return buf.tobytes()
+
+
 class Topics:
     """The channels of one vehicle's run on `ctx`; `prefix` namespaces them (a fleet's
-    vehicles: "/v1"), `body` names its body frame."""
+    vehicles: "/v1"), `body` names its body frame, `images` how camera frames are stored
+    (IMAGES)."""
 
-    def __init__(self, ctx: Context, scenario, *, prefix: str = "", body: str = fs.BODY
-                 ) -> None:
+    def __init__(self, ctx: Context, scenario, *, prefix: str = "", body: str = fs.BODY,
+                 images: str = IMAGES[0]) -> None:
+        if images not in IMAGES:
+            raise ValueError(f"images: one of {', '.join(IMAGES)}, not {images!r}")
         self.ctx, self.sc, self.prefix, self.body = ctx, scenario, prefix, body
+        self.images = images
         self.camera_frame = fs.CAMERA if body == fs.BODY else f"{body}_{fs.CAMERA}"
         p = prefix
         self.tf_static = FrameTransformsChannel(p + "/tf_static", context=ctx)
@@ -103,7 +128,8 @@ class Topics:
         self.scene = SceneUpdateChannel(p + "/world/scene", context=ctx)
         # the camera's topics only for a vehicle with a camera (cosim sitl's have none)
         cam = scenario.camera is not None
-        self.image = RawImageChannel(p + "/camera/image", context=ctx) if cam else None
+        kind = RawImageChannel if images == "raw" else CompressedImageChannel
+        self.image = kind(p + "/camera/image", context=ctx) if cam else None
         self.calibration = CameraCalibrationChannel(p + "/camera/calibration",
                                                     context=ctx) if cam else None
         self.json = {topic: _channel(ctx, p + topic, json_schema(title, fields, REQUIRED.get(
@@ -202,9 +228,13 @@ class Topics:
                 R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
                 P=K[0:3] + [0.0] + K[3:6] + [0.0] + K[6:9] + [0.0]), log_time=t_ns)
         if self.image.has_sinks():
-            self.image.log(RawImage(timestamp=stamp, frame_id=self.camera_frame, width=w,
-                                    height=h, encoding="rgb8", step=3 * w, data=img.tobytes()),
-                           log_time=t_ns)
+            if self.images == "raw":
+                msg = RawImage(timestamp=stamp, frame_id=self.camera_frame, width=w, height=h,
+                               encoding="rgb8", step=3 * w, data=img.tobytes())
+            else:
+                msg = CompressedImage(timestamp=stamp, frame_id=self.camera_frame,
+                                      data=encode_image(img, self.images), format=self.images)
+            self.image.log(msg, log_time=t_ns)
 
     def vision(self, record, columns=None) -> None:
         """One record of the app's frame log: (t, value per field...); `columns` (the app's

@@ -16,8 +16,9 @@ The lockstep is never held up by a viewer: logging hands each message to the SDK
 queues it per subscribed client (up to `BACKLOG` messages; a slow client loses the oldest)
 and sends it from its own threads; nothing is encoded for a channel no client subscribed.
 What the loop pays is the logging call: the last recorded tick every `EVERY` ticks (50 Hz at
-h = 5 ms), each camera frame, the app's new vision records, and the static messages (frames,
-world, vehicle) again every `STATIC_EVERY` ticks (1 s) for clients that connect later.
+h = 5 ms), the camera frames (compressed as in the file, at most `fps` a second of
+simulation time), the app's new vision records, and the static messages (frames, world,
+vehicle) again every `STATIC_EVERY` ticks (1 s) for clients that connect later.
 `cosim bench --live` measures it.
 """
 
@@ -41,12 +42,17 @@ EVERY = 4                    # ticks between two live ticks (50 Hz at h = 5 ms)
 STATIC_EVERY = 200           # ticks between two sends of the static messages (1 s)
 BACKLOG = 256                # messages queued per client before the oldest are dropped
 STOP_S = 2.0                 # `close` returns within this, whatever the clients do
+FPS = 10.0                   # camera frames sent a second (of simulation time), at most
 
 
 class LiveView:
     """A WebSocket server on `host:port` (0: any free port; `port` then says which)."""
 
-    def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1") -> None:
+    def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1", *,
+                 images: str = "jpeg", fps: float = FPS) -> None:
+        if not fps > 0:
+            raise ValueError(f"fps: a number > 0, not {fps}")
+        self.images, self.fps = images, fps
         self.ctx = Context()
         self.server = foxglove.start_server(name="cosim", host="127.0.0.1", port=0,
                                             context=self.ctx, message_backlog_size=BACKLOG,
@@ -67,8 +73,8 @@ class LiveView:
     def vehicle(self, scenario, prefix: str = "", body: str = fs.BODY, app=None
                 ) -> LiveVehicle:
         """The topics of one vehicle (a fleet's: one `prefix` and body frame each)."""
-        return LiveVehicle(Topics(self.ctx, scenario, prefix=prefix, body=body), app,
-                           self.clock)
+        return LiveVehicle(Topics(self.ctx, scenario, prefix=prefix, body=body,
+                                  images=self.images), app, self.clock, self.fps)
 
     def clock(self, t_ns: int) -> None:
         """The simulation time (ns) to the clients (the `time` capability), if it moved on."""
@@ -102,9 +108,11 @@ class LiveVehicle:
     """One vehicle's live topics; the loop calls `tick` (through `pacing`) and `frame`."""
 
     def __init__(self, topics: Topics, app=None,
-                 clock: Callable[[int], None] | None = None) -> None:
+                 clock: Callable[[int], None] | None = None, fps: float = FPS) -> None:
         self.topics = topics
         self.clock = clock
+        self.frame_ns = int(round(1e9 / fps))       # a camera frame sent every this, at most
+        self._next_frame = 0
         self.frame_log = getattr(app, "frame_log", None)
         self.columns = getattr(app, "frame_columns", None)
         self.k = 0
@@ -147,6 +155,11 @@ class LiveVehicle:
         return pace
 
     def frame(self, t: float, img, p_W, q_WB) -> None:
+        """A camera frame, if `fps` lets it through (its transform and calibration with it)."""
+        t_ns = int(round(t * 1e9))
+        if t_ns < self._next_frame:
+            return
+        self._next_frame = t_ns + self.frame_ns - self.frame_ns // 100   # 1 % slack: jitter
         self.topics.frame(t, img, p_W, q_WB)
 
     def sitl_tick(self, t: float, y, rows: list[bytes] | None) -> None:

@@ -19,8 +19,9 @@ from pathlib import Path
 
 import foxglove
 from foxglove import Context
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
-from cosim.outputs.fox_topics import TOPICS, Topics
+from cosim.outputs.fox_topics import IMAGES, TOPICS, Topics
 from cosim.outputs.series import COL
 
 __all__ = ["TOPICS", "McapRun"]
@@ -32,11 +33,15 @@ class McapRun:
     """An open MCAP file for one run; `frame(t, img, p, q)` during the run, `finish(res)`
     after."""
 
-    def __init__(self, path: Path, scenario) -> None:
+    def __init__(self, path: Path, scenario, images: str = IMAGES[0]) -> None:
         self.path = Path(path)
         self.ctx = Context()
-        self._writer = foxglove.open_mcap(str(self.path), allow_overwrite=True, context=self.ctx)
-        self.topics = Topics(self.ctx, scenario)
+        # zstd chunks, compressed on this thread: the same bytes whatever the machine's cores
+        self._writer = foxglove.open_mcap(str(self.path), allow_overwrite=True, context=self.ctx,
+                                          writer_options=MCAPWriteOptions(
+                                              compression=MCAPCompression.Zstd,
+                                              compression_threads=0))
+        self.topics = Topics(self.ctx, scenario, images=images)
         self.topics.static()
         self.frames = 0
 
