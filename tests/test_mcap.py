@@ -75,6 +75,23 @@ def test_the_statics_are_in_every_second_of_playback(run):
             assert len({m.data for m in msgs[topic]}) == 1, topic
 
 
+def test_every_json_field_says_what_it_is_and_its_unit(run):
+    res, out = run
+    with open(out / "run.mcap", "rb") as f:
+        summary = make_reader(f).get_summary()
+    for c in summary.channels.values():
+        if c.message_encoding != "json":
+            continue
+        props = json.loads(summary.schemas[c.schema_id].data)["properties"]
+        for k, p in props.items():
+            assert p.get("description"), (c.topic, k)
+        if c.topic == "/vehicle/truth":
+            assert props["roll_deg"]["description"].endswith("deg")
+            assert props["x"]["description"].endswith(" m")
+        if c.topic == "/mavlink/ATTITUDE":         # MAVLink's angles are radians
+            assert props["roll"]["description"].endswith("rad")
+
+
 def test_json_topics_carry_the_recorded_values(run):
     res, out = run
     _, msgs = _read(out / "run.mcap")
@@ -82,6 +99,11 @@ def test_json_topics_carry_the_recorded_values(run):
     k = 700
     truth = json.loads(msgs["/vehicle/truth"][k].data)
     assert truth["z"] == s[k, COL["z"]] and truth["t"] == s[k, COL["t"]]
+    import numpy as np
+
+    k = int(np.nonzero(np.isfinite(s[:, COL["sp_z"]]))[0][-1])       # a setpoint commanded
+    sp = json.loads(msgs["/app/setpoint"][k].data)
+    assert sp["x"] == s[k, COL["sp_x"]] and sp["alt"] == -s[k, COL["sp_z"]]
     motors = json.loads(msgs["/vehicle/motors"][k].data)
     assert [motors[f"u{i}"] for i in range(1, 5)] == [s[k, COL[f"u{i}"]] for i in range(1, 5)]
     phase = json.loads(msgs["/app/phase"][k].data)

@@ -11,7 +11,7 @@ viewers' JSON Schema readers take one type per field.
 
 Camera frames are `foxglove.CompressedImage` by default: JPEG (`JPEG_QUALITY`) or PNG
 (lossless) by the `images` setting (`cosim run --images`), `foxglove.RawImage` (rgb8) on
-request ("raw"): an E1 frame (856 x 480) is 1.2 MB raw, ~60 kB as JPEG.
+request ("raw"): an E1 frame (856 x 480) is 1.2 MB raw, ~48 kB as JPEG.
 
 Frames and the 3D scene: `fox_scene.py`. Times are simulation time (ns since t = 0).
 """
@@ -47,7 +47,10 @@ from cosim.outputs.series import COL, ESTIMATE_COLUMNS
 from mav.rotations import R_from_quat, euler_from_quat
 
 IMAGES = ("jpeg", "png", "raw")        # how camera frames are stored and sent; the first: default
-JPEG_QUALITY = 90
+# JPEG quality 65, Huffman tables optimized (lossless, ~2 % smaller): an E1 frame (856 x 480,
+# textured walls) ~48 kB, mean error ~4 of 255 per channel; quality 90 was ~95 kB and put an
+# E1 run's file at 56 MB (issue 42 asks <= 30 MB)
+JPEG_QUALITY = 65
 NUM, INT, STR = "number", "integer", "string"
 # the JSON topics' fields; a number may be missing (not finite), the fields in REQUIRED not
 JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
@@ -58,12 +61,36 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
     # x, y, z from the series; a sensor-fed run's the rest of its estimate (ESTIMATE_COLUMNS)
     "/vehicle/estimate": ("cosim.VehicleEstimate", dict.fromkeys(
         (n[4:] for n in ESTIMATE_COLUMNS), NUM)),
-    "/app/setpoint": ("cosim.Setpoint", {"x": NUM, "y": NUM, "z": NUM}),
+    "/app/setpoint": ("cosim.Setpoint", {"x": NUM, "y": NUM, "z": NUM, "alt": NUM}),
     "/vehicle/motors": ("cosim.Motors", {"u1": NUM, "u2": NUM, "u3": NUM, "u4": NUM}),
     "/app/phase": ("cosim.AppPhase", {"phase": STR, "index": INT}),
     "/app/vision": ("cosim.AppVision", {}),     # the app's frame columns (`Topics.vision`)
 }
 REQUIRED = {"/vehicle/truth": ("t",), "/app/phase": ("phase", "index")}
+# each JSON field's meaning and unit (the schemas' `description`, which a viewer shows): the
+# simulator's angles in degrees, MAVLink's in radians (their unit from pymavlink's fields)
+_NED = "world NED (x north, y east, z down), m"
+DESCRIPTIONS: dict[str, dict[str, str]] = {
+    "/vehicle/truth": {
+        "t": "simulation time, s", "x": f"north, {_NED}", "y": f"east, {_NED}",
+        "z": f"down, {_NED}", "vx": "velocity north, m/s", "vy": "velocity east, m/s",
+        "vz": "velocity down, m/s", "roll_deg": "roll, deg", "pitch_deg": "pitch, deg",
+        "yaw_deg": "yaw (heading from north), deg", "p": "body roll rate, rad/s",
+        "q": "body pitch rate, rad/s", "r": "body yaw rate, rad/s",
+        "alt": "altitude above the floor (-z), m"},
+    "/vehicle/estimate": {
+        "x": f"estimated north, {_NED}", "y": f"estimated east, {_NED}",
+        "z": f"estimated down, {_NED}", "vx": "estimated velocity north, m/s",
+        "vy": "estimated velocity east, m/s", "vz": "estimated velocity down, m/s",
+        "roll": "estimated roll, rad", "pitch": "estimated pitch, rad",
+        "yaw": "estimated yaw, rad", "lost": "1 while the estimate is lost, else 0"},
+    "/app/setpoint": {
+        "x": f"position setpoint north, {_NED}", "y": f"position setpoint east, {_NED}",
+        "z": f"position setpoint down, {_NED}",
+        "alt": "position setpoint altitude above the floor (-z), m"},
+    "/vehicle/motors": {f"u{i}": f"motor {i} command, 0..1" for i in range(1, 5)},
+    "/app/phase": {"phase": "the app's phase name", "index": "the app's phase index"},
+}
 TOPICS: dict[str, str] = {
     "/tf_static": "foxglove.FrameTransforms",
     "/tf": "foxglove.FrameTransforms",
@@ -78,9 +105,13 @@ MAVLINK = "/mavlink/"                     # + message name: one topic per MAVLin
 VISION_FIELDS = ("flag_track", "flag_marker", "e_x_px", "e_y_px")   # line follower's frames
 
 
-def json_schema(title: str, fields: dict[str, Any], required=()) -> dict[str, Any]:
-    """An object schema: each field of one JSON type (or a full schema), no other fields."""
-    props = {k: v if isinstance(v, dict) else {"type": v} for k, v in fields.items()}
+def json_schema(title: str, fields: dict[str, Any], required=(),
+                descriptions: dict[str, str] | None = None) -> dict[str, Any]:
+    """An object schema: each field of one JSON type (or a full schema) with its description
+    (meaning and unit), no other fields."""
+    props = {k: dict(v) if isinstance(v, dict) else {"type": v} for k, v in fields.items()}
+    for k, d in (descriptions or {}).items():
+        props[k]["description"] = d
     return {"title": title, "type": "object", "properties": props, "required": list(required),
             "additionalProperties": False}
 
@@ -100,8 +131,8 @@ def encode_image(img: np.ndarray, images: str) -> bytes:
     same frame)."""
     import cv2
 
-    ext, params = ((".jpg", [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]) if images == "jpeg"
-                   else (".png", [cv2.IMWRITE_PNG_COMPRESSION, 3]))
+    ext, params = ((".jpg", [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY, cv2.IMWRITE_JPEG_OPTIMIZE, 1])
+                   if images == "jpeg" else (".png", [cv2.IMWRITE_PNG_COMPRESSION, 3]))
     ok, buf = cv2.imencode(ext, np.ascontiguousarray(img[..., ::-1]), params)
     if not ok:
         raise ValueError(f"cannot encode a {img.shape} frame as {images}")
@@ -133,7 +164,8 @@ class Topics:
         self.calibration = CameraCalibrationChannel(p + "/camera/calibration",
                                                     context=ctx) if cam else None
         self.json = {topic: _channel(ctx, p + topic, json_schema(title, fields, REQUIRED.get(
-            topic, ()))) for topic, (title, fields) in JSON_SCHEMAS.items() if fields}
+            topic, ()), DESCRIPTIONS[topic])) for topic, (title, fields) in JSON_SCHEMAS.items()
+            if fields}
         self.vision_fields: tuple[str, ...] = ()
         self._mav: dict[str, Channel] = {}
         self._static: tuple | None = None
@@ -185,6 +217,8 @@ class Topics:
             ch = j[topic]
             if ch.has_sinks():
                 d = {k: float(r[c[prefix + k]]) for k in keys}
+                if prefix == "sp_":
+                    d["alt"] = -d["z"]
                 if est is not None and prefix == "est_":
                     d.update({n[4:]: float(v) for n, v in zip(
                         ESTIMATE_COLUMNS[3:], est[3:], strict=True)})
@@ -244,7 +278,8 @@ class Topics:
             self.vision_fields = tuple(columns)[1:] if columns else VISION_FIELDS
             title, _ = JSON_SCHEMAS["/app/vision"]
             self.json["/app/vision"] = _channel(self.ctx, self.prefix + "/app/vision", json_schema(
-                title, dict.fromkeys(self.vision_fields, NUM)))
+                title, dict.fromkeys(self.vision_fields, NUM), (), {
+                    k: vision_description(k) for k in self.vision_fields}))
         t_ns = int(round(float(record[0]) * 1e9))
         self.json["/app/vision"].log(_finite({k: float(v) for k, v in zip(
             self.vision_fields, record[1:], strict=False)}), log_time=t_ns)
@@ -274,6 +309,16 @@ class Topics:
         ch.log(d, log_time=t_ns)
 
 
+def vision_description(name: str) -> str:
+    """An app's per-frame output, its unit read from its name's suffix (`e_x_px`: px)."""
+    units = {"_px": "px", "_mps": "m/s", "_m": "m", "_deg": "deg", "_rad": "rad", "_s": "s",
+             "_radps": "rad/s"}
+    unit = next((u for suffix, u in units.items() if name.endswith(suffix)), None)
+    if name.startswith("flag_"):
+        return f"the app's per-frame flag {name[5:]}: 1 or 0"
+    return f"the app's per-frame output {name}" + (f", {unit}" if unit else "")
+
+
 _MAV_TYPES = {"float": NUM, "double": NUM, "char": STR}
 
 
@@ -283,6 +328,10 @@ def mavlink_schema(msg) -> dict[str, Any]:
     Floats (NaN is left out) and arrays holding NaN are optional."""
     name = msg.get_type()
     fields: dict[str, Any] = {"mavpackettype": STR, "sysid": INT, "compid": INT}
+    docs = {"mavpackettype": "the MAVLink message name", "sysid": "the sender's system id",
+            "compid": "the sender's component id"}
+    units = getattr(msg, "fieldunits_by_name", {}) or {}
+    enums = getattr(msg, "fieldenums_by_name", {}) or {}
     optional = set()
     lengths = dict(zip(msg.ordered_fieldnames, msg.array_lengths, strict=True))  # wire order
     for k, ctype in zip(msg.fieldnames, msg.fieldtypes, strict=True):
@@ -291,4 +340,7 @@ def mavlink_schema(msg) -> dict[str, Any]:
             optional.add(k)
         fields[k] = ({"type": "array", "items": {"type": base}} if lengths[k] and base != STR
                      else base)
-    return json_schema(f"mavlink.{name}", fields, [k for k in fields if k not in optional])
+        docs[k] = f"MAVLink {name}.{k}" + (f", {units[k]}" if k in units else "") + (
+            f" ({enums[k]})" if k in enums else "")
+    return json_schema(f"mavlink.{name}", fields, [k for k in fields if k not in optional],
+                       docs)

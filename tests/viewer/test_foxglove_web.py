@@ -1,9 +1,9 @@
 """A run opened in a real viewer: Foxglove Studio 1.48's web build (npm
 `@foxglove/studio-base`) in headless Chromium (Debian's `chromium`, driven by Playwright's
-Python package), loading run.mcap over HTTP with the shipped layout docs/cosim-layout.json,
-the way a user opens a run (docs/viewers.md). Checks that a plot panel resolves a JSON field
+Python package), loading run.mcap over HTTP with the shipped layout for Studio 1.x,
+docs/cosim-layout-studio1.json, the way a user opens a run (docs/viewers.md). Checks that a plot panel resolves a JSON field
 (its legend shows the recorded altitude at the chosen time, its line is drawn), that the
-3D panel draws the vehicle above the floor, and that both are still drawn after pressing Play
+camera panel shows the camera's image (the red track on the grey floor), that the 3D panel draws the vehicle above the floor, and that both are still drawn after pressing Play
 for 5 s (a scene written once vanished then).
 
 Slow and optional: install what it needs first with `bash tests/viewer/setup.sh` (Debian
@@ -65,7 +65,7 @@ def test_foxglove_studio_shows_the_run(tmp_path):
     assert alt > 0.8                                    # flying at the seek time
     # the shipped layout, its 3D view aimed at where the vehicle flies (the map frame's
     # origin is the arena's centre, z up) from a little above, grid off
-    layout = json.loads((ROOT / "docs" / "cosim-layout.json").read_text())
+    layout = json.loads((ROOT / "docs" / "cosim-layout-studio1.json").read_text())
     a = sc.world.arena
     x, y = (float(res.series[k, COL["y"]]) - 0.5 * (a[2] + a[3]),
             float(res.series[k, COL["x"]]) - 0.5 * (a[0] + a[1]))
@@ -84,7 +84,7 @@ def test_foxglove_studio_shows_the_run(tmp_path):
             page.on("pageerror", lambda e: errors.append(str(e)))
             page.goto(run_url(base, T_SEEK_S))
             # the plot legend shows the altitude recorded at T_SEEK_S, to the last digit
-            plot = page.locator(".mosaic-window").filter(has_text="position (world NED, m)")
+            plot = page.locator(".mosaic-window").filter(has_text="altitude (m)")
             end = time.monotonic() + WAIT_S
             while repr(alt) not in plot.inner_text():
                 assert time.monotonic() < end, (plot.inner_text(), errors)
@@ -100,6 +100,20 @@ def test_foxglove_studio_shows_the_run(tmp_path):
                     break
                 (tmp_path / "plot.png").write_bytes(png)
                 assert time.monotonic() < end, tmp_path / "plot.png"
+                time.sleep(1.0)
+            # the camera panel: the frame at T_SEEK_S, the red track across the grey floor
+            camera = page.locator(".mosaic-window").filter(has_text="/camera/image").first
+            while True:
+                png = camera.screenshot()
+                (tmp_path / "camera.png").write_bytes(png)
+                img = _rgb(png)
+                r, g, b = img[..., 0], img[..., 1], img[..., 2]
+                red = (r > 150) & (g < 80) & (b < 80)
+                grey = (abs(r - g) < 10) & (abs(g - b) < 10) & (r > 90) & (r < 215)
+                if red.sum() > 500 and grey.sum() > 5000:
+                    break
+                assert time.monotonic() < end, (red.sum(), grey.sum(), tmp_path / "camera.png",
+                                                camera.inner_text(), errors)
                 time.sleep(1.0)
             # the 3D panel: the vehicle (orange) above the floor (grey)
             scene = page.locator(".mosaic-window").filter(has_text="3D").first
