@@ -1,10 +1,11 @@
 """A run opened in a real viewer: Foxglove Studio 1.48's web build (npm
 `@foxglove/studio-base`) in headless Chromium (Debian's `chromium`, driven by Playwright's
 Python package), loading run.mcap over HTTP with the shipped layout for Studio 1.x,
-docs/cosim-layout-studio1.json, the way a user opens a run (docs/viewers.md). Checks that a plot panel resolves a JSON field
-(its legend shows the recorded altitude at the chosen time, its line is drawn), that the
-camera panel shows the camera's image (the red track on the grey floor), that the 3D panel draws the vehicle above the floor, and that both are still drawn after pressing Play
-for 5 s (a scene written once vanished then).
+docs/cosim-layout-studio1.json, the way a user opens a run (docs/viewers.md). Checks that
+a plot panel resolves a JSON field (its legend shows the recorded altitude at the chosen
+time, its line is drawn), that the camera panel shows the camera's image (the red track on
+the grey floor), that the 3D panel draws the vehicle above the floor, and that it still does
+after pressing Play for 5 s (a scene written once vanished then).
 
 Slow and optional: install what it needs first with `bash tests/viewer/setup.sh` (Debian
 chromium, the `viewer` extra, the npm packages into ~/.cache/cosim-viewer or
