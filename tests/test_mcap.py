@@ -92,6 +92,32 @@ def test_every_json_field_says_what_it_is_and_its_unit(run):
             assert props["roll"]["description"].endswith("rad")
 
 
+def test_the_log_the_summary_and_the_scenario_file(run):
+    """/log: each STATUSTEXT once, long ones joined from their chunks, and the run's events
+    and end; the summary as metadata; the scenario file attached."""
+    from mcap_protobuf.decoder import DecoderFactory
+
+    res, out = run
+    with open(out / "run.mcap", "rb") as f:
+        r = make_reader(f, decoder_factories=[DecoderFactory()])
+        log = [(m.log_time, d) for _, _, m, d in r.iter_decoded_messages(topics=["/log"])]
+        meta = {m.name: m.metadata for m in r.iter_metadata()}
+        att = {a.name: a.data for a in r.iter_attachments()}
+    texts = [d.message for _, d in log]
+    assert texts.count("Arming denied: attitude not aligned yet (estimator)") == 1, texts
+    assert texts.count("Armed") == 1 and texts.count("Takeoff complete") == 1, texts
+    assert all(t == d.timestamp.seconds * 10**9 + d.timestamp.nanos for t, d in log)
+    for t, what in res.events:
+        assert what in texts
+    assert texts[-1] == f"run ended: {res.exit_reason.value}: {res.message}"
+    s = meta["cosim.summary"]
+    assert s["scenario"] == res.scenario.name and s["seed"] == str(res.scenario.seed)
+    assert s["exit_reason"] == res.exit_reason.value and int(s["ticks"]) == res.ticks
+    assert set(json.loads(s["criteria"])) >= {"must_complete"} and s["passed"] in (
+        "true", "false")
+    assert att == {SEED.name: SEED.read_bytes()}
+
+
 def test_json_topics_carry_the_recorded_values(run):
     res, out = run
     _, msgs = _read(out / "run.mcap")

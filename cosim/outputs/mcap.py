@@ -10,7 +10,12 @@ tick loop pays nothing for them. The static messages (the frames' static transfo
 world, the vehicle model) are written again every `STATIC_EVERY_S` of simulation time: a
 viewer playing the file keeps only what it read since its last seek, and drops a scene sent
 once when it plays on (Foxglove Studio 1.48: the room and the vehicle vanished on Play).
-docs/viewers.md says how to open the file with the layout docs/cosim-layout.json.
+
+`/log` (foxglove.Log, the Log panel) holds the vehicle's STATUSTEXTs, one message per text
+(its chunks joined, the copy the other link carried left out), and the run's events, faults
+and end. The file's metadata record `cosim.summary` is the run's summary (scenario, seed,
+exit, criteria, metrics: the deterministic part of summary.json), and the scenario file is
+attached. docs/viewers.md says how to open the file with the layouts in docs/.
 """
 
 from __future__ import annotations
@@ -19,14 +24,28 @@ from pathlib import Path
 
 import foxglove
 from foxglove import Context
+from foxglove.channels import LogChannel
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+from foxglove.messages import Log, LogLevel
 
-from cosim.outputs.fox_topics import IMAGES, TOPICS, Topics
+from cosim.outputs.fox_scene import ts
+from cosim.outputs import fox_topics
+from cosim.outputs.fox_topics import IMAGES, Topics
 from cosim.outputs.series import COL
 
 __all__ = ["TOPICS", "McapRun"]
 
+TOPICS = {**fox_topics.TOPICS, "/log": "foxglove.Log"}     # the file's (and MAVLink's)
 STATIC_EVERY_S = 1.0        # the static messages again every this many seconds of sim time
+SAME_TEXT_NS = 50_000_000   # a STATUSTEXT again within this: the other link's copy
+CHUNK_CHARS = 50            # STATUSTEXT.text; a chunk shorter than this ends its text
+# MAV_SEVERITY 0..7 (EMERGENCY .. DEBUG) -> the Log panel's levels
+SEVERITY = (LogLevel.Fatal, LogLevel.Fatal, LogLevel.Error, LogLevel.Error, LogLevel.Warning,
+            LogLevel.Info, LogLevel.Info, LogLevel.Debug)
+# summary.json's fields that are the same run to run (not the wall time, versions, platform)
+SUMMARY_KEYS = ("scenario", "description", "vehicle", "app", "sensors", "estimator", "seed",
+                "mode", "exit_reason", "message", "sim_time_s", "ticks", "passed", "criteria",
+                "metrics", "events", "faults")
 
 
 class McapRun:
@@ -43,6 +62,7 @@ class McapRun:
                                               compression_threads=0))
         self.topics = Topics(self.ctx, scenario, images=images)
         self.topics.static()
+        self.log = LogChannel("/log", context=self.ctx)
         self.frames = 0
 
     def frame(self, t: float, img, p_W, q_WB) -> None:
@@ -72,8 +92,39 @@ class McapRun:
         for r in res.frame_log:
             topics.vision(r, res.frame_columns)
         self._mavlink(res.tlog.path)
+        self._run_log(res)
+        self._summary(res)
         self._writer.close()
         return self.path
+
+    def text(self, t_ns: int, level, name: str, message: str) -> None:
+        self.log.log(Log(timestamp=ts(t_ns), level=level, message=message, name=name),
+                     log_time=t_ns)
+
+    def _run_log(self, res) -> None:
+        """The run's events, faults and end on /log."""
+        for t, what in res.events:
+            self.text(int(round(t * 1e9)), LogLevel.Info, "cosim", str(what))
+        for t, what in res.faults:
+            self.text(int(round(t * 1e9)), LogLevel.Warning, "cosim fault", str(what))
+        from cosim.outputs.report import FAILED_EXITS
+
+        failed = res.exit_reason.value in FAILED_EXITS
+        self.text(int(round(res.t_end_s * 1e9)), LogLevel.Error if failed else LogLevel.Info,
+                  "cosim", f"run ended: {res.exit_reason.value}: {res.message}")
+
+    def _summary(self, res) -> None:
+        """The summary as metadata (strings: nested values as JSON), the scenario attached."""
+        from cosim.outputs.report import summarize
+        from cosim.outputs.strict import dumps
+
+        s = summarize(res)
+        self._writer.write_metadata("cosim.summary", {
+            k: s[k] if isinstance(s[k], str) else dumps(s[k]) for k in SUMMARY_KEYS})
+        src = Path(res.scenario.source) if res.scenario.source else None
+        if src is not None and src.is_file():
+            self._writer.attach(log_time=0, create_time=0, name=src.name,
+                                media_type="application/toml", data=src.read_bytes())
 
     def close(self) -> None:
         """Close without the series (a run that could not finish writing)."""
@@ -86,6 +137,7 @@ class McapRun:
 
         mav = mavlink2.MAVLink(None)
         mav.robust_parsing = True
+        texts = StatusTexts(self.text)
         for t_us, data in read_tlog(tlog_path):
             try:
                 msg = mav.decode(bytearray(data))
@@ -93,3 +145,38 @@ class McapRun:
                 continue
             if msg is not None:
                 self.topics.mavlink(msg, t_us * 1000)
+                if msg.get_type() == "STATUSTEXT":
+                    texts.add(msg, t_us * 1000)
+
+
+class StatusTexts:
+    """STATUSTEXTs to `out(t_ns, level, name, text)`, one call per text: the chunks of a long
+    text (the same `id`, `chunk_seq` 0, 1, ...; the last shorter than 50 characters) joined,
+    and the copy of a text the other link carried within SAME_TEXT_NS left out."""
+
+    def __init__(self, out) -> None:
+        self.out = out
+        self._parts: dict[tuple, list[str]] = {}     # (sysid, compid, id) -> chunks so far
+        self._last: dict[tuple, int] = {}            # (sysid, compid, severity, text) -> t_ns
+
+    def add(self, msg, t_ns: int) -> None:
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        text = msg.text if isinstance(msg.text, str) else msg.text.decode("utf-8", "replace")
+        text = text.split("\0", 1)[0]
+        if msg.id:
+            key = (*src, msg.id)
+            parts = self._parts.setdefault(key, [])
+            if msg.chunk_seq != len(parts):       # a chunk lost or a copy: start again
+                parts.clear()
+                if msg.chunk_seq != 0:
+                    return
+            parts.append(text)
+            if len(text) >= CHUNK_CHARS:
+                return
+            text = "".join(self._parts.pop(key))
+        key = (*src, msg.severity, text)
+        if t_ns - self._last.get(key, -SAME_TEXT_NS - 1) <= SAME_TEXT_NS:
+            return
+        self._last[key] = t_ns
+        level = SEVERITY[msg.severity] if 0 <= msg.severity < len(SEVERITY) else LogLevel.Unknown
+        self.out(t_ns, level, f"sysid {src[0]}", text)
