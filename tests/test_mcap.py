@@ -107,8 +107,9 @@ def test_the_log_the_summary_and_the_scenario_file(run):
     assert texts.count("Arming denied: attitude not aligned yet (estimator)") == 1, texts
     assert texts.count("Armed") == 1 and texts.count("Takeoff complete") == 1, texts
     assert all(t == d.timestamp.seconds * 10**9 + d.timestamp.nanos for t, d in log)
+    times = {d.message: t for t, d in log}
     for t, what in res.events:
-        assert what in texts
+        assert times[what] == int(round(t * 1e9))
     assert texts[-1] == f"run ended: {res.exit_reason.value}: {res.message}"
     s = meta["cosim.summary"]
     assert s["scenario"] == res.scenario.name and s["seed"] == str(res.scenario.seed)

@@ -28,8 +28,8 @@ from foxglove.channels import LogChannel
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from foxglove.messages import Log, LogLevel
 
-from cosim.outputs.fox_scene import ts
 from cosim.outputs import fox_topics
+from cosim.outputs.fox_scene import ts
 from cosim.outputs.fox_topics import IMAGES, Topics
 from cosim.outputs.series import COL
 
