@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from viewer_http import CHROMIUM, FLAGS, NODE, ROOT, run_url, serve
+from viewer_http import CHROMIUM, FLAGS, NODE, ROOT, SHOTS, run_url, serve
 
 from cosim.load import load_scenario, with_set
 from cosim.outputs.series import COL
@@ -126,6 +126,7 @@ def test_foxglove_studio_shows_the_run(tmp_path):
             legend = plot.inner_text()
             assert repr(alt) not in legend, legend              # it played
             _vehicle_above_floor(scene, tmp_path / "played.png", time.monotonic() + 30, errors)
+            _keep(page, "foxglove_file_played.png")
             assert not errors, errors
         finally:
             browser.close()
@@ -150,3 +151,87 @@ def _vehicle_above_floor(scene, png_path: Path, end: float, errors: list[str]) -
     # floor rows: grey across most of the panel (not the grey of a tooltip)
     rows_f = np.nonzero(grey.sum(axis=1) > 0.6 * grey.shape[1])[0]
     assert rows_v.max() < rows_f.min(), (rows_v, rows_f, png_path)
+
+
+def _legend(plot) -> dict[str, float]:
+    """A plot's legend: {label: value} (the panel's text is its title, then label, value...)."""
+    lines = plot.inner_text().splitlines()[1:]
+    out = {}
+    for label, value in zip(lines[::2], lines[1::2], strict=False):
+        try:
+            out[label] = float(value)
+        except ValueError:
+            pass
+    return out
+
+
+def test_foxglove_studio_shows_a_live_run(tmp_path):
+    """`cosim run --realtime --foxglove 0` watched live: Studio 1.48 asks for the protocol's
+    first name (foxglove.websocket.v1), shows the vehicle flying (the legends' altitude above
+    0.5 m, north changing), on the simulation's clock (its start time a few seconds, not
+    today's date), and the run still ends on SIGTERM with 143."""
+    import re
+    import signal
+    import subprocess
+    import sys
+    import threading
+
+    missing = _missing()
+    assert missing is None, f"run `bash tests/viewer/setup.sh` first: missing {missing}"
+    from playwright.sync_api import sync_playwright
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", str(ROOT / "scenarios" /
+                                                      "mambo_seed_track.toml"),
+         "--realtime", "--foxglove", "0", "--no-plots", "--set", "timing.t_final_s=120",
+         "--out", str(tmp_path / "run")],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    try:
+        url = None
+        for line in proc.stdout:
+            lines.append(line)
+            m = re.search(r"live view on (ws://\S+)", line)
+            if m:
+                url = m.group(1)
+                break
+        assert url, "".join(lines)
+        threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
+        layout = ROOT / "docs" / "cosim-layout-studio1.json"
+        with serve(tmp_path / "none.mcap", layout, NODE) as base, sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+            try:
+                page = browser.new_page(viewport={"width": 1600, "height": 1000})
+                page.goto(f"{base}/?ds=foxglove-websocket&ds.url={url}&layoutId=cosim")
+                alt = page.locator(".mosaic-window").filter(has_text="altitude (m)")
+                ne = page.locator(".mosaic-window").filter(has_text="north, east")
+                end = time.monotonic() + WAIT_S
+                while _legend(alt).get("altitude", 0.0) < 0.5:
+                    assert time.monotonic() < end and proc.poll() is None, (
+                        alt.inner_text(), "".join(lines))
+                    time.sleep(1.0)
+                north = _legend(ne)["north"]
+                while _legend(ne).get("north") == north:          # it flies on
+                    assert time.monotonic() < end, ne.inner_text()
+                    time.sleep(0.5)
+                # the viewer's clock: simulation time (s since 0), not the wall clock
+                # (its start time in seconds, e.g. "12.055000000"; the wall clock: a date)
+                m = re.search(r"START TIME\n([^\n]*)\n", page.inner_text("body"))
+                assert m and re.fullmatch(r"\d+\.\d+", m.group(1).strip()), m and m.group(1)
+                assert float(m.group(1)) < 3600, m.group(1)
+                page.screenshot(path=str(tmp_path / "live.png"))
+                _keep(page, "foxglove_live.png")
+            finally:
+                browser.close()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(5) == 143, "".join(lines)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+
+
+def _keep(page, name: str) -> None:
+    """The whole page as SHOTS/name, if COSIM_VIEWER_SHOTS names a folder (docs/screenshots)."""
+    if SHOTS:
+        page.screenshot(path=str(Path(SHOTS) / name))
