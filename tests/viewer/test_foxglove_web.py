@@ -116,6 +116,13 @@ def test_foxglove_studio_shows_the_run(tmp_path):
                 assert time.monotonic() < end, (red.sum(), grey.sum(), tmp_path / "camera.png",
                                                 camera.inner_text(), errors)
                 time.sleep(1.0)
+            # the Log panel (/log): after a seek it shows the last message before that time,
+            # here the run's last event so far
+            event = [what for t, what in res.events if t <= T_SEEK_S][-1]
+            log = page.locator(".mosaic-window").filter(has_text="DEBUG").first
+            while f"[cosim]:\xa0{event}" not in log.inner_text():
+                assert time.monotonic() < end, (log.inner_text(), event, errors)
+                time.sleep(1.0)
             # the 3D panel: the vehicle (orange) above the floor (grey)
             scene = page.locator(".mosaic-window").filter(has_text="3D").first
             _vehicle_above_floor(scene, tmp_path / "scene.png", end, errors)
