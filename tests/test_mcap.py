@@ -119,6 +119,40 @@ def test_the_log_the_summary_and_the_scenario_file(run):
     assert att == {SEED.name: SEED.read_bytes()}
 
 
+def test_the_3d_view_gets_the_estimate_and_the_setpoint(run):
+    """The estimate's pose at 50 Hz where the series has it, the setpoint as a sphere where
+    the series has it (deleted while none is commanded), both with a 10 s trail at 5 Hz."""
+    import numpy as np
+    from mcap_protobuf.decoder import DecoderFactory
+
+    res, out = run
+    s = res.series
+    got: dict[str, list] = {}
+    with open(out / "run.mcap", "rb") as f:
+        r = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, ch, m, d in r.iter_decoded_messages(topics=[
+                "/vehicle/estimate_pose", "/app/setpoint_marker", "/vehicle/estimate_path",
+                "/app/setpoint_path"]):
+            got.setdefault(ch.topic, []).append((m.log_time, d))
+    est = got["/vehicle/estimate_pose"]
+    assert [t for t, _ in est] == [k * 20_000_000 for k in range(len(est))]    # 50 Hz
+    for t, p in est[::50]:
+        k = t // 5_000_000
+        assert p.frame_id == "world" and (p.pose.position.x, p.pose.position.z) == (
+            s[k, COL["est_x"]], s[k, COL["est_z"]])
+    shown = [(t, u) for t, u in got["/app/setpoint_marker"] if u.entities]
+    assert shown and all(not u.deletions for _, u in shown)
+    for t, u in shown[::25]:
+        k = t // 5_000_000
+        (sphere,) = u.entities[0].spheres
+        assert sphere.pose.position.y == s[k, COL["sp_y"]] and u.entities[0].id == "setpoint"
+    if not np.isfinite(s[0, COL["sp_x"]]):        # none commanded at first: nothing drawn
+        assert shown[0][0] > 0
+    path = got["/vehicle/estimate_path"]
+    assert np.diff([t for t, _ in path]).min() == 200_000_000
+    assert [len(p.poses) for _, p in path] == [min(k + 1, 50) for k in range(len(path))]
+
+
 def test_json_topics_carry_the_recorded_values(run):
     res, out = run
     _, msgs = _read(out / "run.mcap")

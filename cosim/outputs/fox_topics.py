@@ -42,9 +42,10 @@ from foxglove.messages import (
     Vector3,
 )
 
+from cosim.outputs import fox_overlay
 from cosim.outputs import fox_scene as fs
 from cosim.outputs.series import COL, ESTIMATE_COLUMNS
-from mav.rotations import R_from_quat, euler_from_quat
+from mav.rotations import R_from_quat, euler_from_quat, quat_from_euler
 
 IMAGES = ("jpeg", "png", "raw")        # how camera frames are stored and sent; the first: default
 # JPEG quality 65, Huffman tables optimized (lossless, ~2 % smaller): an E1 frame (856 x 480,
@@ -100,6 +101,7 @@ TOPICS: dict[str, str] = {
     "/camera/image": "foxglove.CompressedImage",      # foxglove.RawImage with images="raw"
     "/camera/calibration": "foxglove.CameraCalibration",
     **{topic: name for topic, (name, _) in JSON_SCHEMAS.items()},
+    **fox_overlay.TOPICS,       # the estimate and the setpoint in the 3D view
 }
 MAVLINK = "/mavlink/"                     # + message name: one topic per MAVLink message type
 VISION_FIELDS = ("flag_track", "flag_marker", "e_x_px", "e_y_px")   # line follower's frames
@@ -166,6 +168,7 @@ class Topics:
         self.json = {topic: _channel(ctx, p + topic, json_schema(title, fields, REQUIRED.get(
             topic, ()), DESCRIPTIONS[topic])) for topic, (title, fields) in JSON_SCHEMAS.items()
             if fields}
+        self.overlay = fox_overlay.Overlay(ctx, p)
         self.vision_fields: tuple[str, ...] = ()
         self._mav: dict[str, Channel] = {}
         self._static: tuple | None = None
@@ -187,7 +190,8 @@ class Topics:
     def watched(self) -> bool:
         """Whether any per-tick or per-frame topic has a taker (a live view's client)."""
         return any(ch is not None and ch.has_sinks() for ch in (
-            self.tf, self.pose, self.image, self.calibration, *self.json.values()))
+            self.tf, self.pose, self.image, self.calibration, *self.json.values(),
+            *self.overlay.channels()))
 
     def row(self, r, phases: list[str], pose: bool = True, est=None) -> None:
         """One recorded tick (a row of the series, `recorder.SERIES_COLUMNS`); `pose`: also
@@ -223,6 +227,12 @@ class Topics:
                     d.update({n[4:]: float(v) for n, v in zip(
                         ESTIMATE_COLUMNS[3:], est[3:], strict=True)})
                 ch.log(_finite(d), log_time=t_ns)
+        # the 3D view's estimate (its attitude: a sensor-fed run's estimate, else the truth's,
+        # as the odometry gives it) and setpoint
+        q_est = q if est is None else quat_from_euler(*(float(v) for v in est[6:9]))
+        self.overlay.add(t_ns, (float(r[c["est_x"]]), float(r[c["est_y"]]),
+                                float(r[c["est_z"]])), q_est,
+                         (float(r[c["sp_x"]]), float(r[c["sp_y"]]), float(r[c["sp_z"]])))
         ch = j["/app/phase"]
         if ch.has_sinks():
             pi = int(r[c["phase"]])
