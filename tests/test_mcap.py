@@ -147,10 +147,13 @@ def test_the_3d_view_gets_the_estimate_and_the_setpoint(run):
         (sphere,) = u.entities[0].spheres
         assert sphere.pose.position.y == s[k, COL["sp_y"]] and u.entities[0].id == "setpoint"
     if not np.isfinite(s[0, COL["sp_x"]]):        # none commanded at first: nothing drawn
-        assert shown[0][0] > 0
+        (t, first), = got["/app/setpoint_marker"][:1]
+        assert t == 0 and first.deletions[0].id == "setpoint" and shown[0][0] > 0
     path = got["/vehicle/estimate_path"]
     assert np.diff([t for t, _ in path]).min() == 200_000_000
     assert [len(p.poses) for _, p in path] == [min(k + 1, 50) for k in range(len(path))]
+    sp_path = got["/app/setpoint_path"]
+    assert len(sp_path) == len(path) and not sp_path[0][1].poses and sp_path[-1][1].poses
 
 
 def test_json_topics_carry_the_recorded_values(run):
@@ -165,6 +168,16 @@ def test_json_topics_carry_the_recorded_values(run):
     k = int(np.nonzero(np.isfinite(s[:, COL["sp_z"]]))[0][-1])       # a setpoint commanded
     sp = json.loads(msgs["/app/setpoint"][k].data)
     assert sp["x"] == s[k, COL["sp_x"]] and sp["alt"] == -s[k, COL["sp_z"]]
+    # the app's SET_POSITION_TARGET_LOCAL_NED in force: the line follower sets a yaw
+    from cosim.outputs.mcap import commands
+
+    cmds = commands(res.tlog.path)
+    t0, first = cmds[0]
+    assert first == {"yaw": 0.0, "frame": 1}
+    k0 = t0 // 5_000_000
+    assert "frame" not in json.loads(msgs["/app/setpoint"][k0 - 1].data)
+    assert {k: v for k, v in json.loads(msgs["/app/setpoint"][k0].data).items()
+            if k in first} == first
     motors = json.loads(msgs["/vehicle/motors"][k].data)
     assert [motors[f"u{i}"] for i in range(1, 5)] == [s[k, COL[f"u{i}"]] for i in range(1, 5)]
     phase = json.loads(msgs["/app/phase"][k].data)

@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from cosim.load import load_scenario, with_set
-from cosim.outputs.fox_topics import TOPICS
+from cosim.outputs.mcap import TOPICS
 from cosim.sim.master import RunOptions, run_scenario
 from mav.rotations import R_from_quat
 
@@ -113,6 +113,14 @@ def test_vision_fields_are_the_apps_frame_columns(seed, e1):
         assert list(schema["properties"]) == list(cols[1:])
     msgs = read(e1.mcap)["/app/vision"][2]
     assert len(msgs) == len(e1.frame_log) and "eps_px" in msgs[-1][1]
+
+
+def test_the_apps_commands_are_in_the_setpoint(e1):
+    """Visual servoing commands relative moves (MAV_FRAME_BODY_OFFSET_NED): /app/setpoint
+    carries each move in force (it had no position setpoint, and was empty)."""
+    moves = [m for _, m in read(e1.mcap)["/app/setpoint"][2] if "dx" in m]
+    assert moves and all(m["frame"] == 9 and {"dy", "dz", "dyaw"} <= set(m) for m in moves)
+    assert any(m["dx"] != 0.0 for m in moves)
 
 
 def _transform(tf) -> tuple[np.ndarray, np.ndarray]:

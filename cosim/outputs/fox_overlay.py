@@ -5,9 +5,10 @@ as where it is now and a trail of where it was (Foxglove messages, in the `world
   estimator's in a sensor-fed run, else the attitude the vehicle is given (the truth's: an
   odometry-fed run's ODOMETRY carries it). `POSE_DT` apart.
 - `/app/setpoint_marker` (foxglove.SceneUpdate): a sphere at the position setpoint (entity
-  "setpoint"), deleted while none is commanded. `POSE_DT` apart.
+  "setpoint"), deleted while none is commanded (and at first if none is). `POSE_DT` apart.
 - `/vehicle/estimate_path`, `/app/setpoint_path` (foxglove.PosesInFrame, drawn as a line): the
-  last `TRAIL_S` of each, one point every `TRAIL_DT`, sent every `TRAIL_DT`.
+  last `TRAIL_S` of each, one point every `TRAIL_DT`, sent every `TRAIL_DT` (empty: none
+  yet). So every topic is in every file, drawn or not.
 
 Rates in simulation time, so the file stays the same run to run; the trail's points are
 kept in a ring (memory stays flat over a day of sitl).
@@ -66,7 +67,7 @@ class Overlay:
         self._est: deque[Pose] = deque(maxlen=n)
         self._sp: deque[Pose] = deque(maxlen=n)
         self._next_pose = self._next_trail = 0
-        self._sp_shown = False
+        self._sp_shown = True        # the first marker message clears it if none is set
         self._sphere_color = Color(r=SETPOINT_RGBA[0], g=SETPOINT_RGBA[1], b=SETPOINT_RGBA[2],
                                    a=SETPOINT_RGBA[3])
 
@@ -104,6 +105,6 @@ class Overlay:
                                   (sp_ok, self._sp, sp, self.sp_path)):
             if ok:
                 ring.append(_pose(*xyz))
-            if ring and ch.has_sinks():
+            if ch.has_sinks():              # empty while there is none
                 ch.log(PosesInFrame(timestamp=stamp, frame_id=fs.WORLD, poses=list(ring)),
                        log_time=t_ns)

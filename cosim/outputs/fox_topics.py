@@ -62,7 +62,10 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
     # x, y, z from the series; a sensor-fed run's the rest of its estimate (ESTIMATE_COLUMNS)
     "/vehicle/estimate": ("cosim.VehicleEstimate", dict.fromkeys(
         (n[4:] for n in ESTIMATE_COLUMNS), NUM)),
-    "/app/setpoint": ("cosim.Setpoint", {"x": NUM, "y": NUM, "z": NUM, "alt": NUM}),
+    "/app/setpoint": ("cosim.Setpoint", {"x": NUM, "y": NUM, "z": NUM, "alt": NUM, "vx": NUM,
+                                         "vy": NUM, "vz": NUM, "yaw": NUM, "yaw_rate": NUM,
+                                         "dx": NUM, "dy": NUM, "dz": NUM, "dyaw": NUM,
+                                         "frame": INT}),
     "/vehicle/motors": ("cosim.Motors", {"u1": NUM, "u2": NUM, "u3": NUM, "u4": NUM}),
     "/app/phase": ("cosim.AppPhase", {"phase": STR, "index": INT}),
     "/app/vision": ("cosim.AppVision", {}),     # the app's frame columns (`Topics.vision`)
@@ -88,7 +91,16 @@ DESCRIPTIONS: dict[str, dict[str, str]] = {
     "/app/setpoint": {
         "x": f"position setpoint north, {_NED}", "y": f"position setpoint east, {_NED}",
         "z": f"position setpoint down, {_NED}",
-        "alt": "position setpoint altitude above the floor (-z), m"},
+        "alt": "position setpoint altitude above the floor (-z), m",
+        # the app's SET_POSITION_TARGET_LOCAL_NED in force (run.mcap only: from the tlog)
+        "vx": "velocity setpoint x (in `frame`), m/s", "vy": "velocity setpoint y, m/s",
+        "vz": "velocity setpoint z (down), m/s", "yaw": "yaw setpoint, rad",
+        "yaw_rate": "yaw rate setpoint, rad/s",
+        "dx": "relative move forward (in `frame`), m", "dy": "relative move right, m",
+        "dz": "relative move down, m", "dyaw": "relative heading change, rad",
+        "frame": "the command's MAV_FRAME: 1 local NED (world axes), 8 body NED (x forward, "
+                 "y right, z down, turned by the heading only), 9 body offset NED (a relative "
+                 "move), enum"},
     "/vehicle/motors": {f"u{i}": f"motor {i} command, 0..1" for i in range(1, 5)},
     "/app/phase": {"phase": "the app's phase name", "index": "the app's phase index"},
 }
@@ -193,12 +205,14 @@ class Topics:
             self.tf, self.pose, self.image, self.calibration, *self.json.values(),
             *self.overlay.channels()))
 
-    def row(self, r, phases: list[str], pose: bool = True, est=None) -> None:
+    def row(self, r, phases: list[str], pose: bool = True, est=None,
+            command: dict[str, float] | None = None) -> None:
         """One recorded tick (a row of the series, `recorder.SERIES_COLUMNS`); `pose`: also
         the body frame and the pose (a fleet's live view sends those more often); `est`: a
         sensor-fed run's estimate of that tick (ESTIMATE_COLUMNS), the rest of
-        `/vehicle/estimate`. A message nobody takes (a live view without a client on its
-        topic) is not even built."""
+        `/vehicle/estimate`; `command`: the app's setpoint command in force (velocities, yaw:
+        `mcap.commands`), the rest of `/app/setpoint`. A message nobody takes (a live view
+        without a client on its topic) is not even built."""
         c = COL
         t = float(r[c["t"]])
         t_ns = int(round(t * 1e9))
@@ -223,6 +237,8 @@ class Topics:
                 d = {k: float(r[c[prefix + k]]) for k in keys}
                 if prefix == "sp_":
                     d["alt"] = -d["z"]
+                    if command:
+                        d.update(command)
                 if est is not None and prefix == "est_":
                     d.update({n[4:]: float(v) for n, v in zip(
                         ESTIMATE_COLUMNS[3:], est[3:], strict=True)})

@@ -37,6 +37,14 @@ __all__ = ["TOPICS", "McapRun"]
 
 TOPICS = {**fox_topics.TOPICS, "/log": "foxglove.Log"}     # the file's (and MAVLink's)
 ZSTD_LEVEL = 9
+# an app's setpoint command holds this long without a new one: PX4's offboard loss timeout
+# (parameter COM_OF_LOSS_T, default 1 s)
+COMMAND_HELD_NS = 1_000_000_000
+SPT_ID = 84                  # SET_POSITION_TARGET_LOCAL_NED
+# its type_mask bits (set: ignore; MAVLink POSITION_TARGET_TYPEMASK) of what /app/setpoint takes
+SPT_FIELDS = (("x", 1), ("y", 2), ("z", 4), ("vx", 8), ("vy", 16), ("vz", 32), ("yaw", 1024),
+              ("yaw_rate", 2048))
+OFFSET_FRAMES = (7, 9)       # MAV_FRAME_LOCAL_OFFSET_NED, MAV_FRAME_BODY_OFFSET_NED: a move
 STATIC_EVERY_S = 1.0        # the static messages again every this many seconds of sim time
 SAME_TEXT_NS = 50_000_000   # a STATUSTEXT again within this: the other link's copy
 CHUNK_CHARS = 50            # STATUSTEXT.text; a chunk shorter than this ends its text
@@ -81,6 +89,8 @@ class McapRun:
         topics, phases = self.topics, res.phases or ["none"]
         est = res.estimate
         n = 0 if est is None else len(est)
+        cmds = commands(res.tlog.path)
+        j, cmd = 0, None
         k = 0
         every = int(round(STATIC_EVERY_S * 1e9))
         next_static = every                   # the first: at t = 0, when the file opened
@@ -91,7 +101,13 @@ class McapRun:
                 if t_ns >= next_static:
                     topics.static(t_ns)
                     next_static = (t_ns // every + 1) * every
-                topics.row(row, phases, est=est[k] if k < n else None)
+                while j < len(cmds) and cmds[j][0] <= t_ns:
+                    cmd = cmds[j]
+                    j += 1
+                if cmd is not None and t_ns - cmd[0] > COMMAND_HELD_NS:
+                    cmd = None
+                topics.row(row, phases, est=est[k] if k < n else None,
+                           command=None if cmd is None else cmd[1])
                 k += 1
         for r in res.frame_log:
             topics.vision(r, res.frame_columns)
@@ -151,6 +167,38 @@ class McapRun:
                 self.topics.mavlink(msg, t_us * 1000)
                 if msg.get_type() == "STATUSTEXT":
                     texts.add(msg, t_us * 1000)
+
+
+def commands(tlog_path: Path) -> list[tuple[int, dict[str, float]]]:
+    """The apps' SET_POSITION_TARGET_LOCAL_NED in a tlog, in order: (t_ns, what it sets) with
+    its MAV_FRAME: velocities (vx, vy, vz), yaw, yaw rate; a relative move's offsets (dx, dy,
+    dz, dyaw: in an offset frame). An absolute position is left out (the series' setpoint has
+    it, in world NED)."""
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    from cosim.outputs.tlog import read_tlog
+
+    mav = mavlink2.MAVLink(None)
+    mav.robust_parsing = True
+    out = []
+    for t_us, data in read_tlog(tlog_path):
+        v2 = data[0] == 0xFD and data[7] == SPT_ID and data[8] == data[9] == 0
+        if not (v2 or (data[0] == 0xFE and data[5] == SPT_ID)):
+            continue
+        try:
+            m = mav.decode(bytearray(data))
+        except Exception:
+            continue
+        move = m.coordinate_frame in OFFSET_FRAMES
+        d = {}
+        for k, bit in SPT_FIELDS:
+            if m.type_mask & bit or (k in "xyz" and not move):
+                continue
+            d[("d" + k) if move and k in ("x", "y", "z", "yaw") else k] = float(getattr(m, k))
+        if d:
+            d["frame"] = int(m.coordinate_frame)
+            out.append((t_us * 1000, d))
+    return out
 
 
 class StatusTexts:
