@@ -230,7 +230,9 @@ def test_cosim_sitl_foxglove_serves_the_vehicle(tmp_path):
 
 
 @pytest.mark.parametrize("args", [["run", str(SEED), "--foxglove", "0"],
-                                  ["run", str(SEED), "--realtime", "--foxglove", "70000"]])
+                                  ["run", str(SEED), "--realtime", "--foxglove", "70000"],
+                                  ["run", str(SEED), "--realtime", "--foxglove", "0",
+                                   "--foxglove-fps", "0"]])
 def test_bad_foxglove_options_are_exit_2(args, tmp_path):
     r = subprocess.run([sys.executable, "-m", "cosim.cli", *args, "--out", str(tmp_path / "o")],
                        capture_output=True, text=True, timeout=120)
