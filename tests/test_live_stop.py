@@ -167,3 +167,53 @@ def test_sitl_with_bad_clients_ends_on_a_signal(tmp_path, sig):
     assert proc.p.returncode == 0, proc.output()
     assert f"stopped by user ({signal.Signals(sig).name})" in proc.output()
     assert (tmp_path / "sitl" / "0" / "summary.json").exists()
+
+
+def test_a_client_that_stops_reading_is_dropped_and_the_others_served(monkeypatch):
+    """The relay drops a client that takes no data for SLOW_S (2 s here), while another
+    client, reading, keeps receiving."""
+    import foxglove
+
+    from cosim.outputs import live_relay
+    from cosim.outputs.live import LiveView
+
+    monkeypatch.setattr(live_relay, "SLOW_S", 2.0)
+    live = LiveView(port=0)
+    stop = threading.Event()
+    got: list[int] = []
+    try:
+        ch = foxglove.Channel("/flood", message_encoding="json", context=live.ctx)
+
+        def flood() -> None:
+            blob = {"x": "y" * 20_000}
+            while not stop.is_set():
+                ch.log(blob)
+                time.sleep(0.01)
+        threading.Thread(target=flood, daemon=True).start()
+        good = connect(live.url, subprotocols=["foxglove.sdk.v1"], max_size=None).__enter__()
+        subs = []
+        while not subs:
+            m = good.recv(timeout=10)
+            if isinstance(m, str) and json.loads(m)["op"] == "advertise":
+                subs = [{"id": c["id"], "channelId": c["id"]} for c in json.loads(m)["channels"]
+                        if c["topic"] == "/flood"]
+        good.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+        def read() -> None:
+            with contextlib.suppress(Exception):
+                while not stop.is_set():
+                    if isinstance(good.recv(timeout=5), bytes):
+                        got.append(1)
+        threading.Thread(target=read, daemon=True).start()
+        stalled_subscriber(live.url, ("/flood",))
+        assert live.relay.clients == 2
+        end = time.monotonic() + 20
+        while live.relay.clients > 1:
+            assert time.monotonic() < end, live.relay.clients
+            time.sleep(0.1)
+        n = len(got)
+        time.sleep(1.0)
+        assert len(got) > n + 10, (n, len(got))       # the reading client is still served
+    finally:
+        stop.set()
+        assert live.close()

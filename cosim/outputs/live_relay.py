@@ -78,6 +78,11 @@ class Relay:
         self.thread.start()
         self.port = ready.result()          # OSError when it cannot listen there
 
+    @property
+    def clients(self) -> int:
+        """Connections open now (before or after their handshake)."""
+        return len(self._tasks)
+
     def _run(self, host: str, port: int, ready: concurrent.futures.Future) -> None:
         asyncio.set_event_loop(self.loop)
         try:
