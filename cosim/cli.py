@@ -120,6 +120,11 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--mcap", action="store_true",
                    help="also write run.mcap (Foxglove schemas; opens in Foxglove, PlotJuggler)")
     _add_foxglove(r)
+    r.add_argument("--images", choices=("jpeg", "png", "raw"), default="jpeg",
+                   help="camera frames in run.mcap and the live view: jpeg (default), png "
+                        "(lossless) or raw (rgb8, ~20x the size)")
+    r.add_argument("--foxglove-fps", type=float, default=10.0, metavar="HZ",
+                   help="the live view's camera frames a second, at most (default 10)")
     r.add_argument("--render-worker", choices=("auto", "on", "off"), default="auto",
                    help="a delayed camera stream: render in a worker (a second process) while "
                         "the loop steps on; auto: when the machine has a free core (the same "
@@ -401,6 +406,7 @@ def _run(args) -> int:
     opts = RunOptions(mode=args.mode, realtime=args.realtime, speed=args.speed,
                       hil_transport=args.hil_transport,
                       video=args.video, png_every=args.png_every, mcap=args.mcap,
+                      images=args.images,
                       progress=not args.quiet and sys.stderr.isatty(), out_dir=out,
                       pipeline={"auto": None, "on": True, "off": False}[args.render_worker])
     with claim_run_folder(out), live_view(args) as live:

@@ -47,10 +47,14 @@ def live_view(args):
         return
     if not 0 <= args.foxglove <= 65535:
         raise ScenarioError("--foxglove", args.foxglove, "a port in 0..65535")
-    from cosim.outputs.live import LiveView
+    from cosim.outputs.live import FPS, LiveView
 
+    fps = getattr(args, "foxglove_fps", FPS)     # cosim run's options (sitl has no camera)
+    if not (fps > 0 and fps < float("inf")):
+        raise ScenarioError("--foxglove-fps", fps, "a number of frames a second > 0")
     try:
-        live = LiveView(args.foxglove, args.foxglove_host)
+        live = LiveView(args.foxglove, args.foxglove_host, images=getattr(args, "images", "jpeg"),
+                        fps=fps)
     except Exception as exc:
         raise ScenarioError("--foxglove", f"{args.foxglove_host}:{args.foxglove}",
                             f"an address the live view can listen on ({exc})") from None
@@ -59,7 +63,9 @@ def live_view(args):
     try:
         yield live
     finally:
-        live.close()
+        if not live.close():
+            print("cosim: live view: a client did not let go in time; not waited for",
+                  file=sys.stderr, flush=True)
 
 
 def check_speed(speed: float) -> None:

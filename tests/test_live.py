@@ -1,6 +1,6 @@
 """The live view (`--foxglove`): a Foxglove WebSocket protocol client (what Foxglove and
-Lichtblick speak; the SDK's server takes it under its new name, subprotocol foxglove.sdk.v1,
-the same protocol as foxglove.websocket.v1) subscribes to a run's topics while it
+Lichtblick speak, under either of its names: foxglove.websocket.v1, what Studio 1.x and
+Lichtblick ask for, or foxglove.sdk.v1) subscribes to a run's topics while it
 flies and receives poses, camera images with their calibration, the JSON topics with their
 schemas and the static scene; the run's results are the same with and without viewers.
 Port 0 everywhere (the OS picks a free port)."""
@@ -17,6 +17,7 @@ import threading
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
@@ -38,15 +39,18 @@ class Client:
     """A minimal Foxglove WebSocket protocol client: advertisements, subscriptions, messages
     decoded by the schemas the server advertised (protobuf or JSON)."""
 
-    def __init__(self, url: str) -> None:
-        self._conn = connect(url, subprotocols=["foxglove.sdk.v1"], open_timeout=10,
+    def __init__(self, url: str, protocol: str = "foxglove.sdk.v1") -> None:
+        self._conn = connect(url, subprotocols=[protocol], open_timeout=10,
                              max_size=None)
         self.ws = self._conn.__enter__()
+        assert self.ws.subprotocol == protocol
         self.channels: dict[int, dict] = {}          # id -> advertisement
         self.subs: dict[int, dict] = {}              # subscription id -> channel
         self.got: dict[str, list] = {}               # topic -> [(log_time, message)]
         self._types: dict[int, type] = {}
         self.status: list[dict] = []                 # the server's status messages
+        self.info: dict = {}                         # its serverInfo
+        self.times: list[int] = []                   # its time messages (ns)
 
     def pump(self, until, timeout: float = WAIT_S, subscribe=()) -> None:
         end = time.monotonic() + timeout
@@ -74,6 +78,8 @@ class Client:
                         for c in new:
                             self.subs[c["id"]] = c
                         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                elif op["op"] == "serverInfo":
+                    self.info = op
                 elif op["op"] == "status":
                     self.status.append(op)
                     # the SDK's server may advertise a channel being made before it takes
@@ -83,6 +89,9 @@ class Client:
                         time.sleep(0.1)
                         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": [
                             {"id": int(m.group(1)), "channelId": int(m.group(1))}]}))
+                continue
+            if m[0] == 2:                             # time (the `time` capability)
+                self.times.append(struct.unpack_from("<Q", m, 1)[0])
                 continue
             assert m[0] == 1                          # message data
             sub, t_ns = struct.unpack_from("<IQ", m, 1)
@@ -112,10 +121,11 @@ class Client:
 @pytest.mark.flight
 def test_a_client_receives_the_run_live_and_the_run_is_unchanged(tmp_path):
     sc = with_set(load_scenario(SEED), {"timing.t_final_s": 4.0})
-    live = LiveView(port=0)
+    live = LiveView(port=0, fps=2.0)          # the camera runs at 5 Hz: 2 Hz sent
     try:
         assert live.port > 0 and live.url.startswith("ws://127.0.0.1:")
-        client = Client(live.url)
+        # the protocol's first name, as Foxglove Studio 1.x and Lichtblick ask for it
+        client = Client(live.url, "foxglove.websocket.v1")
         out: dict = {}
         run = threading.Thread(target=lambda: out.setdefault("res", run_scenario(
             sc, RunOptions(out_dir=tmp_path / "live", realtime=True, live=live))))
@@ -130,6 +140,10 @@ def test_a_client_receives_the_run_live_and_the_run_is_unchanged(tmp_path):
     finally:
         live.close()
     assert not run.is_alive()
+    # the viewer's clock is the simulation's: the `time` capability, sim time on the tick grid
+    assert "time" in client.info["capabilities"] and client.times
+    assert all(t % 5_000_000 == 0 for t in client.times) and client.times == sorted(
+        client.times) and client.times[-1] <= 4e9
     ads = {c["topic"]: c for c in client.channels.values()}
     for topic in ("/vehicle/truth", "/app/setpoint", "/vehicle/motors", "/app/phase"):
         schema = json.loads(ads[topic]["schema"])        # every JSON topic has its schema
@@ -151,10 +165,15 @@ def test_a_client_receives_the_run_live_and_the_run_is_unchanged(tmp_path):
     for t_ns, v in vision.items():                    # (t, flag_track, flag_marker, e_x_px, ..)
         assert v.get("flag_track") == log[t_ns][1] and v.get("e_x_px", log[t_ns][3]) == \
             log[t_ns][3]
+    # the frame rate cap: images at least 0.5 s of sim time apart, each with its calibration
+    t_img = [t for t, _ in client.got["/camera/image"]]
+    assert np.diff(t_img).min() >= 0.495e9, t_img
+    assert t_img == [t for t, _ in client.got["/camera/calibration"]][:len(t_img)]
     # an image with its calibration, both in the camera frame
     (_, img), (_, cal) = client.got["/camera/image"][0], client.got["/camera/calibration"][0]
-    assert (img.width, img.height, img.encoding) == (160, 120, "rgb8")
-    assert len(img.data) == 160 * 120 * 3 and img.frame_id == cal.frame_id == "camera"
+    assert img.format == "jpeg" and img.frame_id == cal.frame_id == "camera"    # compressed
+    assert cv2.imdecode(np.frombuffer(img.data, np.uint8), cv2.IMREAD_COLOR).shape == (
+        120, 160, 3)
     assert cal.K[0] > 0
     (_, scene), = client.got["/world/scene"][:1]
     assert scene.entities[0].frame_id == "world"
@@ -195,6 +214,9 @@ def test_cosim_sitl_foxglove_serves_the_vehicle(tmp_path):
                         subscribe=("/vehicle/pose", "/tf_static"), timeout=WAIT_S)
         finally:
             client.close()
+        # no camera in sitl: none advertised
+        assert not {c["topic"] for c in client.channels.values()} & {
+            "/camera/image", "/camera/calibration"}
         z = [m.pose.position.z for _, m in client.got["/vehicle/pose"]]
         assert all(abs(v) < 0.01 for v in z)           # on the ground: nobody flies it
         (_, tfs), = client.got["/tf_static"][:1]
@@ -208,7 +230,9 @@ def test_cosim_sitl_foxglove_serves_the_vehicle(tmp_path):
 
 
 @pytest.mark.parametrize("args", [["run", str(SEED), "--foxglove", "0"],
-                                  ["run", str(SEED), "--realtime", "--foxglove", "70000"]])
+                                  ["run", str(SEED), "--realtime", "--foxglove", "70000"],
+                                  ["run", str(SEED), "--realtime", "--foxglove", "0",
+                                   "--foxglove-fps", "0"]])
 def test_bad_foxglove_options_are_exit_2(args, tmp_path):
     r = subprocess.run([sys.executable, "-m", "cosim.cli", *args, "--out", str(tmp_path / "o")],
                        capture_output=True, text=True, timeout=120)

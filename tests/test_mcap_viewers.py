@@ -11,6 +11,7 @@ import json
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from jsonschema import Draft202012Validator
@@ -19,7 +20,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from cosim.load import load_scenario, with_set
-from cosim.outputs.fox_topics import TOPICS
+from cosim.outputs.mcap import TOPICS
 from cosim.sim.master import RunOptions, run_scenario
 from mav.rotations import R_from_quat
 
@@ -114,6 +115,14 @@ def test_vision_fields_are_the_apps_frame_columns(seed, e1):
     assert len(msgs) == len(e1.frame_log) and "eps_px" in msgs[-1][1]
 
 
+def test_the_apps_commands_are_in_the_setpoint(e1):
+    """Visual servoing commands relative moves (MAV_FRAME_BODY_OFFSET_NED): /app/setpoint
+    carries each move in force (it had no position setpoint, and was empty)."""
+    moves = [m for _, m in read(e1.mcap)["/app/setpoint"][2] if "dx" in m]
+    assert moves and all(m["frame"] == 9 and {"dy", "dz", "dyaw"} <= set(m) for m in moves)
+    assert any(m["dx"] != 0.0 for m in moves)
+
+
 def _transform(tf) -> tuple[np.ndarray, np.ndarray]:
     q = tf.rotation
     return R_from_quat((q.w, q.x, q.y, q.z)), np.array(
@@ -121,7 +130,7 @@ def _transform(tf) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _frames(topics) -> tuple[tuple, list, list]:
-    static, flu = [tf for _, m in topics["/tf_static"][2] for tf in m.transforms]
+    static, flu = topics["/tf_static"][2][0][1].transforms     # the same every second
     assert (flu.parent_frame_id, flu.child_frame_id) == ("body", "body_flu")
     R_bf, _ = _transform(flu)
     assert np.allclose(R_bf @ np.array([0.0, 0.0, 1.0]), [0.0, 0.0, -1.0])   # z up = -z FRD
@@ -157,7 +166,7 @@ def test_transforms_put_the_vehicle_above_the_floor_right_way_up(which, request)
     assert z.max() > 0.4                          # and it flew
     assert min(up) > 0.9                          # right way up (not mirrored, not flipped)
     # the floor's top is z = 0 in the map: the slab of the scene lies under it
-    (scene,) = topics["/world/scene"][2]
+    scene = topics["/world/scene"][2][0]
     floor = scene[1].entities[0].cubes[0]
     top = floor.pose.position.z - 0.5 * floor.size.z          # NED: up is -z
     assert abs((R_mw @ np.array([floor.pose.position.x, floor.pose.position.y, top])
@@ -187,7 +196,9 @@ def test_camera_calibration_matches_each_image(seed, e1):
         K = res.scenario.camera.K()
         for (tc, c), (ti, i) in zip(cal, img, strict=True):
             assert tc == ti and c.frame_id == i.frame_id == "camera"
-            assert (c.width, c.height) == (i.width, i.height)
+            assert i.format == "jpeg"                          # the default
+            h, w = cv2.imdecode(np.frombuffer(i.data, np.uint8), cv2.IMREAD_COLOR).shape[:2]
+            assert (c.width, c.height) == (w, h)
             assert np.allclose(np.array(c.K).reshape(3, 3), K)
             assert np.allclose(np.array(c.P).reshape(3, 4)[:, :3], K)
 
@@ -214,7 +225,14 @@ def test_the_3d_world_is_in_the_scene(seed, e1):
 
 
 def test_vehicle_model_follows_the_body_frame(seed):
-    (model,) = read(seed.mcap)["/vehicle/model"][2]
+    model = read(seed.mcap)["/vehicle/model"][2][0]
     e = model[1].entities[0]
     assert e.frame_id == "body" and e.frame_locked and len(e.cubes) == 2
     assert len(e.cylinders) == 4 and len(e.arrows) == 1
+
+
+def test_an_e1_file_is_small(e1):
+    """E1's 856 x 480 frames as JPEG in zstd chunks: the whole run's file (22.5 s) must stay
+    under 30 MB (it measured 29.0 MB, docs/viewers.md; 264 MB with raw frames). This shorter
+    run keeps to that rate."""
+    assert e1.mcap.stat().st_size <= 30e6 * e1.t_end_s / 22.46, e1.mcap.stat().st_size

@@ -9,6 +9,10 @@ can plot it (`/vehicle/truth.z`). A value that is not a number (NaN: a setpoint 
 is left out of its message rather than sent as null: the schema says "number", and the
 viewers' JSON Schema readers take one type per field.
 
+Camera frames are `foxglove.CompressedImage` by default: JPEG (`JPEG_QUALITY`) or PNG
+(lossless) by the `images` setting (`cosim run --images`), `foxglove.RawImage` (rgb8) on
+request ("raw"): an E1 frame (856 x 480) is 1.2 MB raw, ~48 kB as JPEG.
+
 Frames and the 3D scene: `fox_scene.py`. Times are simulation time (ns since t = 0).
 """
 
@@ -22,6 +26,7 @@ import numpy as np
 from foxglove import Channel, Context, Schema
 from foxglove.channels import (
     CameraCalibrationChannel,
+    CompressedImageChannel,
     FrameTransformsChannel,
     PoseInFrameChannel,
     RawImageChannel,
@@ -29,6 +34,7 @@ from foxglove.channels import (
 )
 from foxglove.messages import (
     CameraCalibration,
+    CompressedImage,
     FrameTransforms,
     Pose,
     PoseInFrame,
@@ -36,10 +42,16 @@ from foxglove.messages import (
     Vector3,
 )
 
+from cosim.outputs import fox_overlay
 from cosim.outputs import fox_scene as fs
 from cosim.outputs.series import COL, ESTIMATE_COLUMNS
-from mav.rotations import R_from_quat, euler_from_quat
+from mav.rotations import R_from_quat, euler_from_quat, quat_from_euler
 
+IMAGES = ("jpeg", "png", "raw")        # how camera frames are stored and sent; the first: default
+# JPEG quality 65, Huffman tables optimized (lossless, ~2 % smaller): an E1 frame (856 x 480,
+# textured walls) ~48 kB, mean error ~4 of 255 per channel; quality 90 was ~95 kB and put an
+# E1 run's file at 56 MB (issue 42 asks <= 30 MB)
+JPEG_QUALITY = 65
 NUM, INT, STR = "number", "integer", "string"
 # the JSON topics' fields; a number may be missing (not finite), the fields in REQUIRED not
 JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
@@ -50,29 +62,70 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, str]]] = {
     # x, y, z from the series; a sensor-fed run's the rest of its estimate (ESTIMATE_COLUMNS)
     "/vehicle/estimate": ("cosim.VehicleEstimate", dict.fromkeys(
         (n[4:] for n in ESTIMATE_COLUMNS), NUM)),
-    "/app/setpoint": ("cosim.Setpoint", {"x": NUM, "y": NUM, "z": NUM}),
+    "/app/setpoint": ("cosim.Setpoint", {"x": NUM, "y": NUM, "z": NUM, "alt": NUM, "vx": NUM,
+                                         "vy": NUM, "vz": NUM, "yaw": NUM, "yaw_rate": NUM,
+                                         "dx": NUM, "dy": NUM, "dz": NUM, "dyaw": NUM,
+                                         "frame": INT}),
     "/vehicle/motors": ("cosim.Motors", {"u1": NUM, "u2": NUM, "u3": NUM, "u4": NUM}),
     "/app/phase": ("cosim.AppPhase", {"phase": STR, "index": INT}),
     "/app/vision": ("cosim.AppVision", {}),     # the app's frame columns (`Topics.vision`)
 }
 REQUIRED = {"/vehicle/truth": ("t",), "/app/phase": ("phase", "index")}
+# each JSON field's meaning and unit (the schemas' `description`, which a viewer shows): the
+# simulator's angles in degrees, MAVLink's in radians (their unit from pymavlink's fields)
+_NED = "world NED (x north, y east, z down), m"
+DESCRIPTIONS: dict[str, dict[str, str]] = {
+    "/vehicle/truth": {
+        "t": "simulation time, s", "x": f"north, {_NED}", "y": f"east, {_NED}",
+        "z": f"down, {_NED}", "vx": "velocity north, m/s", "vy": "velocity east, m/s",
+        "vz": "velocity down, m/s", "roll_deg": "roll, deg", "pitch_deg": "pitch, deg",
+        "yaw_deg": "yaw (heading from north), deg", "p": "body roll rate, rad/s",
+        "q": "body pitch rate, rad/s", "r": "body yaw rate, rad/s",
+        "alt": "altitude above the floor (-z), m"},
+    "/vehicle/estimate": {
+        "x": f"estimated north, {_NED}", "y": f"estimated east, {_NED}",
+        "z": f"estimated down, {_NED}", "vx": "estimated velocity north, m/s",
+        "vy": "estimated velocity east, m/s", "vz": "estimated velocity down, m/s",
+        "roll": "estimated roll, rad", "pitch": "estimated pitch, rad",
+        "yaw": "estimated yaw, rad", "lost": "1 while the estimate is lost, else 0"},
+    "/app/setpoint": {
+        "x": f"position setpoint north, {_NED}", "y": f"position setpoint east, {_NED}",
+        "z": f"position setpoint down, {_NED}",
+        "alt": "position setpoint altitude above the floor (-z), m",
+        # the app's SET_POSITION_TARGET_LOCAL_NED in force (run.mcap only: from the tlog)
+        "vx": "velocity setpoint x (in `frame`), m/s", "vy": "velocity setpoint y, m/s",
+        "vz": "velocity setpoint z (down), m/s", "yaw": "yaw setpoint, rad",
+        "yaw_rate": "yaw rate setpoint, rad/s",
+        "dx": "relative move forward (in `frame`), m", "dy": "relative move right, m",
+        "dz": "relative move down, m", "dyaw": "relative heading change, rad",
+        "frame": "the command's MAV_FRAME: 1 local NED (world axes), 8 body NED (x forward, "
+                 "y right, z down, turned by the heading only), 9 body offset NED (a relative "
+                 "move), enum"},
+    "/vehicle/motors": {f"u{i}": f"motor {i} command, 0..1" for i in range(1, 5)},
+    "/app/phase": {"phase": "the app's phase name", "index": "the app's phase index"},
+}
 TOPICS: dict[str, str] = {
     "/tf_static": "foxglove.FrameTransforms",
     "/tf": "foxglove.FrameTransforms",
     "/vehicle/pose": "foxglove.PoseInFrame",
     "/vehicle/model": "foxglove.SceneUpdate",
     "/world/scene": "foxglove.SceneUpdate",
-    "/camera/image": "foxglove.RawImage",
+    "/camera/image": "foxglove.CompressedImage",      # foxglove.RawImage with images="raw"
     "/camera/calibration": "foxglove.CameraCalibration",
     **{topic: name for topic, (name, _) in JSON_SCHEMAS.items()},
+    **fox_overlay.TOPICS,       # the estimate and the setpoint in the 3D view
 }
 MAVLINK = "/mavlink/"                     # + message name: one topic per MAVLink message type
 VISION_FIELDS = ("flag_track", "flag_marker", "e_x_px", "e_y_px")   # line follower's frames
 
 
-def json_schema(title: str, fields: dict[str, Any], required=()) -> dict[str, Any]:
-    """An object schema: each field of one JSON type (or a full schema), no other fields."""
-    props = {k: v if isinstance(v, dict) else {"type": v} for k, v in fields.items()}
+def json_schema(title: str, fields: dict[str, Any], required=(),
+                descriptions: dict[str, str] | None = None) -> dict[str, Any]:
+    """An object schema: each field of one JSON type (or a full schema) with its description
+    (meaning and unit), no other fields."""
+    props = {k: dict(v) if isinstance(v, dict) else {"type": v} for k, v in fields.items()}
+    for k, d in (descriptions or {}).items():
+        props[k]["description"] = d
     return {"title": title, "type": "object", "properties": props, "required": list(required),
             "additionalProperties": False}
 
@@ -87,13 +140,30 @@ def _finite(d: dict[str, float]) -> dict[str, float]:
     return {k: v for k, v in d.items() if math.isfinite(v)}
 
 
+def encode_image(img: np.ndarray, images: str) -> bytes:
+    """An H x W x 3 RGB frame as JPEG or PNG bytes (OpenCV's codecs: the same bytes for the
+    same frame)."""
+    import cv2
+
+    ext, params = ((".jpg", [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY, cv2.IMWRITE_JPEG_OPTIMIZE, 1])
+                   if images == "jpeg" else (".png", [cv2.IMWRITE_PNG_COMPRESSION, 3]))
+    ok, buf = cv2.imencode(ext, np.ascontiguousarray(img[..., ::-1]), params)
+    if not ok:
+        raise ValueError(f"cannot encode a {img.shape} frame as {images}")
+    return buf.tobytes()
+
+
 class Topics:
     """The channels of one vehicle's run on `ctx`; `prefix` namespaces them (a fleet's
-    vehicles: "/v1"), `body` names its body frame."""
+    vehicles: "/v1"), `body` names its body frame, `images` how camera frames are stored
+    (IMAGES)."""
 
-    def __init__(self, ctx: Context, scenario, *, prefix: str = "", body: str = fs.BODY
-                 ) -> None:
+    def __init__(self, ctx: Context, scenario, *, prefix: str = "", body: str = fs.BODY,
+                 images: str = IMAGES[0]) -> None:
+        if images not in IMAGES:
+            raise ValueError(f"images: one of {', '.join(IMAGES)}, not {images!r}")
         self.ctx, self.sc, self.prefix, self.body = ctx, scenario, prefix, body
+        self.images = images
         self.camera_frame = fs.CAMERA if body == fs.BODY else f"{body}_{fs.CAMERA}"
         p = prefix
         self.tf_static = FrameTransformsChannel(p + "/tf_static", context=ctx)
@@ -101,10 +171,16 @@ class Topics:
         self.pose = PoseInFrameChannel(p + "/vehicle/pose", context=ctx)
         self.model = SceneUpdateChannel(p + "/vehicle/model", context=ctx)
         self.scene = SceneUpdateChannel(p + "/world/scene", context=ctx)
-        self.image = RawImageChannel(p + "/camera/image", context=ctx)
-        self.calibration = CameraCalibrationChannel(p + "/camera/calibration", context=ctx)
+        # the camera's topics only for a vehicle with a camera (cosim sitl's have none)
+        cam = scenario.camera is not None
+        kind = RawImageChannel if images == "raw" else CompressedImageChannel
+        self.image = kind(p + "/camera/image", context=ctx) if cam else None
+        self.calibration = CameraCalibrationChannel(p + "/camera/calibration",
+                                                    context=ctx) if cam else None
         self.json = {topic: _channel(ctx, p + topic, json_schema(title, fields, REQUIRED.get(
-            topic, ()))) for topic, (title, fields) in JSON_SCHEMAS.items() if fields}
+            topic, ()), DESCRIPTIONS[topic])) for topic, (title, fields) in JSON_SCHEMAS.items()
+            if fields}
+        self.overlay = fox_overlay.Overlay(ctx, p)
         self.vision_fields: tuple[str, ...] = ()
         self._mav: dict[str, Channel] = {}
         self._static: tuple | None = None
@@ -125,15 +201,18 @@ class Topics:
     # ------------------------------------------------------------------ per tick
     def watched(self) -> bool:
         """Whether any per-tick or per-frame topic has a taker (a live view's client)."""
-        return any(ch.has_sinks() for ch in (self.tf, self.pose, self.image, self.calibration,
-                                             *self.json.values()))
+        return any(ch is not None and ch.has_sinks() for ch in (
+            self.tf, self.pose, self.image, self.calibration, *self.json.values(),
+            *self.overlay.channels()))
 
-    def row(self, r, phases: list[str], pose: bool = True, est=None) -> None:
+    def row(self, r, phases: list[str], pose: bool = True, est=None,
+            command: dict[str, float] | None = None) -> None:
         """One recorded tick (a row of the series, `recorder.SERIES_COLUMNS`); `pose`: also
         the body frame and the pose (a fleet's live view sends those more often); `est`: a
         sensor-fed run's estimate of that tick (ESTIMATE_COLUMNS), the rest of
-        `/vehicle/estimate`. A message nobody takes (a live view without a client on its
-        topic) is not even built."""
+        `/vehicle/estimate`; `command`: the app's setpoint command in force (velocities, yaw:
+        `mcap.commands`), the rest of `/app/setpoint`. A message nobody takes (a live view
+        without a client on its topic) is not even built."""
         c = COL
         t = float(r[c["t"]])
         t_ns = int(round(t * 1e9))
@@ -156,10 +235,20 @@ class Topics:
             ch = j[topic]
             if ch.has_sinks():
                 d = {k: float(r[c[prefix + k]]) for k in keys}
+                if prefix == "sp_":
+                    d["alt"] = -d["z"]
+                    if command:
+                        d.update(command)
                 if est is not None and prefix == "est_":
                     d.update({n[4:]: float(v) for n, v in zip(
                         ESTIMATE_COLUMNS[3:], est[3:], strict=True)})
                 ch.log(_finite(d), log_time=t_ns)
+        # the 3D view's estimate (its attitude: a sensor-fed run's estimate, else the truth's,
+        # as the odometry gives it) and setpoint
+        q_est = q if est is None else quat_from_euler(*(float(v) for v in est[6:9]))
+        self.overlay.add(t_ns, (float(r[c["est_x"]]), float(r[c["est_y"]]),
+                                float(r[c["est_z"]])), q_est,
+                         (float(r[c["sp_x"]]), float(r[c["sp_y"]]), float(r[c["sp_z"]])))
         ch = j["/app/phase"]
         if ch.has_sinks():
             pi = int(r[c["phase"]])
@@ -199,9 +288,13 @@ class Topics:
                 R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
                 P=K[0:3] + [0.0] + K[3:6] + [0.0] + K[6:9] + [0.0]), log_time=t_ns)
         if self.image.has_sinks():
-            self.image.log(RawImage(timestamp=stamp, frame_id=self.camera_frame, width=w,
-                                    height=h, encoding="rgb8", step=3 * w, data=img.tobytes()),
-                           log_time=t_ns)
+            if self.images == "raw":
+                msg = RawImage(timestamp=stamp, frame_id=self.camera_frame, width=w, height=h,
+                               encoding="rgb8", step=3 * w, data=img.tobytes())
+            else:
+                msg = CompressedImage(timestamp=stamp, frame_id=self.camera_frame,
+                                      data=encode_image(img, self.images), format=self.images)
+            self.image.log(msg, log_time=t_ns)
 
     def vision(self, record, columns=None) -> None:
         """One record of the app's frame log: (t, value per field...); `columns` (the app's
@@ -211,7 +304,8 @@ class Topics:
             self.vision_fields = tuple(columns)[1:] if columns else VISION_FIELDS
             title, _ = JSON_SCHEMAS["/app/vision"]
             self.json["/app/vision"] = _channel(self.ctx, self.prefix + "/app/vision", json_schema(
-                title, dict.fromkeys(self.vision_fields, NUM)))
+                title, dict.fromkeys(self.vision_fields, NUM), (), {
+                    k: vision_description(k) for k in self.vision_fields}))
         t_ns = int(round(float(record[0]) * 1e9))
         self.json["/app/vision"].log(_finite({k: float(v) for k, v in zip(
             self.vision_fields, record[1:], strict=False)}), log_time=t_ns)
@@ -241,6 +335,16 @@ class Topics:
         ch.log(d, log_time=t_ns)
 
 
+def vision_description(name: str) -> str:
+    """An app's per-frame output, its unit read from its name's suffix (`e_x_px`: px)."""
+    units = {"_px": "px", "_mps": "m/s", "_m": "m", "_deg": "deg", "_rad": "rad", "_s": "s",
+             "_radps": "rad/s"}
+    unit = next((u for suffix, u in units.items() if name.endswith(suffix)), None)
+    if name.startswith("flag_"):
+        return f"the app's per-frame flag {name[5:]}: 1 or 0"
+    return f"the app's per-frame output {name}" + (f", {unit}" if unit else "")
+
+
 _MAV_TYPES = {"float": NUM, "double": NUM, "char": STR}
 
 
@@ -250,6 +354,10 @@ def mavlink_schema(msg) -> dict[str, Any]:
     Floats (NaN is left out) and arrays holding NaN are optional."""
     name = msg.get_type()
     fields: dict[str, Any] = {"mavpackettype": STR, "sysid": INT, "compid": INT}
+    docs = {"mavpackettype": "the MAVLink message name", "sysid": "the sender's system id",
+            "compid": "the sender's component id"}
+    units = getattr(msg, "fieldunits_by_name", {}) or {}
+    enums = getattr(msg, "fieldenums_by_name", {}) or {}
     optional = set()
     lengths = dict(zip(msg.ordered_fieldnames, msg.array_lengths, strict=True))  # wire order
     for k, ctype in zip(msg.fieldnames, msg.fieldtypes, strict=True):
@@ -258,4 +366,7 @@ def mavlink_schema(msg) -> dict[str, Any]:
             optional.add(k)
         fields[k] = ({"type": "array", "items": {"type": base}} if lengths[k] and base != STR
                      else base)
-    return json_schema(f"mavlink.{name}", fields, [k for k in fields if k not in optional])
+        docs[k] = f"MAVLink {name}.{k}" + (f", {units[k]}" if k in units else "") + (
+            f" ({enums[k]})" if k in enums else "")
+    return json_schema(f"mavlink.{name}", fields, [k for k in fields if k not in optional],
+                       docs)

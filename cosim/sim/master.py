@@ -206,7 +206,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     if opts.mcap:
         from cosim.outputs.mcap import McapRun
 
-        mcap = McapRun(run_dir / "run.mcap", sc)
+        mcap = McapRun(run_dir / "run.mcap", sc, opts.images)
 
     phases: list[str] = []
     exit_reason, message = ExitReason.TIME_LIMIT, "time limit reached"

@@ -37,6 +37,7 @@ class RunOptions:
     sitl: bool = False                # no mission or arena exits: only crash, time, Ctrl-C
     hooks: Hooks | None = None        # fault injection (cosim.sim.hooks); None: no faults
     mcap: bool = False                # also write the run as run.mcap (Foxglove schemas)
+    images: str = "jpeg"              # camera frames in run.mcap: jpeg | png | raw
     live: Any = None                  # a cosim.outputs.live.LiveView serving the run live
     signing_key: bytes | None = None  # 32 bytes: the vehicle signs api/gcs, rejects unsigned
     # a camera whose frames are delayed (`[camera] latency_s`, `jitter_s`): True renders each

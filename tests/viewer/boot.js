@@ -1,6 +1,7 @@
 // Starts Foxglove Studio's App (the bundle's exports are globals) as its web app does, with
 // an in-memory layout store holding the layout served at /layout.json (id "cosim") and the
-// remote-file data source, so that ?ds=remote-file&ds.url=...&layoutId=cosim opens a run.
+// remote-file data source, so that ?ds=remote-file&ds.url=...&layoutId=cosim opens a run, and
+// the Foxglove WebSocket one (?ds=foxglove-websocket&ds.url=ws://...) for a live view.
 (async () => {
   const S = window;
   const layout = await (await fetch("/layout.json")).json();
@@ -29,7 +30,8 @@
   S.ReactDOM.render(S.React.createElement(S.App, {
     deepLinks: [window.location.href],
     appConfiguration,
-    dataSources: [new S.RemoteDataSourceFactory(), new S.McapLocalDataSourceFactory()],
+    dataSources: [new S.RemoteDataSourceFactory(), new S.McapLocalDataSourceFactory(),
+      new S.FoxgloveWebSocketDataSourceFactory()],
     layoutStorage,
     extensionLoaders: [],
     enableGlobalCss: true,

@@ -22,6 +22,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
+SHOTS = os.environ.get("COSIM_VIEWER_SHOTS")   # a folder: the tests keep their screenshots there
 NODE = Path(os.environ.get("COSIM_VIEWER_DIR", Path.home() / ".cache" / "cosim-viewer")
             ) / "node_modules"
 CHROMIUM = "/usr/bin/chromium"
@@ -117,7 +118,7 @@ def main() -> None:
     p.add_argument("mcap", type=Path)
     p.add_argument("png", type=Path)
     p.add_argument("--time", type=float, default=0.0, help="s of simulation time to show")
-    p.add_argument("--layout", type=Path, default=ROOT / "docs" / "cosim-layout.json")
+    p.add_argument("--layout", type=Path, default=ROOT / "docs" / "cosim-layout-studio1.json")
     p.add_argument("--wait", type=float, default=30.0, help="s to let it load and draw")
     a = p.parse_args()
     with serve(a.mcap, a.layout, NODE) as base, sync_playwright() as pw:
