@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
+from pymavlink.dialects.v20.common import MAV_CMD_COMPONENT_ARM_DISARM as ARM_DISARM
+from pymavlink.dialects.v20.common import MAV_RESULT_DENIED
 
 NAN = math.nan
 # Bounds of app parameters (issue 31). Every number an app takes (a distance in m, a time in
@@ -136,7 +138,9 @@ class FlightSequencer:
 
     arm -> AUTO.TAKEOFF to `takeoff_alt_m` -> stream setpoints for `stream_before_s` -> OFFBOARD
     -> (the app flies) -> `land()` -> AUTO.LAND -> disarmed. Commands that get no answer are
-    retried every `retry_s`. All timing is on the simulation clock `t`.
+    retried every `retry_s`. All timing is on the simulation clock `t`. Arming denied with a
+    "Preflight Fail: ..." STATUSTEXT (the vehicle's IMU is implausible: no retry mends it) ends
+    the prelude: state "refused", `refused` the text (the run ends there, cosim/sim/exits.py).
     """
 
     takeoff_alt_m: float = 1.0
@@ -146,6 +150,7 @@ class FlightSequencer:
     _t_sent: float = -1e9
     _t_stream: float = NAN
     events: list[tuple[float, str]] = field(default_factory=list)
+    refused: str = ""
 
     def __post_init__(self) -> None:
         alt = self.takeoff_alt_m
@@ -169,6 +174,9 @@ class FlightSequencer:
             if client.armed:
                 self.state = "takeoff"
                 self._t_sent = -1e9
+            elif self.preflight_failed(client):
+                self.state = "refused"
+                self.events.append((t, "arming_refused"))
             elif retry:
                 client.arm()
                 self._t_sent = t
@@ -197,6 +205,18 @@ class FlightSequencer:
             elif retry and client.mode != "AUTO.LAND":
                 client.land()
                 self._t_sent = t
+        return False
+
+    def preflight_failed(self, client: Any) -> bool:
+        """Whether the last arm was denied with a "Preflight Fail" (kept in `refused`)."""
+        if client.ack(ARM_DISARM) != MAV_RESULT_DENIED:
+            return False
+        for t_text, _, text in reversed(client.statustext):
+            if t_text < self._t_sent:
+                break
+            if text.startswith("Preflight Fail"):
+                self.refused = text
+                return True
         return False
 
     def land(self, t: float, client: Any) -> None:

@@ -3,7 +3,7 @@
 
 cdef class ExitMonitor:
     cdef dict __dict__
-    cdef public object arena, arena_box, app, t_touch, touchdown, scene, min_clearance
+    cdef public object arena, arena_box, app, seq, t_touch, touchdown, scene, min_clearance
     cdef public double h, body_radius
     cdef public bint sitl, airborne
     cdef public long ground_ticks, rest_ticks, disarmed_ticks

@@ -44,6 +44,18 @@ def left_arena(arena, n: float, e: float, d: float) -> Exit | None:
     return None
 
 
+# the vehicle's failsafes a run's message names when one fired (onboard_stats counters)
+FAILSAFES = (("failsafe_est_tilt", "estimator failure (attitude)"),
+             ("failsafe_est_vel", "estimator failure (velocity)"),
+             ("failsafe_imu", "no valid IMU data"))
+
+
+def failsafe_note(stats: dict) -> str:
+    """"; failsafe: <what>" for each failsafe of the vehicle that fired (`stats`: its
+    onboard_stats), or "" (the message of a run without one is unchanged)."""
+    return "".join(f"; failsafe: {what}" for k, what in FAILSAFES if stats.get(k, 0) > 0)
+
+
 class ExitMonitor:
     """The exit conditions and the touchdown bookkeeping they need.
 
@@ -60,6 +72,7 @@ class ExitMonitor:
                           arena[2] - ARENA_MARGIN_M, arena[3] + ARENA_MARGIN_M)
         self.h = tick_s
         self.app = app
+        self.seq = getattr(app, "seq", None)    # its FlightSequencer: arming refused ends it
         self.sitl = sitl
         self.airborne = False
         self.ground_ticks = 0
@@ -86,6 +99,8 @@ class ExitMonitor:
         airborne = self.airborne
         if not airborne and d < AIRBORNE_Z_M:
             self.airborne = airborne = True
+        elif not airborne and self.seq is not None and self.seq.state == "refused":
+            return ExitReason.APP_ABORTED, f"arming refused: {self.seq.refused}"
         if airborne:
             if y[Y_ON_GROUND] > 0.5:
                 if self.ground_ticks == 0:

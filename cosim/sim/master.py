@@ -38,7 +38,7 @@ from cosim.scenario.records import Scenario
 from cosim.sensors.camera import PngSink, VideoSink, make_camera
 from cosim.sensors.odometry import OdometrySensor
 from cosim.sensors.stream import FrameStream
-from cosim.sim.exits import ExitMonitor, ExitReason
+from cosim.sim.exits import ExitMonitor, ExitReason, failsafe_note
 from cosim.sim.onboard import OnboardHandle
 from cosim.sim.options import RunOptions
 from cosim.sim.tick import Tick
@@ -297,6 +297,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             plant.close()
         tlog.close()
         recorded = spool.finish()
+        message += failsafe_note(stats)      # why the vehicle did what it did, if it had to
         video_path = video.close() if video is not None else None
     res = RunResult(
         scenario=sc, mode=opts.mode, exit_reason=exit_reason, message=message,

@@ -5,15 +5,27 @@ ESTIMATOR_STATUS's flags. Its own module so the per-tick part is compiled (mav/_
 
 from __future__ import annotations
 
+import math
+
 import cython
 from pymavlink.dialects.v20 import common as M
 
 from mav import hil_sensors as hs
-from mav.estimator.template import CAL_TICKS, TemplateEstimator
+from mav.estimator.template import CAL_TICKS, FAIL_TILT, G, TemplateEstimator
 from mav.hil import odometry_of, tick_refusal
 from mav.rotations import quat_from_euler
 
 FRAME_LOCAL_NED = 1
+# The preflight checks of the IMU at rest (its CAL_TICKS readings of the alignment, then the
+# low-passed specific force), as PX4's commander's with its defaults: COM_ARM_IMU_ACC 0.7 m/s^2
+# and COM_ARM_IMU_GYR 0.25 rad/s (imuConsistencyCheck: with one IMU, the accelerometer against
+# gravity's magnitude, the gyro's spread at rest), the gyro bias under 0.75 x EKF2_GYR_B_LIM
+# 0.15 rad/s (estimatorCheck's "High Gyro Bias"), roll and pitch within the failure detector's
+# FD_FAIL_R / FD_FAIL_P 60 deg (failureDetectorCheck)
+ARM_IMU_ACC = 0.7
+ARM_IMU_GYR = 0.25
+ARM_GYRO_BIAS = 0.75 * 0.15
+ARM_TILT = math.radians(60.0)
 
 
 class Estimator:
@@ -38,6 +50,29 @@ class Estimator:
         """It has had sensor messages (the vehicle flies on it)."""
         return self.impl.n > 0
 
+    @cython.locals(e=TemplateEstimator)
+    def preflight(self) -> str | None:
+        """Why arming must wait or is refused: the attitude not aligned yet (the first
+        CAL_TICKS readings at rest, as PX4 waits for EKF2's tilt alignment), an implausible IMU
+        at rest ("Preflight Fail: ...", see ARM_IMU_ACC), or an estimate that failed in flight."""
+        e = self.impl
+        if e.n < CAL_TICKS:
+            return "attitude not aligned yet (estimator)"
+        if e.fail:
+            return "Preflight Fail: estimator failed, reboot"
+        a = math.sqrt(e.alp0 * e.alp0 + e.alp1 * e.alp1 + e.alp2 * e.alp2)
+        if not abs(a - G) <= ARM_IMU_ACC:
+            return f"Preflight Fail: Accel 0 reads {a:.1f} m/s^2 at rest"
+        b = math.sqrt(e.bg0 * e.bg0 + e.bg1 * e.bg1 + e.bg2 * e.bg2)
+        if not b <= ARM_GYRO_BIAS:
+            return "Preflight Fail: High Gyro Bias"
+        if not math.sqrt(max(0.0, e.sg2 - b * b)) <= ARM_IMU_GYR:
+            return "Preflight Fail: Gyro 0 inconsistent at rest"
+        if not (abs(e.roll) <= ARM_TILT and abs(e.pitch) <= ARM_TILT):
+            return "Preflight Fail: Attitude failure (" + (
+                "roll)" if abs(e.roll) > ARM_TILT else "pitch)")
+        return None
+
     def status_flags(self) -> int:
         """ESTIMATOR_STATUS_FLAGS of the estimate: attitude once calibrated, vertical from the
         barometer, height above ground while the sonar is fused, horizontal velocity and
@@ -55,6 +90,8 @@ class Estimator:
             f |= M.ESTIMATOR_CONST_POS_MODE
         if 0 < e.gps_us and t - e.gps_us < 1_000_000:
             f |= M.ESTIMATOR_POS_HORIZ_ABS
+        if e.fail == FAIL_TILT:
+            f |= M.ESTIMATOR_ACCEL_ERROR       # the accelerometer and the attitude disagree
         return f
 
 

@@ -18,6 +18,8 @@ cdef class TemplateEstimator:
     cdef public double bg0, bg1, bg2, alp0, alp1, alp2
     cdef public double p0_hpa, pzz, pzv, pvv, pzb, pvb, pbb, bz, pvx, pvy
     cdef public bint lost
+    cdef public double tr_tilt, tr_vel, tr_hgt, sg2
+    cdef public long fail
     cdef public double w_acc, acc_gate, w_mag, decl, q_acc, q_ab, abl_lim, r_baro, baro_gate
     cdef public double r_rng
     cdef public double rng_gate, of_q, of_r, of_qmin, of_gate, w_gps

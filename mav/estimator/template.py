@@ -82,6 +82,18 @@ GPS_REQ_NSATS = 6
 GPS_P_GATE = cython.declare(cython.double, 5.0)
 GPS_P_NOISE_M = cython.declare(cython.double, 0.5)
 GPS_RESET_US = 7_000_000
+# Innovation test ratios, EKF2's: innovation^2 / (gate^2 * innovation variance), > 1 outside
+# the gate; here each low-passed by TR_K (1 s: a ratio above 1 is then sustained, not one
+# noisy sample), kept in tr_tilt, tr_vel, tr_hgt. Tilt: the accelerometer's gravity direction
+# against the estimated roll and pitch (gate TILT_GATE rad, whenever the accelerometer
+# corrects the tilt); velocity: the flow's (gate EKF2_OF_GATE's PX4 default, 3 SD, of
+# P + EKF2_OF_R); height: the barometer's (EKF2_BARO_GATE's PX4 default, 5 SD, of P + R).
+# A tilt or velocity ratio above 1 in flight: the estimate has failed (`fail`), for good.
+TILT_GATE2 = cython.declare(cython.double, 0.2 * 0.2)
+VEL_GATE2 = cython.declare(cython.double, 3.0 * 3.0)
+HGT_GATE2 = cython.declare(cython.double, 5.0 * 5.0)
+TR_K = cython.declare(cython.double, 0.005)       # per tick: 1 s at 200 Hz
+FAIL_TILT, FAIL_VEL = 1, 2                        # `fail`: what failed (0: nothing)
 
 
 def _finite(s: float) -> bool:
@@ -142,6 +154,9 @@ class TemplateEstimator:
         self.rng_rej_since = -1
         self.gps_rej_since = -1                            # fixes gated out since
         self.lost = False
+        self.tr_tilt = self.tr_vel = self.tr_hgt = 0.0     # innovation test ratios (low-passed)
+        self.fail = 0                                      # FAIL_TILT, FAIL_VEL: failed
+        self.sg2 = 0.0                # at rest (alignment): the gyro's mean squared norm
 
     def configure(self, own: dict[str, float]) -> None:
         self.w_acc = own["TPL_ACC_W"]
@@ -197,7 +212,14 @@ class TemplateEstimator:
                        + self.pitch + self.yaw + self.p + self.q + self.r + self.bz + self.pzz
                        + self.pvv + self.pbb + self.pvx + self.pvy):
             self._reset()
-        if self.lost:        # regained only by an aiding source fused, never by descending
+        if self.fail == 0 and self.z < -0.15:      # in flight (the vehicle acts on it)
+            if self.tr_tilt > 1.0:
+                self.fail = FAIL_TILT
+            elif self.tr_vel > 1.0:
+                self.fail = FAIL_VEL
+        if self.fail:              # the estimate failed: the position lost for good (PX4: the
+            lost = True            # local position invalid, "Land and recalibrate sensors")
+        elif self.lost:      # regained only by an aiding source fused, never by descending
             lost = self.aid_us != t_us      # below 0.5 m on dead reckoning (issue 43)
         else:
             lost = self.z < -0.5 and t_us - self.aid_us > self.noaid_us
@@ -235,6 +257,7 @@ class TemplateEstimator:
             self.alp0 += (ax - self.alp0) / (n + 1)
             self.alp1 += (ay - self.alp1) / (n + 1)
             self.alp2 += (az - self.alp2) / (n + 1)
+            self.sg2 += (gx * gx + gy * gy + gz * gz - self.sg2) / (n + 1)
             self.roll = _atan2(-self.alp1, -self.alp2)
             self.pitch = _atan2(self.alp0, _sqrt(self.alp1 * self.alp1 + self.alp2 * self.alp2))
         p, q, r = gx - self.bg0, gy - self.bg1, gz - self.bg2
@@ -258,6 +281,7 @@ class TemplateEstimator:
             er = _atan2(-self.alp1, -self.alp2) - self.roll
             ep = _atan2(self.alp0, _sqrt(self.alp1 * self.alp1 + self.alp2 * self.alp2)) \
                 - self.pitch
+            self.tr_tilt += TR_K * ((er * er + ep * ep) / TILT_GATE2 - self.tr_tilt)
             self.roll += w * er
             self.pitch += w * ep
             if n >= _CAL:                          # near level: body p, q ~ roll, pitch rates
@@ -322,6 +346,8 @@ class TemplateEstimator:
             self.p0_hpa = hpa + self.z * (1.225 * _G) / 100.0
             return
         z_b = (hpa - self.p0_hpa) * 100.0 / (1.225 * _G)
+        self.tr_hgt += TR_K * ((z_b - self.z) * (z_b - self.z) / ((self.pzz + self.r_baro)
+                                                                * HGT_GATE2) - self.tr_hgt)
         if abs(z_b - self.z) > self.baro_gate:
             st["est_rej_baro"] += 1
             return
@@ -417,6 +443,9 @@ class TemplateEstimator:
         vbz = (cph * sth * cps + sph * sps) * self.vx + (cph * sth * sps - sph * cps) * self.vy \
             + cph * cth * self.vz
         vn, ve, _ = to_world(ph, th, ps, vbx, vby, vbz)
+        self.tr_vel += TR_K * (max((vn - self.vx) * (vn - self.vx) / (self.pvx + self.of_r),
+                                   (ve - self.vy) * (ve - self.vy) / (self.pvy + self.of_r))
+                               / VEL_GATE2 - self.tr_vel)
         if abs(vn - self.vx) > self.of_gate or abs(ve - self.vy) > self.of_gate:
             st["est_rej_flow"] += 1
             return False

@@ -171,7 +171,8 @@ class Commander:
             return M.MAV_RESULT_TEMPORARILY_REJECTED
         why = self.preflight() if self.preflight is not None else None
         if why:
-            self.out.statustext(f"Arming denied: {why}", M.MAV_SEVERITY_CRITICAL)
+            self.out.statustext(why if why.startswith("Preflight Fail") else
+                                f"Arming denied: {why}", M.MAV_SEVERITY_CRITICAL)
             return M.MAV_RESULT_DENIED
         if vs.mode in (LAND, RTL):
             self.out.statustext(f"Arming denied: vehicle is in {MODE_NAMES[vs.mode]}",

@@ -11,7 +11,9 @@
 - geofence: a cylinder about home, GF_MAX_HOR_DIST radius and GF_MAX_VER_DIST height (0: no
   limit), checked while flying: GF_ACTION (0 none, 1 warn, 2 hold, 3 return, 5 land);
 - IMU failed (the onboard estimator without a usable IMU reading for IMU_FAIL_US in flight):
-  land, blind (`imu_missing`).
+  land, blind (`imu_missing`);
+- estimator failed (its tilt or velocity innovation test ratio, mav/estimator/template.py,
+  above 1 in flight): the position lost for good, land (`estimator_failed`).
 
 An action fires once per event (the link lost, a battery level crossed, the fence breached);
 the user can take over with a new mode at once, as on PX4. Nothing fires on the ground."""
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import math
 
+from mav.estimator.template import FAIL_TILT
 from mav.onboard.channels import Outbox
 from mav.onboard.commander import Commander
 from mav.onboard.defs import LAND, LOITER, ON_GROUND, RTL, M
@@ -51,6 +54,7 @@ class Failsafe:
         self.blind_us = -1         # the IMU failsafe's blind descent: since when (-1: none)
         self.blind_end_us = 0      # ... and when it disarms
         self.u_blind = 0.0         # ... at this command on every motor
+        self.est_fail = 0          # the estimator's failure acted on (template.FAIL_*)
 
     def offboard_lost(self, t: int) -> None:
         """OFFBOARD without a setpoint for COM_OF_LOSS_T: hold position."""
@@ -144,10 +148,28 @@ class Failsafe:
             self.cmd.set_landed(ON_GROUND)
             self.cmd.disarm("Blind descent over, disarmed")
 
-    def imu_back(self) -> None:
-        """An IMU reading again: the blind descent ends (the landing goes on, estimated)."""
-        self.blind_us = -1
-        self.out.statustext("IMU data back", M.MAV_SEVERITY_WARNING)
+    def imu_ok(self, e) -> None:
+        """A tick with an IMU reading, while blind or when the estimate `e` has just failed:
+        the estimator's failsafe, or the blind descent's end (the IMU is back)."""
+        if e.fail != self.est_fail:
+            self.est_fail = e.fail
+            self.estimator_failed(e)
+        elif self.blind_us >= 0:         # an IMU reading again: the blind descent ends (the
+            self.blind_us = -1           # landing goes on, estimated)
+            self.out.statustext("IMU data back", M.MAV_SEVERITY_WARNING)
+
+    def estimator_failed(self, e) -> None:
+        """The estimator's tilt or velocity test ratio stayed above 1 in flight (template.py):
+        it has failed for good (PX4: "Navigation failure! Land and recalibrate sensors") and
+        its position is lost (held level on the estimated attitude, at the estimated altitude,
+        as PX4 with its local position invalid): land. (A blind descent, all motors equal as
+        without an IMU, keeps a tilt the estimate got wrong: measured, it flew 4 m off and
+        touched down at 3.1 m/s where this landing landed.)"""
+        vs = self.vs
+        tilt = e.fail == FAIL_TILT
+        vs.stats["failsafe_est_tilt" if tilt else "failsafe_est_vel"] += 1
+        why = "estimator failure (" + ("attitude)" if tilt else "velocity)")
+        self.act(3, why)
 
     # ------------------------------------------------------------------ geofence
     def check_geofence(self) -> None:

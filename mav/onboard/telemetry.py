@@ -312,8 +312,10 @@ class Telemetry:
         valid; with the onboard estimator its own flags (`Estimator.status_flags`)."""
         vs = self.vs
         est = self.estimator
+        r_vel = r_hgt = 0.0
         if est is not None and est.enabled and est.active:
             flags = est.status_flags()
+            r_vel, r_hgt = est.impl.tr_vel, est.impl.tr_hgt    # its test ratios, low-passed
         elif vs.have_state:
             flags = (M.ESTIMATOR_ATTITUDE | M.ESTIMATOR_VELOCITY_VERT | M.ESTIMATOR_POS_VERT_ABS
                      | (M.ESTIMATOR_CONST_POS_MODE if vs.pos_lost_us >= 0 else
@@ -321,7 +323,7 @@ class Telemetry:
         else:
             flags = 0
         ch.send(wire.send_msg(ch.mav, M.MAVLink_estimator_status_message(
-            vs.t_us, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)))
+            vs.t_us, flags, r_vel, 0.0, r_hgt, 0.0, 0.0, 0.0, 0.0, 0.0)))
 
     def emit_highres_imu(self, ch: Chan) -> None:
         """HIGHRES_IMU DERIVED from the estimate, not a sensor model: accelerometer = specific

@@ -72,7 +72,8 @@ STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
          "unknown_msgs", "unhandled_msgs", "not_for_us", "unsigned_rejected", "badsig_rejected",
          "setpoints", "rejected_setpoints", "commands", "commands_unsupported", "param_sets",
          "param_rejected", "param_denied_armed", "drain_deferred", "handler_errors",
-         "odometry_lost", "faults_injected", "inject_denied", "failsafe_imu")
+         "odometry_lost", "faults_injected", "inject_denied", "failsafe_imu",
+         "failsafe_est_tilt", "failsafe_est_vel")
 
 
 class Onboard:
@@ -172,8 +173,8 @@ class Onboard:
         attitude not aligned yet (its first CAL_TICKS readings at rest, as PX4 waits for
         EKF2's tilt alignment)."""
         why = self.parameters.arming_problem()
-        if why is None and self.estimator.enabled and not self.estimator.aligned:
-            why = "attitude not aligned yet (estimator)"
+        if why is None and self.estimator.enabled:     # aligned, a plausible IMU at rest
+            why = self.estimator.preflight()
         return why
 
     # ------------------------------------------------------------------ public helpers
@@ -374,8 +375,8 @@ class Onboard:
             self.outbox.statustext("Estimator reset: its state was not finite",
                                    M.MAV_SEVERITY_CRITICAL)
         if imu_ok:
-            if fs.blind_us >= 0:
-                fs.imu_back()
+            if fs.blind_us >= 0 or fs.est_fail != self.estimator.impl.fail:
+                fs.imu_ok(self.estimator.impl)
             self._step_modes(t_us)
         else:
             fs.imu_missing(t_us, self.estimator.impl, self.vehicle)
