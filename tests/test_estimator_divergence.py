@@ -42,7 +42,7 @@ def _texts(res) -> list[str]:
 def _at_rest(**params) -> str | None:
     """The estimator's preflight answer after 1 s at rest on the floor with these sensors."""
     own = {p.name: p.default for p in ONBOARD_PARAMS}
-    own["EKF2_TYPE"] = 1.0
+    own["TPL_EST_TYPE"] = 1.0
     est = Estimator(own, {}, FlatEarth(42.3, -71.35, 71.0))
     su = SensorSuite(SensorsSpec(feed="hil", params=replace(SensorParams(), **params)), 0,
                      0.005, (0.0, 0.0), True)

@@ -87,7 +87,7 @@ GPS_RESET_US = 7_000_000
 # noisy sample), kept in tr_tilt, tr_vel, tr_hgt. Tilt: the accelerometer's gravity direction
 # against the estimated roll and pitch (gate TILT_GATE rad, whenever the accelerometer
 # corrects the tilt); velocity: the flow's (gate EKF2_OF_GATE's PX4 default, 3 SD, of
-# P + EKF2_OF_R); height: the barometer's (EKF2_BARO_GATE's PX4 default, 5 SD, of P + R).
+# P + TPL_OF_R); height: the barometer's (EKF2_BARO_GATE's PX4 default, 5 SD, of P + R).
 # A tilt or velocity ratio above 1 in flight: the estimate has failed (`fail`), for good.
 TILT_GATE2 = cython.declare(cython.double, 0.2 * 0.2)
 VEL_GATE2 = cython.declare(cython.double, 3.0 * 3.0)
