@@ -296,6 +296,7 @@ class ImageProcessor(AlongLine):
         self.prev_direction = self.params.initial_direction
         self._ref_dir = self.prev_direction     # direction of the last clean frame (junctions)
         self._clean = False
+        self._start = True                      # no line found yet (ips_along: the start)
 
     def _threshold_matrix(self, image_rgb: np.ndarray) -> np.ndarray:
         """The binarisation matrix for this frame (adaptive K_T: half the frame's 99th
@@ -415,6 +416,7 @@ class ImageProcessor(AlongLine):
             e_x, e_y = r0 - row, col - c0
             vtp: tuple[float, float] | None = (row, col)
             self.prev_seen = True
+            self._start = False
             if math.hypot(e_x, e_y) >= self._min_vtp_r:
                 self.prev_direction = math.atan2(e_x, e_y)
                 if along is None or self._clean:

@@ -51,7 +51,10 @@ class AlongLine:
         where the two overlap ahead), the line
         ends within reach counted as ways too (a track that goes straight over a crossing
         and ends just after it), and none if no way lies within the arc of that direction.
-        After a miss: the pieces within the search arc.
+        After a miss: the pieces within the search arc. The first sight of the line over a
+        crossing (a track whose end crosses its beginning at the start): the piece nearest
+        the way the line near the drone leans (the track begins under the drone; the
+        crossing line passes through, balanced).
 
         (row, col) crop coordinates of the chosen point and its pixel count (0: none found);
         None when no line lies under the drone (nearest line pixel farther than r_min / 2
@@ -109,6 +112,19 @@ class AlongLine:
                     ex, ey = r0 - (rows + o_r), (cols + o_c) - c0
                     rad = np.maximum(np.hypot(ex, ey), 1e-9)
                     cand = np.concatenate((cand, np.arange(k - 1, k - 1 + kt - 1)))
+        if self._start and cand.size > 1:
+            # the first sight of the line, over a crossing (a track whose end crosses its
+            # beginning under the start; issue 44): the track begins under the drone, so the
+            # line near it is lopsided: what the growth reached within a line's width or so
+            # of the seed pixel lies towards the way on; a line that passes through (the
+            # crossing one) is balanced. The way on is the piece nearest that direction.
+            near = steps[min(n, 2 * self._k_frame.shape[0] + 3)]
+            rr, cc = np.nonzero(near)
+            sr, sc = divmod(int(idx[j]), m.shape[1])
+            dx, dy = sr - float(rr.mean()), float(cc.mean()) - sc     # up, right (px)
+            if math.hypot(dx, dy) >= 1.0:
+                lean = (ey[cand] * dy + ex[cand] * dx) / rad[cand]
+                cand = cand[[int(np.argmax(lean))]]
         if not cand.size:
             return 0.0, 0.0, 0
         self._clean = cand.size == 1

@@ -16,6 +16,10 @@ Parameters (`[app.params]`), all optional:
   taken for it; nearest-branch tracking; a loss first coasts `coast_m` (0.35 m) on. See the
   docstrings of ips.py and planner.py for the differences.
 - `alpha` (m/px): track gain (released GAIN_TRACK = 0.0038); `beta` (m/px): marker gain.
+  The general preset scales the default `alpha`, `beta` and `deriv_gain` by the camera height
+  over the seed's (1.0 m): a metre on the floor is fewer pixels from higher up, so the same
+  offset in metres (the same speed) needs a gain in m/px in proportion to the height. A gain
+  the user gives is taken as given, at any height (released / paper: never scaled).
 - `deriv_gain` (m/px), `hover_alt_m` (m above the floor), `search_on_loss` (bool),
   `lost_timeout_s`, `mission_timeout_s` (s).
 - `k_t` (threshold), `r_min_px`, `r_max_px`, `arc_width_rad`: IPS overrides.
@@ -71,6 +75,14 @@ DEFAULTS: dict[str, Any] = {
     "measured_width": True,
 }
 
+
+# The camera height the default gains (the released code's, in m/px) were tuned at: the
+# template's z_ref = -1.1 m with the camera 0.1 m below the centre of gravity
+# (reference/minidrone.md §4), computed as the general preset computes a flight's, so that the
+# default flight's scale is exactly 1.0.
+SEED_CAMERA_HEIGHT_M = -PlannerParams().z_hover - DEFAULTS["camera_below_cog_m"]
+# the planner's gains in m/px, scaled with the camera height by the general preset
+GAINS_PER_PX = ("gain_track", "gain_marker", "deriv_gain")
 
 # the phase names the master records, by mission state
 _PHASE = {s: s.value for s in MissionState}
@@ -139,6 +151,14 @@ class LineFollowerApp:
         if p["preset"] == "general":          # pixel constants from the camera and height
             hover = -maker_pl(**pl).z_hover if "z_hover" not in pl else -pl["z_hover"]
             cam_h = hover - float(p["camera_below_cog_m"])
+            # the gains are m/px: scaled by the camera height against the seed's, the offset
+            # per frame in floor metres (and so the speed) is the height's seed one; a gain the
+            # user gives stays as given. At the seed height the scale is exactly 1.0.
+            scale = cam_h / SEED_CAMERA_HEIGHT_M
+            seed_gains = maker_pl()
+            for name in GAINS_PER_PX:
+                if name not in pl:
+                    pl[name] = getattr(seed_gains, name) * scale
             geo = {"camera_height_m": cam_h, "vfov_deg": float(p["camera_vfov_deg"]),
                    "line_width_m": float(p["line_width_m"]),
                    "marker_radius_m": float(p["marker_radius_m"]),

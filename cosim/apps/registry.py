@@ -19,8 +19,11 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import math
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from cosim.errors import ComponentError, ScenarioError
 from cosim.scenario.records import AppSpec
@@ -119,7 +122,9 @@ def check_inputs(spec: AppSpec, camera, source: str | None, arena=None, scene=No
     pose the vehicle can hold in the world (`scene`, a 3D world): its body sphere
     (`body_radius`) clear of every wall, the ceiling, box and column (the collision query
     `Scene.clearance`) and of the floor. (A taught folder's poses are the ones it was taught
-    at, for metrics only: checked against the arena alone.)
+    at, for metrics only: checked against the arena alone.) With feed-forward the taught
+    path, poses and legs, must keep `ff_clearance_m` from the room (`_check_feedforward_clear`;
+    a taught folder's poses too).
     ScenarioError naming the field, with the file and field at fault."""
     points: list[tuple[str, tuple[float, ...]]] = []
     poses: list[tuple[str, tuple[float, ...]]] = []      # taught poses: held in the world
@@ -157,6 +162,9 @@ def check_inputs(spec: AppSpec, camera, source: str | None, arena=None, scene=No
     if scene is not None and not scene.empty:
         for name, (n, e, d) in poses:
             _check_pose_clear(name, (n, e, d), scene, body_radius)
+        if spec.name == "visual_servo" and p["feedforward"]:
+            _check_feedforward_clear(poses or points, scene, body_radius,
+                                     float(p["ff_clearance_m"]))
 
 
 def _check_pose_clear(name: str, ned: tuple[float, ...], scene, radius: float) -> None:
@@ -173,6 +181,40 @@ def _check_pose_clear(name: str, ned: tuple[float, ...], scene, radius: float) -
         raise ScenarioError(name, [n, e, d], f"a pose the vehicle can hold: it is {where} "
                             f"the {what.removeprefix('the ')} (clearance {gap:.2f} m with "
                             f"the body radius {radius:g} m)")
+
+
+FF_STEP_M = 0.05     # m, spacing of the points checked along a taught path's legs
+
+
+def _check_feedforward_clear(poses: list[tuple[str, tuple[float, ...]]], scene,
+                             radius: float, clearance: float) -> None:
+    """Feed-forward (paper 2, Eqs. 31-32) pushes the vehicle along the taught path's legs
+    whatever it sees; the paper's Alg. 2 has it without avoidance, its paths having no
+    obstacles (reference/paper2-visual-servoing.md, item 13). It is refused (a
+    ScenarioError naming `app.params.feedforward`) when the body sphere at a taught pose, or
+    anywhere on the straight leg between consecutive poses, comes closer than `clearance`
+    (`app.params.ff_clearance_m`) to a wall, the ceiling, a box or a column: the corridor
+    avoidance task sees columns only, never a wall or a box."""
+    pts = [np.asarray(ned[:3], float) for _, ned in poses]
+    worst = (math.inf, "", "")
+    for i, a in enumerate(pts):
+        b = pts[i + 1] if i + 1 < len(pts) else a
+        n = max(1, math.ceil(float(np.linalg.norm(b - a)) / FF_STEP_M))
+        for s in np.linspace(0.0, 1.0, n + 1):
+            q = a + s * (b - a)
+            gap, what = scene.clearance(float(q[0]), float(q[1]), float(q[2]), radius)
+            if gap < worst[0]:
+                where = poses[i][0] if s == 0.0 or b is a else \
+                    f"the leg {poses[i][0]} -> {poses[i + 1][0]}"
+                worst = (gap, what, where)
+    gap, what, where = worst
+    if gap < clearance:
+        raise ScenarioError("app.params.feedforward", True, f"false on this path, or a "
+                            f"taught path clear of the room by app.params.ff_clearance_m = "
+                            f"{clearance:g} m: {where} passes {gap:.2f} m from the "
+                            f"{what.removeprefix('the ')} (body radius {radius:g} m); "
+                            "feed-forward flies the taught legs blind and the avoidance task "
+                            "sees columns only")
 
 
 def _param_value(spec: AppSpec, path: str) -> object:

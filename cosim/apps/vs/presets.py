@@ -14,6 +14,8 @@ Values from paper 2 Sec. 5 (reference/paper2-visual-servoing.md §3). Names:
 - `ramp_s`: activation ramps h_a, h_m (Eq. 20); `smoothing`, `smoothing_s`, `h0`: Eqs. 28-30.
 - `feedforward`, `gamma`, `p`, `rising_n`: Eqs. 31-32 and the "error rising" switch rule;
   `rising_max_px` > 0 (ours, off by default) applies that rule only while eps is below it.
+  `ff_clearance_m` (ours, issue 44): feed-forward is refused at load on a taught path whose
+  poses or straight legs bring the body closer than this to the room (registry.py).
 - `low_level`, `moveby_dt_s`: how the command reaches the vehicle (`lowlevel.py`).
 Ours, for rooms and paths nobody tuned the app for (issue 28; docs/papers/visual-servoing.md):
 - `h_jump`, `h_hold_n`: the homography choice (vs/choice.py HomographyChoice): a candidate
@@ -59,6 +61,7 @@ DEFAULTS: dict[str, Any] = {
     "visibility": True, "lambda_m": 0.2, "margin": 0.1, "visibility_depth_m": 2.0,
     "ramp_s": 1.0, "smoothing": False, "smoothing_s": 1.6, "h0": 0.2,
     "feedforward": False, "gamma": 0.75, "p": 0.5, "rising_n": 5,
+    "ff_clearance_m": 0.4,        # m: feed-forward only on a taught path this clear of the room
     "rising_max_px": 0.0,         # 0: no bound (the paper's rule)
     "min_matches": 16, "min_tracked": 8, "outlier_px": 2.0,
     "v_max_mps": 1.0, "wz_max_dps": 60.0,
@@ -126,7 +129,8 @@ def resolve(params: dict[str, Any]) -> dict[str, Any]:
     if out["min_tracked"] < 8 or out["min_matches"] < out["min_tracked"]:
         raise ValueError("app.params.min_tracked: a homography needs >= 8 points, and "
                          "min_matches must be >= min_tracked")
-    for k in ("ramp_s", "smoothing_s", "hold_final_s", "turn_deg", "turn_t_ev", "turn_wait_s"):
+    for k in ("ramp_s", "smoothing_s", "hold_final_s", "turn_deg", "turn_t_ev", "turn_wait_s",
+              "ff_clearance_m"):
         if not float(out[k]) >= 0.0:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected a number >= 0")
     if out["low_level"] not in LOW_LEVELS:
