@@ -199,3 +199,34 @@ def test_the_longest_cases_are_flown_first(tmp_path):
         '[{"suite": "cosim", "id": "a", "wall_s": 50.0}, {"suite": "cosim", "id": "d", '
         '"wall_s": 1.0}]')
     assert [j.case.id for j in jobs_for(cases, out)] == ["a", "b", "c", "d"]
+
+
+def test_exact_true_fails_on_a_bit_where_bits_can_be_expected(tmp_path):
+    """exact = true: a portable baseline with the same versions must be met bit for bit;
+    with other versions (or natively) the tubes decide and a note says why. By default the
+    tubes decide and the verdict only reports the bits."""
+    from cosim.regress.baseline import Baseline
+    from cosim.regress.cases import Case
+    from cosim.regress.compare import check
+    from cosim.regress.flight import Flight
+
+    t = traj(lambda t: 0.01 * t)
+    t = {**t, "e": t["n"], "alt": t["n"], "yaw": t["n"]}
+    versions = {"numpy": "2.4.6"}
+
+    def flight(sha, v=versions):
+        return Flight(tmp_path, 0, {"passed": True, "exit_reason": "mission_complete",
+                                    "numerics": {"mode": "portable"}, "versions": v},
+                      metrics={"m": 1.0}, trajectory=t, series_sha256=sha)
+    base = Baseline(tmp_path / "c.json", {"exit_reason": "mission_complete", "rate_hz": 10.0,
+                                          "numerics": "portable", "versions": versions,
+                                          "series_sha256": "a", "metrics": {"m": 1.0}}, t)
+    strict = Case(id="c", scenario=SQUARE, tolerance=Tolerances().refined({"exact": True}, "t"))
+    plain = Case(id="c", scenario=SQUARE)
+    v = check(strict, {"run": flight("b")}, base)
+    assert v["status"] == "failed" and v["failures"][0].startswith("not bit for bit")
+    assert check(strict, {"run": flight("a")}, base)["status"] == "passed"
+    v = check(strict, {"run": flight("b", {"numpy": "2.5.0"})}, base)
+    assert v["status"] == "passed" and "numpy 2.4.6 -> 2.5.0" in v["notes"][0]
+    v = check(plain, {"run": flight("b")}, base)
+    assert v["status"] == "passed" and v["exact"] == "differs" and not v["notes"]

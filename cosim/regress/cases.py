@@ -63,7 +63,10 @@ class Tolerances:
     metrics: dict[str, Tol] = field(default_factory=dict)
     metric: Tol = Tol(1e-6, 0.02)          # any metric not named in `metrics`
     ignore_metrics: tuple[str, ...] = ()
-    exact: str = "auto"                    # auto: exact when baseline and run are portable
+    exact: str = "auto"      # "true": a portable baseline must be met bit for bit (same
+                             # versions); "auto": bits reported, the tubes decide (and the
+                             # MIL/SIL, interpreted/compiled equivalences are exact);
+                             # "false": never exact
     rate_hz: float = RATE_HZ
 
     def for_metric(self, name: str) -> Tol:

@@ -153,9 +153,11 @@ def _same(x: float, y: float) -> bool:
 
 def exact_wanted(tol: Tolerances, base_numerics: str, run_numerics: str,
                  same_versions: bool) -> bool:
-    if tol.exact != "auto":
-        return tol.exact == "true"
-    return base_numerics == run_numerics == "portable" and same_versions
+    """Must the flight be its baseline bit for bit? Only where the tolerances say
+    `exact = true` and bits can be expected: both portable, with the same library versions.
+    Otherwise (the default) the tubes and metric tolerances decide, and whether the flight is
+    bit for bit is reported."""
+    return tol.exact == "true" and base_numerics == run_numerics == "portable" and same_versions
 
 
 def check(case: Case, flights: dict[str, Flight], base: Baseline | None,
@@ -201,12 +203,13 @@ def _against_baseline(v: dict[str, Any], case: Case, f: Flight, base: Baseline) 
     identical = f.series_sha256 == base.meta.get("series_sha256")
     v["exact"] = "identical" if identical else "differs"
     if exact and not identical:
-        v["failures"].append("not bit for bit its portable baseline: "
+        v["failures"].append("not bit for bit its portable baseline (exact = true): "
                              + first_difference(base.trajectory, f.trajectory))
-    elif base.numerics == "portable" and f.numerics == "portable" and not same_versions \
-            and tol.exact == "auto":
-        v["notes"].append("versions differ from the baseline's: compared within tubes ("
-                          + _version_diff(base.meta.get("versions", {}), f.versions) + ")")
+    elif tol.exact == "true" and not exact:
+        why = (_version_diff(base.meta.get("versions", {}), f.versions) if not same_versions
+               else f"numerics {base.numerics} / {f.numerics}")
+        v["notes"].append(f"exact = true, but bits cannot be expected ({why}): compared "
+                          "within tubes")
     if base.meta.get("rate_hz") != tol.rate_hz:
         v["failures"].append(f"the baseline is sampled at {base.meta.get('rate_hz')} Hz, the "
                              f"tolerance asks {tol.rate_hz:g} Hz: cosim test --update")
