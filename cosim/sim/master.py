@@ -91,9 +91,14 @@ def build_plant(sc: Scenario) -> Plant:
     if sc.plant is not None:    # a user's FMU or the FMI 3.0 build, through fmpy and the map
         from cosim.plant.mapped import MappedPlant
 
+        pose = dict(step_size=sc.timing.tick_s, x0=sc.start.n, y0=sc.start.e,
+                    yaw0=math.radians(sc.start.yaw_deg))
         with part("plant"):
-            return MappedPlant(sc.vehicle, sc.plant, step_size=sc.timing.tick_s, x0=sc.start.n,
-                               y0=sc.start.e, yaw0=math.radians(sc.start.yaw_deg))
+            if sc.plant.fmu is not None:     # a user's: in a process of its own, with a timeout
+                from cosim.plant.isolated import IsolatedPlant
+
+                return IsolatedPlant(sc.vehicle, sc.plant, timeout_s=sc.plant.timeout_s, **pose)
+            return MappedPlant(sc.vehicle, sc.plant, **pose)
     with part("plant"):
         return Plant(sc.vehicle, step_size=sc.timing.tick_s, x0=sc.start.n, y0=sc.start.e,
                      z0=0.0, yaw0=math.radians(sc.start.yaw_deg))
