@@ -20,7 +20,8 @@ per-frame image work (``FrameStage``: cosim/apps/base.py). The worker is a forke
 process where a fork is safe (cosim/sensors/render_proc.py: its own interpreter, so the
 render's Python does not take turns with the loop's), else a thread
 (``COSIM_RENDER_PROCESS=0`` forces the thread). The flight is the same, bit for bit, either
-way.
+way. A render process that does not answer within ``[camera] render_timeout_s`` (default
+30 s; stopped, stuck) is ended, and the run with ``component_error: camera``.
 """
 
 from __future__ import annotations
@@ -57,9 +58,11 @@ PRESETS: dict[str, dict[str, float]] = {
     "bebop2": {"latency_s": 0.12, "jitter_s": 0.01, "exposure_s": 0.01,
                "lighting_noise": 0.01, "offset_noise": 1.0},
 }
-STREAM_KEYS = ("stream", "latency_s", "jitter_s")
+STREAM_KEYS = ("stream", "latency_s", "jitter_s", "render_timeout_s")
 LATENCY_MAX_S = 5.0
 JITTER_MAX_S = 1.0
+RENDER_TIMEOUT_S = 30.0       # s: the longest the loop waits for a frame from its render process
+RENDER_TIMEOUT_MAX_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,7 @@ class StreamSpec:
     preset: str = "ideal"
     latency_s: float = 0.0        # s, capture to delivery
     jitter_s: float = 0.0         # s, std of the per-frame delay around latency_s
+    render_timeout_s: float = RENDER_TIMEOUT_S   # s, a frame from the render process
 
     @property
     def delayed(self) -> bool:
@@ -88,7 +92,9 @@ def split_stream(d: Mapping[str, Any], where: str, kind: str) -> tuple[dict, Str
     spec = StreamSpec(
         preset=name,
         latency_s=number(filled, "latency_s", where, 0.0, lo=0.0, hi=LATENCY_MAX_S),
-        jitter_s=number(filled, "jitter_s", where, 0.0, lo=0.0, hi=JITTER_MAX_S))
+        jitter_s=number(filled, "jitter_s", where, 0.0, lo=0.0, hi=JITTER_MAX_S),
+        render_timeout_s=number(d, "render_timeout_s", where, RENDER_TIMEOUT_S, lo=0.0,
+                                hi=RENDER_TIMEOUT_MAX_S, lo_open=True))
     for k, v in preset.items():
         if k not in STREAM_KEYS:
             rest.setdefault(k, v)
@@ -172,7 +178,8 @@ class FrameStream:
         frame_bytes = 3 * int(getattr(cfg, "width", 0)) * int(getattr(cfg, "height", 0))
         wanted = os.environ.get("COSIM_RENDER_PROCESS", "1").strip().lower() not in OFF
         if wanted and frame_bytes > 0 and fork_is_safe():
-            self.proc = RenderProcess(self._render, frame_bytes)
+            self.proc = RenderProcess(self._render, frame_bytes,
+                                      timeout_s=self.spec.render_timeout_s)
             self.worker = "process"
         else:
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="cosim-render")
