@@ -397,6 +397,8 @@ def _run(args) -> int:
         res = run_scenario(sc, opts)
         summary = write_run(res, out, plots=not args.no_plots)
     print(one_screen(summary, out))
+    for w in summary["warnings"]:
+        print(f"cosim: warning: {w}", file=sys.stderr)
     if summary.get("output_errors"):     # e.g. a full disk: the summary says which files
         print(f"cosim: outputs not written in {out}: " + "; ".join(summary["output_errors"]),
               file=sys.stderr)

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from cosim import numerics
-from cosim.errors import ComponentError, ScenarioError
+from cosim.errors import ComponentError, ScenarioError, output_error
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.result import RunResult
 from cosim.outputs.series import SERIES_COLUMNS, SeriesSpool
@@ -184,8 +184,12 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
 
         check_inputs_kept(opts.out_dir, app_inputs(sc.app, sc.source))
     run_dir, tmp = run_dir_for(opts)
-    spool_tmp = tmp or tempfile.TemporaryDirectory(prefix="cosim-spool-")
-    spool = SeriesSpool(Path(spool_tmp.name) / "series.f64")
+    try:
+        spool_tmp = tmp or tempfile.TemporaryDirectory(prefix="cosim-spool-")
+        spool = SeriesSpool(Path(spool_tmp.name) / "series.f64")
+    except OSError as exc:          # a full TMPDIR: said in one line, nothing flown
+        raise output_error(exc, f"the series spool in TMPDIR ({tempfile.gettempdir()})"
+                           ) from None
     tlog = Tlog(run_dir / "flight.tlog")
 
     h = sc.timing.tick_s
@@ -327,9 +331,23 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     if feed is not None:
         res.estimate = feed.array()
         res.faults = sorted(res.faults + feed.fired())
+    res.warnings = full_tmpdir(h, recorded, feed.spool.finish() if feed is not None else None)
     if mcap is not None:
         res.mcap = mcap.finish(res)
     return res
+
+
+def full_tmpdir(h: float, *spooled) -> list[str]:
+    """One line naming TMPDIR when a spool there found its disk full: its rows from then on
+    were held in memory (cosim/outputs/series.py), so nothing is lost, but the user should
+    know."""
+    for rec in spooled:
+        if rec is not None and rec.error is not None:
+            e = rec.error
+            return [f"TMPDIR ({tempfile.gettempdir()}) is full ({e.strerror or e}): the run's "
+                    f"series from t = {rec.on_disk * h:.2f} s on was held in memory, nothing "
+                    "is lost; give TMPDIR a folder with room"]
+    return []
 
 
 def show_progress(t: float, wall0: float, phase: str) -> None:
