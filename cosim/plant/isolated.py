@@ -44,6 +44,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from cosim import tempdirs
 from cosim.errors import ComponentError, clip
 from cosim.plant.fmu import OUTPUT_NAMES, FmuPlant
 
@@ -79,7 +80,7 @@ class IsolatedPlant(FmuPlant):
         self._unzipdir: str | None = None
         self._stderr = None
         try:
-            self._unzipdir = tempfile.mkdtemp(prefix="cosim-fmu-")
+            self._unzipdir = tempdirs.make("fmu")
             self._stderr = tempfile.TemporaryFile()   # noqa: SIM115 (closed in close())
             self._proc = subprocess.Popen(
                 [sys.executable, "-m", __name__, str(os.getpid())],

@@ -27,6 +27,7 @@ import math
 import shutil
 
 from cosim.errors import ComponentError
+from cosim.plant import fmufile
 from cosim.plant.fmu import OUTPUT_NAMES, Y_ON_GROUND, FmuPlant
 from cosim.plant.mapping import RATE, PlantMap, PlantSpec, own_map, read_description
 from mav.rotations import quat_from_euler, quat_mul, rotate_world_to_body
@@ -69,8 +70,6 @@ class MappedPlant(FmuPlant):
     def __init__(self, vehicle, spec: PlantSpec, *, step_size: float = 0.005,
                  x0: float = 0.0, y0: float = 0.0, yaw0: float = 0.0,
                  unzipdir: str | None = None) -> None:
-        from fmpy import extract
-
         self.vehicle = vehicle
         self.step_size = float(step_size)
         self.k = 0
@@ -123,7 +122,8 @@ class MappedPlant(FmuPlant):
                           and self._out_keys == list(OUTPUT_NAMES[:Y_ON_GROUND]))
         #: latest outputs in OUTPUT_NAMES order (updated in place by step())
         self.y: list[float] = [math.nan] * len(OUTPUT_NAMES)
-        self._unzipdir = extract(str(self.fmu_path), unzipdir=unzipdir)
+        self._unzipdir = fmufile.extract(self.fmu_path, int(md.fmiVersion[0]),
+                                         md.coSimulation.modelIdentifier, unzipdir)
         try:
             self._open()
         except BaseException:

@@ -54,6 +54,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.errors import ScenarioError
+from cosim.plant import fmufile
 from cosim.scenario.validate import no_unknown, number, string, table
 
 # dimensions as (kg, m, s) exponents (radians count as dimensionless)
@@ -204,6 +205,10 @@ def read_description(path: Path, where: str, given: Any):
         raise ScenarioError(where, given, f"an FMI 2.0 or 3.0 Co-Simulation FMU (it is FMI "
                                           f"{md.fmiVersion}, Co-Simulation: "
                                           f"{md.coSimulation is not None})")
+    try:               # its binary for this platform, what a run extracts within the limits
+        fmufile.check(path, int(md.fmiVersion[0]), md.coSimulation.modelIdentifier)
+    except fmufile.FmuFileError as exc:
+        raise ScenarioError(where, given, str(exc)) from None
     return md
 
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from cosim import numerics
+from cosim import numerics, tempdirs
 from cosim.errors import ComponentError, ScenarioError, output_error
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.result import RunResult
@@ -163,7 +163,7 @@ def run_dir_for(opts: RunOptions) -> tuple[Path, Any]:
         opts.out_dir.mkdir(parents=True, exist_ok=True)
         clean_run_folder(opts.out_dir)
         return opts.out_dir, None
-    tmp = tempfile.TemporaryDirectory(prefix="cosim-run-")
+    tmp = tempdirs.folder("run")
     return Path(tmp.name), tmp
 
 
@@ -185,7 +185,7 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         check_inputs_kept(opts.out_dir, app_inputs(sc.app, sc.source))
     run_dir, tmp = run_dir_for(opts)
     try:
-        spool_tmp = tmp or tempfile.TemporaryDirectory(prefix="cosim-spool-")
+        spool_tmp = tmp or tempdirs.folder("spool")
         spool = SeriesSpool(Path(spool_tmp.name) / "series.f64")
     except OSError as exc:          # a full TMPDIR: said in one line, nothing flown
         raise output_error(exc, f"the series spool in TMPDIR ({tempfile.gettempdir()})"

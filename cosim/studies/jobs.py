@@ -19,14 +19,13 @@ import json
 import os
 import shutil
 import socket
-import tempfile
 import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cosim import cache, cvthreads
+from cosim import cache, cvthreads, tempdirs
 from cosim.studies import deps
 
 # columns every row has, in this order; then the varied parameters, then the metrics
@@ -92,7 +91,7 @@ def run_job(job: Job) -> dict[str, Any]:
         sc = scenario_of(job)
         row["seed"] = sc.seed
         if job.keep_dir is None:
-            tmp = tempfile.mkdtemp(prefix="cosim-run-")
+            tmp = tempdirs.make("run")
         out = Path(job.keep_dir or tmp)
         res = deps.run_mission(sc, mode=job.mode, out_dir=out,
                                mcap=job.mcap and job.keep_dir is not None)
