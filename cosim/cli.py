@@ -297,7 +297,16 @@ def _sigterm_interrupts():
         signal.signal(signal.SIGTERM, old)
 
 
+# the commands that fly: each first removes the temporary folders of runs that died (SIGKILL,
+# the OOM killer) before they could (cosim/tempdirs.py)
+FLYING = ("run", "sweep", "montecarlo", "sitl", "teach", "render")
+
+
 def _dispatch(args) -> int:
+    if args.cmd in FLYING:
+        from cosim import tempdirs
+
+        tempdirs.sweep()
     if args.cmd == "validate":
         from cosim.load import load_scenario
 

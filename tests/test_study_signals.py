@@ -106,6 +106,9 @@ def test_a_signal_stops_a_dask_study_quietly_and_keeps_no_cut_run(tmp_path, sig,
     assert "the same command continues the study" in err
     assert [r["run_id"] for r in _rows(out)] == ["0"]
     assert ResultsTable(out / "results.csv", ["timing.t_final_s"]).finished() == {0}
+    # the workers were stopped in their runs: what those left in TMPDIR is removed once the
+    # cluster is closed (cosim/tempdirs.py; item 15)
+    assert not list(tmp.glob("cosim-*")), list(tmp.iterdir())
 
 
 def test_a_cut_run_an_older_cosim_kept_as_a_row_is_flown_again(tmp_path):

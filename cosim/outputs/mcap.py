@@ -6,8 +6,11 @@ The topics and their schemas are `fox_topics.TOPICS` (the frames and 3D scene:
 `fox_scene.py`), plus one `/mavlink/<NAME>` topic per MAVLink message type of the API and GCS
 links (from the tlog). Camera frames are added while the run goes (`frame`); the per-tick
 topics are written from the recorded series, block by block, after the run (`finish`), so the
-tick loop pays nothing for them. docs/viewers.md says how to open the file with the layout
-docs/cosim-layout.json.
+tick loop pays nothing for them. A real-time run (one a person may kill) also calls `progress`
+every simulated second: the rows recorded since are written and the chunk flushed, so the file
+reads up to the last second after a SIGKILL (a reader of unindexed MCAP, e.g. `mcap`'s
+StreamReader, takes it; `mcap recover` indexes it). docs/viewers.md says how to open the file
+with the layout docs/cosim-layout.json.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import foxglove
+import numpy as np
 from foxglove import Context
 
 from cosim.outputs.fox_topics import TOPICS, Topics
@@ -33,24 +37,40 @@ class McapRun:
         self.topics = Topics(self.ctx, scenario)
         self.topics.static()
         self.frames = 0
+        self.written = 0            # rows of the series written (by `progress`)
 
     def frame(self, t: float, img, p_W, q_WB) -> None:
         """A camera frame (H x W x 3 uint8 RGB) at simulation time t (s), body pose p_W, q_WB."""
         self.topics.frame(t, img, p_W, q_WB)
         self.frames += 1
 
+    def progress(self, spool, phases: list[str], est_spool=None) -> None:
+        """Write the series rows recorded since the last call (`spool`, the run's
+        SeriesSpool; `est_spool`, a sensor-fed run's estimate spool) and flush the file."""
+        ncols = spool.ncols
+        rows = np.frombuffer(spool.since(self.written), dtype=np.float64).reshape(-1, ncols)
+        est = None
+        if est_spool is not None:
+            est = np.frombuffer(est_spool.since(self.written), dtype=np.float64).reshape(
+                -1, est_spool.ncols)
+        for i, row in enumerate(rows):
+            self.topics.row(row, phases or ["none"],
+                            est=est[i] if est is not None and i < len(est) else None)
+        self.written += len(rows)
+        self._writer.flush()
+
     def finish(self, res) -> Path:
-        """Write the recorded series, the app's outputs and the MAVLink traffic; close.
-        A sensor-fed run's `/vehicle/estimate` carries the vehicle's whole estimate
-        (`res.estimate`, one row per tick), not only its position."""
+        """Write the recorded series (the rows `progress` did not), the app's outputs and
+        the MAVLink traffic; close. A sensor-fed run's `/vehicle/estimate` carries the
+        vehicle's whole estimate (`res.estimate`, one row per tick), not only its position."""
         topics, phases = self.topics, res.phases or ["none"]
         est = res.estimate
         n = 0 if est is None else len(est)
-        k = 0
+        k = 0                       # the row index of the block's first row
         for block in res.recorded.blocks():
-            for row in block:
-                topics.row(row, phases, est=est[k] if k < n else None)
-                k += 1
+            for i in range(min(len(block), max(0, self.written - k)), len(block)):
+                topics.row(block[i], phases, est=est[k + i] if k + i < n else None)
+            k += len(block)
         for r in res.frame_log:
             topics.vision(r, res.frame_columns)
         self._mavlink(res.tlog.path)

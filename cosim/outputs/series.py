@@ -85,6 +85,24 @@ class SeriesSpool:
         self.held.append(data)
         self.held_bytes += len(data)
 
+    def since(self, start: int) -> bytes:
+        """The rows from row `start` on (file, held, then the rows not written yet)."""
+        rb = 8 * self.ncols
+        out = []
+        if start < self.ticks:
+            with open(self.path, "rb") as f:
+                f.seek(start * rb)
+                out.append(f.read((self.ticks - start) * rb))
+            start = self.ticks
+        skip = (start - self.ticks) * rb
+        for block in (*self.held, b"".join(self.rows)):
+            if skip < len(block):
+                out.append(block[skip:])
+                skip = 0
+            else:
+                skip -= len(block)
+        return b"".join(out)
+
     def finish(self) -> SeriesFile:
         """Write what is left and close; the recorded series, read from the file (and the
         rows held in memory)."""

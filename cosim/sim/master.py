@@ -275,6 +275,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         if live is not None:   # the live view logs the last recorded tick, then paces
             pace = live.pacing(spool.rows, phases, pace if realtime else None)
             realtime = True
+        # real time, each simulated second: the tlog and the MCAP on disk up to now (what a
+        # SIGKILL leaves is readable up to the last second)
+        per_s = max(1, int(round(1.0 / h)))
+        keep = keep_so_far(tlog, mcap, spool, phases, feed)
         for k in range(n_ticks):
             if gusty is not None:
                 wind = gusty(k)
@@ -285,6 +289,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             if realtime or progress:
                 t = k * h_us * 1e-6
                 if realtime:
+                    if (k + 1) % per_s == 0:
+                        keep()
                     pace(t + h)
                 if progress and k % 2000 == 0:
                     show_progress(t, wall0, phases[tick.phase])
@@ -335,6 +341,16 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     if mcap is not None:
         res.mcap = mcap.finish(res)
     return res
+
+
+def keep_so_far(tlog: Tlog, mcap, spool: SeriesSpool, phases: list[str], feed):
+    """What a real-time run writes out each simulated second: its tlog's buffer, and with
+    `--mcap` the rows recorded since the last time (cosim/outputs/mcap.py `progress`)."""
+    def keep() -> None:
+        tlog.flush()
+        if mcap is not None:
+            mcap.progress(spool, phases, feed.spool if feed is not None else None)
+    return keep
 
 
 def full_tmpdir(h: float, *spooled) -> list[str]:

@@ -130,6 +130,7 @@ class Tick:
             if len(spool.rows) >= CHUNK:
                 self.stage = "recorder"
                 spool.flush()
+                self.tlog.flush()       # a slow run killed later keeps its log up to here
         # 7. the motor commands -> the plant, stepped to t_k+1
         if hooks is not None:
             u1, u2, u3, u4 = hooks.on_actuators(t_us, (u1, u2, u3, u4))

@@ -237,6 +237,9 @@ def _dask(jobs, fn, *, workers, scheduler, **_) -> Iterator[dict[str, Any]]:
         client.close()
         if cluster is not None:
             cluster.close()
+            from cosim import tempdirs
+
+            tempdirs.sweep()     # what the workers stopped in a run left (issue 43, item 15)
 
 
 def lost_row(job: Job, exc: BaseException) -> dict[str, Any]:
