@@ -24,7 +24,7 @@ the run leaves no worker behind. The master owns the folder the FMU is extracted
 
 The project's own FMUs stay in the master's process (`Plant`, and `MappedPlant` for its FMI
 3.0 build): the default path pays nothing. A user's FMU pays one pipe round trip per tick
-(measured: docs/plant-fmu.md).
+(measured: scenarios/README.md, "Your own plant FMU").
 """
 
 from __future__ import annotations
@@ -167,7 +167,6 @@ class IsolatedPlant(FmuPlant):
                 how = f"died of signal {-rc}"
         else:
             how = f"exited (status {rc})"
-        self._proc = None
         return ComponentError("plant", f"the FMU's process {how} during {what} at t = "
                                        f"{self.t:.6g} s (a crash in the FMU){self._tail()}")
 

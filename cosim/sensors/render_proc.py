@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 
 ALIGN = 64
+TIMEOUT_S = 30.0      # s: the longest the run waits for the child's answer (default of
+                      # [camera] render_timeout_s, cosim/sensors/stream.py)
 
 
 def _aligned(n: int) -> int:
@@ -114,7 +116,7 @@ class RenderProcess:
     (its arrays copied out of the shared slot)."""
 
     def __init__(self, job: Callable[..., tuple], frame_bytes: int, n_slots: int = 8,
-                 timeout_s: float = 30.0) -> None:
+                 timeout_s: float = TIMEOUT_S) -> None:
         self.n_slots = int(n_slots)
         self.timeout_s = float(timeout_s)
         self.slot_bytes = _aligned(2 * int(frame_bytes) + 4 * ALIGN)

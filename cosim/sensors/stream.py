@@ -45,6 +45,7 @@ import numpy as np
 from cosim.errors import ScenarioError
 from cosim.plant.fmu import Y_P, Y_QW, Y_QZ, Y_R, Y_VX, Y_VZ, Y_X, Y_Z
 from cosim.scenario.validate import number, string
+from cosim.sensors.render_proc import TIMEOUT_S as RENDER_TIMEOUT_S
 
 OFF = ("0", "false", "no", "off")   # COSIM_RENDER_PROCESS values that keep the thread
 STREAM_SEED = 12          # the jitter's stream: default_rng([scenario seed, STREAM_SEED])
@@ -68,7 +69,6 @@ PRESETS: dict[str, dict[str, float]] = {
 STREAM_KEYS = ("stream", "latency_s", "jitter_s", "render_timeout_s")
 LATENCY_MAX_S = 5.0
 JITTER_MAX_S = 1.0
-RENDER_TIMEOUT_S = 30.0       # s: the longest the loop waits for a frame from its render process
 RENDER_TIMEOUT_MAX_S = 3600.0
 LOOKAHEAD = 8                 # frames the worker renders ahead of their delivery, at most
 
