@@ -309,7 +309,16 @@ def _sigterm_interrupts():
         signal.signal(signal.SIGTERM, old)
 
 
+# the commands that fly: each first removes the temporary folders of runs that died (SIGKILL,
+# the OOM killer) before they could (cosim/tempdirs.py)
+FLYING = ("run", "sweep", "montecarlo", "sitl", "teach", "render")
+
+
 def _dispatch(args) -> int:
+    if args.cmd in FLYING:
+        from cosim import tempdirs
+
+        tempdirs.sweep()
     if args.cmd == "validate":
         from cosim.load import load_scenario
 
@@ -414,6 +423,8 @@ def _run(args) -> int:
         res = run_scenario(sc, opts)
         summary = write_run(res, out, plots=not args.no_plots)
     print(one_screen(summary, out))
+    for w in summary["warnings"]:
+        print(f"cosim: warning: {w}", file=sys.stderr)
     if summary.get("output_errors"):     # e.g. a full disk: the summary says which files
         print(f"cosim: outputs not written in {out}: " + "; ".join(summary["output_errors"]),
               file=sys.stderr)

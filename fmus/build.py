@@ -8,7 +8,9 @@ glue fmi3.c, binaries/x86_64-linux/Quadrotor.so and the description `fmus/fmi3md
 from the FMI 2.0 one. The archive is deterministic (sorted entries, fixed timestamps and
 permissions), so two builds of the same sources give the same bytes. A build is skipped when a
 hash of the sources, the headers and the compiler flags matches the one recorded next to the
-FMU.
+FMU (`<fmu>.sha256`, first line) and the FMU file is the one built (its own SHA-256, second
+line): a truncated or altered FMU in the build folder is built again, not taken for a user's
+bad file.
 
 Examples::
 
@@ -161,7 +163,7 @@ def build(force: bool = False, out_dir: pathlib.Path | None = None,
     fmu = out_dir / _fmu_name(fmi)
     stamp = out_dir / f"{_fmu_name(fmi)}.sha256"
     digest = source_hash(fmi)
-    if not force and fmu.is_file() and stamp.is_file() and stamp.read_text().strip() == digest:
+    if not force and _built(fmu, stamp, digest):
         return fmu
 
     plat = _platform_dir(fmi)
@@ -188,9 +190,19 @@ def build(force: bool = False, out_dir: pathlib.Path | None = None,
         tmp_fmu.write_bytes(data)
         os.replace(tmp_fmu, fmu)
         tmp_stamp = pathlib.Path(tmp) / "out.sha256"
-        tmp_stamp.write_text(digest + "\n")
+        tmp_stamp.write_text(f"{digest}\n{hashlib.sha256(data).hexdigest()}\n")
         os.replace(tmp_stamp, stamp)
     return fmu
+
+
+def _built(fmu: pathlib.Path, stamp: pathlib.Path, digest: str) -> bool:
+    """`fmu` is the build of these sources (`digest`), and its bytes are the ones built."""
+    try:
+        lines = stamp.read_text().split()
+        return (len(lines) == 2 and lines[0] == digest
+                and hashlib.sha256(fmu.read_bytes()).hexdigest() == lines[1])
+    except (OSError, UnicodeDecodeError):
+        return False
 
 
 def fmu_path(build_if_needed: bool = True, fmi: int = 2) -> pathlib.Path:

@@ -92,7 +92,7 @@ def test_flight_software_stands_alone():
 # only from lower layers. scenario is the leaf every part builds from (cosim/load.py hands it
 # the other packages' table parsers); nothing but the command line imports studies.
 LAYERS = (
-    ("errors", "numerics", "cvthreads", "cache"),
+    ("errors", "numerics", "cvthreads", "cache", "tempdirs"),
     ("scenario",),
     ("world", "faults"),
     ("plant",),

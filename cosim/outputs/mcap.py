@@ -10,6 +10,11 @@ tick loop pays nothing for them. The static messages (the frames' static transfo
 world, the vehicle model) are written again every `STATIC_EVERY_S` of simulation time: a
 viewer playing the file keeps only what it read since its last seek, and drops a scene sent
 once when it plays on (Foxglove Studio 1.48: the room and the vehicle vanished on Play).
+A real-time run (one a person may kill) also calls `progress` every simulated second: the
+rows recorded since are written and the chunk flushed, so the file reads up to the last
+second after a SIGKILL (a reader of unindexed MCAP, e.g. `mcap`'s StreamReader, takes it;
+`mcap recover` indexes it); those rows carry no app command (`/app/setpoint` takes the
+commands from the tlog at the end).
 
 `/log` (foxglove.Log, the Log panel) holds the vehicle's STATUSTEXTs, one message per text
 (its chunks joined, the copy the other link carried left out), and the run's events, faults
@@ -23,6 +28,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import foxglove
+import numpy as np
 from foxglove import Context
 from foxglove.channels import LogChannel
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
@@ -76,39 +82,61 @@ class McapRun:
         self.topics.static()
         self.log = LogChannel("/log", context=self.ctx)
         self.frames = 0
+        self.written = 0            # rows of the series written (by `progress`)
+        self._every = int(round(STATIC_EVERY_S * 1e9))
+        self._next_static = self._every     # the first: at t = 0, when the file opened
+
+    def _row(self, row, phases: list[str], est, command=None) -> None:
+        """One recorded row; the static messages again first when their time has come."""
+        t_ns = int(round(float(row[COL["t"]]) * 1e9))
+        if t_ns >= self._next_static:
+            self.topics.static(t_ns)
+            self._next_static = (t_ns // self._every + 1) * self._every
+        self.topics.row(row, phases, est=est, command=command)
 
     def frame(self, t: float, img, p_W, q_WB) -> None:
         """A camera frame (H x W x 3 uint8 RGB) at simulation time t (s), body pose p_W, q_WB."""
         self.topics.frame(t, img, p_W, q_WB)
         self.frames += 1
 
+    def progress(self, spool, phases: list[str], est_spool=None) -> None:
+        """Write the series rows recorded since the last call (`spool`, the run's
+        SeriesSpool; `est_spool`, a sensor-fed run's estimate spool) and flush the file."""
+        ncols = spool.ncols
+        rows = np.frombuffer(spool.since(self.written), dtype=np.float64).reshape(-1, ncols)
+        est = None
+        if est_spool is not None:
+            est = np.frombuffer(est_spool.since(self.written), dtype=np.float64).reshape(
+                -1, est_spool.ncols)
+        for i, row in enumerate(rows):
+            self._row(row, phases or ["none"],
+                      est[i] if est is not None and i < len(est) else None)
+        self.written += len(rows)
+        self._writer.flush()
+
     def finish(self, res) -> Path:
-        """Write the recorded series, the app's outputs and the MAVLink traffic; close.
-        A sensor-fed run's `/vehicle/estimate` carries the vehicle's whole estimate
-        (`res.estimate`, one row per tick), not only its position."""
+        """Write the recorded series (the rows `progress` did not), the app's outputs and
+        the MAVLink traffic; close. A sensor-fed run's `/vehicle/estimate` carries the
+        vehicle's whole estimate (`res.estimate`, one row per tick), not only its position."""
         topics, phases = self.topics, res.phases or ["none"]
         est = res.estimate
         n = 0 if est is None else len(est)
         cmds = commands(res.tlog.path)
         j, cmd = 0, None
-        k = 0
-        every = int(round(STATIC_EVERY_S * 1e9))
-        next_static = every                   # the first: at t = 0, when the file opened
+        k = 0                       # the row index of the block's first row
         t_col = COL["t"]
         for block in res.recorded.blocks():
-            for row in block:
+            for i in range(min(len(block), max(0, self.written - k)), len(block)):
+                row = block[i]
                 t_ns = int(round(float(row[t_col]) * 1e9))
-                if t_ns >= next_static:
-                    topics.static(t_ns)
-                    next_static = (t_ns // every + 1) * every
                 while j < len(cmds) and cmds[j][0] <= t_ns:
                     cmd = cmds[j]
                     j += 1
                 if cmd is not None and t_ns - cmd[0] > COMMAND_HELD_NS:
                     cmd = None
-                topics.row(row, phases, est=est[k] if k < n else None,
-                           command=None if cmd is None else cmd[1])
-                k += 1
+                self._row(row, phases, est[k + i] if k + i < n else None,
+                          None if cmd is None else cmd[1])
+            k += len(block)
         for r in res.frame_log:
             topics.vision(r, res.frame_columns)
         self._mavlink(res.tlog.path)

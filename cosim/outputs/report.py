@@ -69,6 +69,7 @@ def summarize(res: RunResult) -> dict[str, Any]:
         # the camera's stream: latency, jitter, frames delivered, their delay and blur
         "camera_stream": res.camera_stream,
         "onboard_stats": res.onboard_stats,
+        "warnings": res.warnings,          # e.g. a full TMPDIR (the series held in memory)
         "versions": versions(),
         # compiled or interpreted, and why (onesource/switch.py; the flight is the same either way)
         "implementation": compiled.describe(),

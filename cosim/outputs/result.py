@@ -48,6 +48,7 @@ class RunResult:
     frame_times: list[tuple[int, int, float]] = field(default_factory=list)  # per delivered
                                                # frame: capture tick, delivery tick, blur px
     camera_stream: dict[str, Any] | None = None   # the stream's figures (FrameStream.summary)
+    warnings: list[str] = field(default_factory=list)   # one line each (a full TMPDIR: ...)
     _tmp: Any = field(default=None, repr=False)   # owns the temporary spool folder
 
     @property

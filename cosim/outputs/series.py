@@ -6,10 +6,18 @@ the list is emptied. Memory stays at one chunk whatever the mission length. A fi
 series (`SeriesFile`) is read back from the file: whole (a read-only memory map, for short runs
 and tests), by column, or block by block (what the outputs use, so a long run's report does not
 pull the whole file into memory either).
+
+A spool whose disk is full (its folder is in TMPDIR: ENOSPC) loses nothing: the file is cut
+back to its last whole block and the rows from there on are held in memory (`held`, `error`
+says why; the master names TMPDIR in one line), up to `HELD_MAX` bytes (~1 simulated hour);
+beyond that `flush` raises the disk's error and the run ends with what it recorded.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import os
 import struct
 from collections.abc import Iterator
 from pathlib import Path
@@ -29,6 +37,7 @@ ESTIMATE_COLUMNS = ("est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "es
                     "est_pitch", "est_yaw", "est_lost")
 CHUNK = 4096               # rows per spooled block (4096 x 30 x 8 B ~ 1 MB)
 READ_BLOCK = 8192          # rows per block when reading back (~2 MB)
+HELD_MAX = 1 << 30         # bytes of rows held in memory when the spool's disk is full
 
 
 class SeriesSpool:
@@ -43,52 +52,112 @@ class SeriesSpool:
         self.rows: list[bytes] = []
         self.append = self.rows.append
         self.ticks = 0                       # rows already written to the file
-        self._f = open(self.path, "wb")  # noqa: SIM115 (closed in finish())
+        self.held: list[bytes] = []          # blocks the file could not take (disk full)
+        self.held_bytes = 0
+        self.error: OSError | None = None    # why rows are held
+        # unbuffered: a write that fails leaves nothing behind in a buffer to fail again
+        self._f = open(self.path, "wb", buffering=0)  # noqa: SIM115 (closed in finish())
 
     def flush(self) -> None:
         rows = self.rows
-        if rows:
-            self._f.write(b"".join(rows))
-            self.ticks += len(rows)
-            rows.clear()
+        if not rows:
+            return
+        data = b"".join(rows)
+        n = len(rows)
+        rows.clear()
+        if self.error is None:
+            try:
+                view = memoryview(data)
+                while view:                  # a raw write may take part of it
+                    view = view[self._f.write(view):]
+                self.ticks += n
+                return
+            except OSError as exc:           # ENOSPC: cut back to the last whole block
+                self.error = exc
+                with contextlib.suppress(OSError):
+                    os.ftruncate(self._f.fileno(), self.ticks * 8 * self.ncols)
+                    self._f.seek(0, os.SEEK_END)
+        if self.held_bytes + len(data) > HELD_MAX:
+            rows.append(data)                # kept for finish(): what fits in memory is all
+            raise OSError(self.error.errno or errno.ENOSPC,
+                          f"{self.error.strerror} (the spool's folder {self.path.parent}; "
+                          f"{HELD_MAX >> 20} MB of rows held in memory already)")
+        self.held.append(data)
+        self.held_bytes += len(data)
+
+    def since(self, start: int) -> bytes:
+        """The rows from row `start` on (file, held, then the rows not written yet)."""
+        rb = 8 * self.ncols
+        out = []
+        if start < self.ticks:
+            with open(self.path, "rb") as f:
+                f.seek(start * rb)
+                out.append(f.read((self.ticks - start) * rb))
+            start = self.ticks
+        skip = (start - self.ticks) * rb
+        for block in (*self.held, b"".join(self.rows)):
+            if skip < len(block):
+                out.append(block[skip:])
+                skip = 0
+            else:
+                skip -= len(block)
+        return b"".join(out)
 
     def finish(self) -> SeriesFile:
-        """Write what is left and close; the recorded series, read from the file."""
+        """Write what is left and close; the recorded series, read from the file (and the
+        rows held in memory)."""
         if not self._f.closed:
-            self.flush()
+            if self.rows and self.held_bytes <= HELD_MAX:
+                with contextlib.suppress(OSError):     # past HELD_MAX: held as they are
+                    self.flush()
+            self.held.extend(self.rows)
+            self.rows.clear()
             self._f.close()
-        return SeriesFile(self.path, self.ncols, self.ticks)
+        held = b"".join(self.held)
+        return SeriesFile(self.path, self.ncols, self.ticks + len(held) // (8 * self.ncols),
+                          held=held, error=self.error)
 
 
 class SeriesFile:
-    """A recorded series on disk: `ticks` rows of `ncols` float64 values."""
+    """A recorded series on disk: `ticks` rows of `ncols` float64 values (the last of them in
+    memory, `held`, when the disk was full: `error`)."""
 
-    def __init__(self, path: Path, ncols: int, ticks: int) -> None:
+    def __init__(self, path: Path, ncols: int, ticks: int, held: bytes = b"",
+                 error: OSError | None = None) -> None:
         self.path, self.ncols, self.ticks = Path(path), ncols, ticks
+        self.held, self.error = held, error
+        self.on_disk = ticks - len(held) // (8 * ncols)   # rows in the file (then: held)
         self._map: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.ticks
 
     def array(self) -> np.ndarray:
-        """All of it as a read-only (ticks, ncols) array, memory-mapped (pages load on use)."""
+        """All of it as a read-only (ticks, ncols) array, memory-mapped (pages load on use;
+        in memory when some rows are held there)."""
         if self._map is None:
             if self.ticks == 0:
                 self._map = np.empty((0, self.ncols))
+            elif self.held:
+                self._map = np.concatenate(list(self.blocks()))
             else:
                 self._map = np.memmap(self.path, dtype=np.float64, mode="r",
                                       shape=(self.ticks, self.ncols))
         return self._map
 
     def blocks(self, rows: int = READ_BLOCK) -> Iterator[np.ndarray]:
-        """Consecutive (<= rows, ncols) arrays, read with plain file reads (no mapping)."""
+        """Consecutive (<= rows, ncols) arrays, read with plain file reads (no mapping), then
+        the rows held in memory."""
         with open(self.path, "rb") as f:
-            left = self.ticks
+            left = self.on_disk
             while left > 0:
                 n = min(rows, left)
                 yield np.fromfile(f, dtype=np.float64, count=n * self.ncols).reshape(
                     n, self.ncols)
                 left -= n
+        held = np.frombuffer(self.held, dtype=np.float64).reshape(-1, self.ncols)
+        for i in range(0, len(held), rows):
+            yield held[i:i + rows]
 
     def decimated(self, max_rows: int = 20_000) -> np.ndarray:
         """Every n-th row so that at most about `max_rows` remain (all rows of a short run)."""

@@ -49,6 +49,16 @@ class Tlog:
             with contextlib.suppress(OSError):
                 keep_whole_records(self.path)
 
+    def flush(self) -> None:
+        """Write what the buffer holds (a run killed later keeps the log up to here). A write
+        that fails (disk full) does not raise: `error` keeps it, as in `close`."""
+        if self._f.closed or self.error is not None:
+            return
+        try:
+            self._f.flush()
+        except OSError as exc:
+            self.error = exc
+
     def read(self) -> bytes:
         """Everything logged so far."""
         if not self._f.closed:

@@ -37,6 +37,7 @@ from ctypes import POINTER, byref, c_char, c_double, c_int, c_size_t, c_uint, c_
 from dataclasses import dataclass
 
 from cosim.errors import ComponentError
+from cosim.plant import fmufile
 from cosim.scenario.vehicles import VehicleParams
 
 __all__ = [
@@ -172,7 +173,7 @@ class Plant(FmuPlant):
         fast: bool = True,
         stepper: bool | None = None,
     ) -> None:
-        from fmpy import calloc, extract, free, read_model_description
+        from fmpy import calloc, free, read_model_description
         from fmpy.fmi2 import (
             FMU2Slave,
             fmi2CallbackAllocateMemoryTYPE,
@@ -205,7 +206,10 @@ class Plant(FmuPlant):
         if missing:
             raise ComponentError("plant", f"{self.fmu_path} lacks variables {missing}")
 
-        self._unzipdir = extract(str(self.fmu_path))
+        try:             # its binary for this platform; no more than a run needs of it
+            self._unzipdir = fmufile.extract(self.fmu_path, 2, md.coSimulation.modelIdentifier)
+        except fmufile.FmuFileError as exc:
+            raise ComponentError("plant", f"{self.fmu_path} is not {exc}") from None
         self._fmu = FMU2Slave(
             guid=md.guid, unzipDirectory=self._unzipdir,
             modelIdentifier=md.coSimulation.modelIdentifier, instanceName="plant",

@@ -27,6 +27,7 @@ import math
 import shutil
 
 from cosim.errors import ComponentError
+from cosim.plant import fmufile
 from cosim.plant.fmu import OUTPUT_NAMES, Y_ON_GROUND, FmuPlant
 from cosim.plant.mapping import RATE, PlantMap, PlantSpec, own_map, read_description
 from mav.rotations import quat_from_euler, quat_mul, rotate_world_to_body
@@ -62,17 +63,19 @@ class MappedPlant(FmuPlant):
     """An FMU plant with the interface of `cosim.plant.fmu.Plant` (`y`, `step`, `k`, `t`,
     `reset`, `close`), converted by its map. `x0, y0, yaw0`: the start on the floor (NED m,
     rad); with a `start` map they are the FMU's parameters, without one the master places
-    the FMU's origin there, its x axis (the heading it starts with) turned to yaw0."""
+    the FMU's origin there, its x axis (the heading it starts with) turned to yaw0.
+    `unzipdir`: extract the FMU into this folder, which the caller owns and removes (default:
+    a temporary one, removed by `close`)."""
 
     def __init__(self, vehicle, spec: PlantSpec, *, step_size: float = 0.005,
-                 x0: float = 0.0, y0: float = 0.0, yaw0: float = 0.0) -> None:
-        from fmpy import extract
-
+                 x0: float = 0.0, y0: float = 0.0, yaw0: float = 0.0,
+                 unzipdir: str | None = None) -> None:
         self.vehicle = vehicle
         self.step_size = float(step_size)
         self.k = 0
         self._fmu = None
         self._unzipdir = None
+        self._own_dir = unzipdir is None     # else the caller's folder: the caller removes it
         self._messages: collections.deque[str] = collections.deque(maxlen=32)
         if spec.fmu is None:
             from fmus.build import fmu_path
@@ -119,7 +122,8 @@ class MappedPlant(FmuPlant):
                           and self._out_keys == list(OUTPUT_NAMES[:Y_ON_GROUND]))
         #: latest outputs in OUTPUT_NAMES order (updated in place by step())
         self.y: list[float] = [math.nan] * len(OUTPUT_NAMES)
-        self._unzipdir = extract(str(self.fmu_path))
+        self._unzipdir = fmufile.extract(self.fmu_path, int(md.fmiVersion[0]),
+                                         md.coSimulation.modelIdentifier, unzipdir)
         try:
             self._open()
         except BaseException:
@@ -194,9 +198,9 @@ class MappedPlant(FmuPlant):
         try:
             self._free()
         finally:
-            if self._unzipdir is not None:
+            if self._unzipdir is not None and self._own_dir:
                 shutil.rmtree(self._unzipdir, ignore_errors=True)
-                self._unzipdir = None
+            self._unzipdir = None
 
     # ---- the tick --------------------------------------------------------------------------
     def step(self, u1: float, u2: float, u3: float, u4: float, wind_n: float = 0.0,

@@ -6,6 +6,8 @@ A scenario names any FMI 2.0 or 3.0 Co-Simulation FMU as the plant and says how 
     [vehicle]
     preset = "mambo"                 # the airframe the flight stack flies (and the parameters)
     fmu = "plants/EnuQuad.fmu"       # relative to the scenario file
+    fmu_timeout_s = 10.0             # the longest one call into it may take (default 10 s):
+                                     # it runs in a process of its own (cosim/plant/isolated.py)
 
     [vehicle.fmu_map]
     world = "ENU"          # its world frame: NED (default) or ENU
@@ -52,6 +54,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.errors import ScenarioError
+from cosim.plant import fmufile
 from cosim.scenario.validate import no_unknown, number, string, table
 
 # dimensions as (kg, m, s) exponents (radians count as dimensionless)
@@ -122,6 +125,10 @@ class PlantMap:
     start: dict[str, Var] = field(default_factory=dict)
 
 
+TIMEOUT_S = 10.0         # s: the default of [vehicle] fmu_timeout_s
+TIMEOUT_MAX_S = 3600.0
+
+
 @dataclass(frozen=True)
 class PlantSpec:
     """The scenario's plant when it is not the default: an FMU and its map."""
@@ -129,6 +136,7 @@ class PlantSpec:
     fmu: Path | None          # None: the project's own plant, built as FMI `fmi`
     fmi: int                  # 2 or 3 (read from the FMU for a user's FMU)
     map: PlantMap | None      # None: OWN_MAP (built when the FMU is, its value references)
+    timeout_s: float = TIMEOUT_S   # s: a user's FMU (its own process) answers within this
 
 
 def _own_names() -> tuple[dict[str, str], dict[str, str]]:
@@ -155,9 +163,9 @@ def parse_plant(v: dict, vehicle, base_dir: Path, has_wind: bool) -> PlantSpec |
     """`[vehicle] fmu`, `fmi` and `[vehicle.fmu_map]` -> a PlantSpec (None: the default
     plant). The FMU's model description is read and every name checked against it."""
     if "fmu" not in v:
-        if "fmu_map" in v:
-            raise ScenarioError("vehicle.fmu_map", v["fmu_map"],
-                                "only with vehicle.fmu (the FMU it maps)")
+        for k in ("fmu_map", "fmu_timeout_s"):
+            if k in v:
+                raise ScenarioError(f"vehicle.{k}", v[k], "only with vehicle.fmu (a user's FMU)")
         fmi = v.get("fmi", 2)
         if isinstance(fmi, bool) or fmi not in (2, 3):
             raise ScenarioError("vehicle.fmi", fmi, "2 or 3 (the FMI version of the "
@@ -176,7 +184,10 @@ def parse_plant(v: dict, vehicle, base_dir: Path, has_wind: bool) -> PlantSpec |
     if has_wind and not {"wind_x", "wind_y", "wind_z"} <= set(pmap.inputs):
         raise ScenarioError("vehicle.fmu_map.inputs", sorted(pmap.inputs),
                             "wind_x, wind_y and wind_z mapped: the scenario has [wind]")
-    return PlantSpec(fmu=path.resolve(), fmi=int(md.fmiVersion[0]), map=pmap)
+    timeout = number(v, "fmu_timeout_s", "vehicle", TIMEOUT_S, lo=0.0, hi=TIMEOUT_MAX_S,
+                     lo_open=True)
+    return PlantSpec(fmu=path.resolve(), fmi=int(md.fmiVersion[0]), map=pmap,
+                     timeout_s=timeout)
 
 
 def read_description(path: Path, where: str, given: Any):
@@ -194,6 +205,10 @@ def read_description(path: Path, where: str, given: Any):
         raise ScenarioError(where, given, f"an FMI 2.0 or 3.0 Co-Simulation FMU (it is FMI "
                                           f"{md.fmiVersion}, Co-Simulation: "
                                           f"{md.coSimulation is not None})")
+    try:               # its binary for this platform, what a run extracts within the limits
+        fmufile.check(path, int(md.fmiVersion[0]), md.coSimulation.modelIdentifier)
+    except fmufile.FmuFileError as exc:
+        raise ScenarioError(where, given, str(exc)) from None
     return md
 
 

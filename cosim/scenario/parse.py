@@ -117,7 +117,8 @@ def parse_scenario(raw: dict, parts: Parts, *, source: str = "",
 
     # vehicle
     v = table(raw, "vehicle", "", required=True)
-    no_unknown(v, {"preset", "overrides", "start", "fmu", "fmu_map", "fmi"}, "vehicle")
+    no_unknown(v, {"preset", "overrides", "start", "fmu", "fmu_map", "fmu_timeout_s", "fmi"},
+               "vehicle")
     preset = string(v, "preset", "vehicle", choices=tuple(sorted(PRESETS)))
     vehicle = get_vehicle(preset)
     ov = table(v, "overrides", "vehicle")

@@ -16,7 +16,9 @@ The child is forked only from a process with one thread (`fork_is_safe`: a threa
 lock at the fork would leave it held in the child) and after OpenCV was set to one thread
 (cosim/cvthreads.py: its worker pool is not copied by a fork); otherwise the stream keeps its
 worker thread. An error in the child is raised in the parent when that frame is delivered;
-the child ends with the run (or with the parent: its pipe closes).
+the child ends with the run (or with the parent: its pipe closes). A child that does not
+answer within `timeout_s` (stopped by SIGSTOP, stuck) is killed and the wait raises: the run
+ends `component_error: camera` instead of waiting for ever.
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ from typing import Any
 import numpy as np
 
 ALIGN = 64
+TIMEOUT_S = 30.0      # s: the longest the run waits for the child's answer (default of
+                      # [camera] render_timeout_s, cosim/sensors/stream.py)
 
 
 def _aligned(n: int) -> int:
@@ -111,9 +115,10 @@ class RenderProcess:
     at a time in order; `submit(*args)` returns a ticket, `result(ticket)` the job's value
     (its arrays copied out of the shared slot)."""
 
-    def __init__(self, job: Callable[..., tuple], frame_bytes: int, n_slots: int = 8
-                 ) -> None:
+    def __init__(self, job: Callable[..., tuple], frame_bytes: int, n_slots: int = 8,
+                 timeout_s: float = TIMEOUT_S) -> None:
         self.n_slots = int(n_slots)
+        self.timeout_s = float(timeout_s)
         self.slot_bytes = _aligned(2 * int(frame_bytes) + 4 * ALIGN)
         self.buf = mmap.mmap(-1, self.slot_bytes * self.n_slots)
         ctx = mp.get_context("fork")
@@ -147,8 +152,25 @@ class RenderProcess:
         return RuntimeError(f"the camera's render process ended (exit code "
                             f"{self.proc.exitcode})")
 
+    def _hung(self) -> RuntimeError:
+        """No answer in time: the child is killed (a stopped one too) and the run told."""
+        pid = self.proc.pid
+        try:
+            state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            state = "?"
+        how = {"T": "stopped (SIGSTOP)", "t": "stopped by a debugger", "D": "waiting on a disk",
+               "Z": "ended"}.get(state, "stuck")
+        self.proc.kill()
+        self.proc.join(5.0)
+        return RuntimeError(f"the render process (pid {pid}) did not answer within "
+                            f"{self.timeout_s:g} s for frame {self.received}: it was {how}, "
+                            f"and is ended ([camera] render_timeout_s sets the limit)")
+
     def _receive(self) -> None:
         try:
+            if not self.conn.poll(self.timeout_s):
+                raise self._hung()
             i, blur_px, tup, desc = self.conn.recv()
         except (EOFError, OSError) as exc:
             raise self._ended() from exc
@@ -173,6 +195,8 @@ class RenderProcess:
         if self.proc is None:
             return
         try:
+            if not self.proc.is_alive():     # killed (no answer in time) or ended
+                raise EOFError
             self.conn.send(None)
             while self.conn.poll(5.0):           # frames not delivered, then its CPU time
                 i, cpu_s, _, _ = self.conn.recv()

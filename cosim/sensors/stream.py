@@ -12,15 +12,23 @@ on the tick it is captured, exactly as before the stream existed.
 key the table does not set (front camera only); the keys themselves can be set with any
 stream. docs/cameras.md, "The video stream", gives the sources of the preset.
 
-``FrameStream`` renders a frame when it is captured. With a delay it may instead render
-``pipelined``: the render of frame k is a pure function of the pose at capture (the
+``FrameStream`` renders a frame when it is delivered (below). With a delay it may instead
+render ``pipelined``: the render of frame k is a pure function of the pose at capture (the
 renderer's own seeded noise is drawn in capture order, one job at a time), so it runs while
 the plant and the flight stack step on, and is joined at delivery; with it runs the app's
 per-frame image work (``FrameStage``: cosim/apps/base.py). The worker is a forked render
 process where a fork is safe (cosim/sensors/render_proc.py: its own interpreter, so the
 render's Python does not take turns with the loop's), else a thread
 (``COSIM_RENDER_PROCESS=0`` forces the thread). The flight is the same, bit for bit, either
-way.
+way. A render process that does not answer within ``[camera] render_timeout_s`` (default
+30 s; stopped, stuck) is ended, and the run with ``component_error: camera``.
+
+A frame waits for its delivery as its pose (and the app's wish for it, taken at capture), not
+as an image: it is rendered at its delivery, or by the worker at most ``LOOKAHEAD`` frames
+before it. Frames are delivered in capture order and the camera draws its noise in that order
+either way, so the images are the ones a render at capture makes, and the memory held stays
+a few frames whatever the latency and the frame rate (issue 43, item 13: ``latency_s = 5``
+with a frame every tick held 1000 images, 5.4 GB at 1920 x 1080).
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ import numpy as np
 from cosim.errors import ScenarioError
 from cosim.plant.fmu import Y_P, Y_QW, Y_QZ, Y_R, Y_VX, Y_VZ, Y_X, Y_Z
 from cosim.scenario.validate import number, string
+from cosim.sensors.render_proc import TIMEOUT_S as RENDER_TIMEOUT_S
 
 OFF = ("0", "false", "no", "off")   # COSIM_RENDER_PROCESS values that keep the thread
 STREAM_SEED = 12          # the jitter's stream: default_rng([scenario seed, STREAM_SEED])
@@ -57,9 +66,11 @@ PRESETS: dict[str, dict[str, float]] = {
     "bebop2": {"latency_s": 0.12, "jitter_s": 0.01, "exposure_s": 0.01,
                "lighting_noise": 0.01, "offset_noise": 1.0},
 }
-STREAM_KEYS = ("stream", "latency_s", "jitter_s")
+STREAM_KEYS = ("stream", "latency_s", "jitter_s", "render_timeout_s")
 LATENCY_MAX_S = 5.0
 JITTER_MAX_S = 1.0
+RENDER_TIMEOUT_MAX_S = 3600.0
+LOOKAHEAD = 8                 # frames the worker renders ahead of their delivery, at most
 
 
 @dataclass(frozen=True)
@@ -69,6 +80,7 @@ class StreamSpec:
     preset: str = "ideal"
     latency_s: float = 0.0        # s, capture to delivery
     jitter_s: float = 0.0         # s, std of the per-frame delay around latency_s
+    render_timeout_s: float = RENDER_TIMEOUT_S   # s, a frame from the render process
 
     @property
     def delayed(self) -> bool:
@@ -88,11 +100,21 @@ def split_stream(d: Mapping[str, Any], where: str, kind: str) -> tuple[dict, Str
     spec = StreamSpec(
         preset=name,
         latency_s=number(filled, "latency_s", where, 0.0, lo=0.0, hi=LATENCY_MAX_S),
-        jitter_s=number(filled, "jitter_s", where, 0.0, lo=0.0, hi=JITTER_MAX_S))
+        jitter_s=number(filled, "jitter_s", where, 0.0, lo=0.0, hi=JITTER_MAX_S),
+        render_timeout_s=number(d, "render_timeout_s", where, RENDER_TIMEOUT_S, lo=0.0,
+                                hi=RENDER_TIMEOUT_MAX_S, lo_open=True))
     for k, v in preset.items():
         if k not in STREAM_KEYS:
             rest.setdefault(k, v)
     return rest, spec
+
+
+@dataclass(frozen=True)
+class Later:
+    """A captured frame not handed to a renderer yet: what was decided at its capture."""
+
+    work: bool                    # the app's FrameStage of it, on the worker
+    render: bool                  # the app wanted it at capture (else: its draws only)
 
 
 @dataclass(frozen=True)
@@ -122,7 +144,8 @@ class FrameStream:
         self.rng = (np.random.default_rng([seed, STREAM_SEED]) if spec.jitter_s > 0.0
                     else None)
         self.moving = bool(getattr(camera, "wants_motion", False))
-        self.queue: deque = deque()      # (delivery tick, capture tick, y, image or future)
+        self.queue: deque = deque()      # (delivery tick, capture tick, y, Later or its job)
+        self.in_flight = 0               # the first entries of the queue handed to a renderer
         self.last_k = -1                 # delivery tick of the frame captured last
         self.times: list[tuple[int, int, float]] = []
         self.pipelined = bool(pipelined and spec.delayed)
@@ -172,7 +195,8 @@ class FrameStream:
         frame_bytes = 3 * int(getattr(cfg, "width", 0)) * int(getattr(cfg, "height", 0))
         wanted = os.environ.get("COSIM_RENDER_PROCESS", "1").strip().lower() not in OFF
         if wanted and frame_bytes > 0 and fork_is_safe():
-            self.proc = RenderProcess(self._render, frame_bytes)
+            self.proc = RenderProcess(self._render, frame_bytes,
+                                      timeout_s=self.spec.render_timeout_s)
             self.worker = "process"
         else:
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="cosim-render")
@@ -184,8 +208,18 @@ class FrameStream:
         if self.pipelined and not self.worker:
             self._start_worker()
         render = self.wanted is None or bool(self.wanted())
-        job = self._job(ys, render and self.stage is not None, render)
-        self.queue.append((kd, k, ys, job))
+        self.queue.append((kd, k, ys, Later(render and self.stage is not None, render)))
+        self._hand_out()
+
+    def _hand_out(self) -> None:
+        """The worker gets the next frames, in capture order, up to LOOKAHEAD undelivered
+        (without a worker a frame is rendered when it is delivered)."""
+        q = self.queue
+        ahead = LOOKAHEAD if self.worker else 0
+        while self.in_flight < ahead and self.in_flight < len(q):
+            kd, k, ys, later = q[self.in_flight]
+            q[self.in_flight] = (kd, k, ys, self._job(ys, later.work, later.render))
+            self.in_flight += 1
 
     def _job(self, ys: list, work: bool, render: bool, drawn=None):
         """`_render` on the worker (a ticket or a future) or here (its value)."""
@@ -210,6 +244,11 @@ class FrameStream:
         """(capture tick, plant outputs at capture, image); the image is None for a frame
         nobody wanted (see `prepare_with`)."""
         kd, k, ys, job = self.queue.popleft()
+        if isinstance(job, Later):        # rendered now, at its delivery
+            job = self._job(ys, job.work, job.render)
+        else:
+            self.in_flight -= 1
+        self._hand_out()
         img, blur_px, pre = self._value(job)
         if isinstance(pre, Skipped):      # not rendered at capture: its draws
             if self.wanted():             # ... but wanted now: made from them, the same

@@ -13,12 +13,12 @@ same: a sensor-fed vehicle loses its position through the sensor faults) and
 from __future__ import annotations
 
 import math
-import tempfile
 from pathlib import Path
 
 import cython
 import numpy as np
 
+from cosim import tempdirs
 from cosim.outputs.series import CHUNK, ESTIMATE_COLUMNS, SeriesSpool
 from cosim.sensors.suite import SensorSuite
 from mav import wire
@@ -61,7 +61,7 @@ class SensorFeed:
         self.est = [math.nan, math.nan, math.nan]
         self._y = None
         if spool is None:
-            self._tmp = tempfile.TemporaryDirectory(prefix="cosim-estimate-")
+            self._tmp = tempdirs.folder("estimate")
             spool = Path(self._tmp.name) / "estimate.f64"
         self.spool = SeriesSpool(spool, len(ESTIMATE_COLUMNS))
         self.rows: list[bytes] = self.spool.rows

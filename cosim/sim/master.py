@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from cosim import numerics
-from cosim.errors import ComponentError, ScenarioError
+from cosim import numerics, tempdirs
+from cosim.errors import ComponentError, ScenarioError, output_error
 from cosim.outputs.folder import check_inputs_kept, clean_run_folder
 from cosim.outputs.result import RunResult
 from cosim.outputs.series import SERIES_COLUMNS, SeriesSpool
@@ -91,9 +91,14 @@ def build_plant(sc: Scenario) -> Plant:
     if sc.plant is not None:    # a user's FMU or the FMI 3.0 build, through fmpy and the map
         from cosim.plant.mapped import MappedPlant
 
+        pose = dict(step_size=sc.timing.tick_s, x0=sc.start.n, y0=sc.start.e,
+                    yaw0=math.radians(sc.start.yaw_deg))
         with part("plant"):
-            return MappedPlant(sc.vehicle, sc.plant, step_size=sc.timing.tick_s, x0=sc.start.n,
-                               y0=sc.start.e, yaw0=math.radians(sc.start.yaw_deg))
+            if sc.plant.fmu is not None:     # a user's: in a process of its own, with a timeout
+                from cosim.plant.isolated import IsolatedPlant
+
+                return IsolatedPlant(sc.vehicle, sc.plant, timeout_s=sc.plant.timeout_s, **pose)
+            return MappedPlant(sc.vehicle, sc.plant, **pose)
     with part("plant"):
         return Plant(sc.vehicle, step_size=sc.timing.tick_s, x0=sc.start.n, y0=sc.start.e,
                      z0=0.0, yaw0=math.radians(sc.start.yaw_deg))
@@ -158,7 +163,7 @@ def run_dir_for(opts: RunOptions) -> tuple[Path, Any]:
         opts.out_dir.mkdir(parents=True, exist_ok=True)
         clean_run_folder(opts.out_dir)
         return opts.out_dir, None
-    tmp = tempfile.TemporaryDirectory(prefix="cosim-run-")
+    tmp = tempdirs.folder("run")
     return Path(tmp.name), tmp
 
 
@@ -179,8 +184,12 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
 
         check_inputs_kept(opts.out_dir, app_inputs(sc.app, sc.source))
     run_dir, tmp = run_dir_for(opts)
-    spool_tmp = tmp or tempfile.TemporaryDirectory(prefix="cosim-spool-")
-    spool = SeriesSpool(Path(spool_tmp.name) / "series.f64")
+    try:
+        spool_tmp = tmp or tempdirs.folder("spool")
+        spool = SeriesSpool(Path(spool_tmp.name) / "series.f64")
+    except OSError as exc:          # a full TMPDIR: said in one line, nothing flown
+        raise output_error(exc, f"the series spool in TMPDIR ({tempfile.gettempdir()})"
+                           ) from None
     tlog = Tlog(run_dir / "flight.tlog")
 
     h = sc.timing.tick_s
@@ -266,6 +275,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
         if live is not None:   # the live view logs the last recorded tick, then paces
             pace = live.pacing(spool.rows, phases, pace if realtime else None)
             realtime = True
+        # real time, each simulated second: the tlog and the MCAP on disk up to now (what a
+        # SIGKILL leaves is readable up to the last second)
+        per_s = max(1, int(round(1.0 / h)))
+        keep = keep_so_far(tlog, mcap, spool, phases, feed)
         for k in range(n_ticks):
             if gusty is not None:
                 wind = gusty(k)
@@ -276,6 +289,8 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
             if realtime or progress:
                 t = k * h_us * 1e-6
                 if realtime:
+                    if (k + 1) % per_s == 0:
+                        keep()
                     pace(t + h)
                 if progress and k % 2000 == 0:
                     show_progress(t, wall0, phases[tick.phase])
@@ -323,9 +338,33 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
     if feed is not None:
         res.estimate = feed.array()
         res.faults = sorted(res.faults + feed.fired())
+    res.warnings = full_tmpdir(h, recorded, feed.spool.finish() if feed is not None else None)
     if mcap is not None:
         res.mcap = mcap.finish(res)
     return res
+
+
+def keep_so_far(tlog: Tlog, mcap, spool: SeriesSpool, phases: list[str], feed):
+    """What a real-time run writes out each simulated second: its tlog's buffer, and with
+    `--mcap` the rows recorded since the last time (cosim/outputs/mcap.py `progress`)."""
+    def keep() -> None:
+        tlog.flush()
+        if mcap is not None:
+            mcap.progress(spool, phases, feed.spool if feed is not None else None)
+    return keep
+
+
+def full_tmpdir(h: float, *spooled) -> list[str]:
+    """One line naming TMPDIR when a spool there found its disk full: its rows from then on
+    were held in memory (cosim/outputs/series.py), so nothing is lost, but the user should
+    know."""
+    for rec in spooled:
+        if rec is not None and rec.error is not None:
+            e = rec.error
+            return [f"TMPDIR ({tempfile.gettempdir()}) is full ({e.strerror or e}): the run's "
+                    f"series from t = {rec.on_disk * h:.2f} s on was held in memory, nothing "
+                    "is lost; give TMPDIR a folder with room"]
+    return []
 
 
 def show_progress(t: float, wall0: float, phase: str) -> None:

@@ -5,11 +5,11 @@ GCS links (tapped into the run's tlog), `stats`, `close`; for `cosim sitl`, `res
 from __future__ import annotations
 
 import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
+from cosim import tempdirs
 from cosim.errors import ComponentError
 from cosim.outputs.tlog import Tlog, tap
 from cosim.scenario.records import Scenario
@@ -96,7 +96,7 @@ class OnboardHandle:
         vname = sc.vehicle.name
         if opts.hil_transport == "unix":
             # short paths in a private folder (a socket path has ~100 bytes at most)
-            self._sock_dir = tempfile.TemporaryDirectory(prefix="cosim-hil-")
+            self._sock_dir = tempdirs.folder("hil")
             vehicle_sock = os.path.join(self._sock_dir.name, "vehicle")
             hil = UnixLink(os.path.join(self._sock_dir.name, "sim"), remote=vehicle_sock)
         else:

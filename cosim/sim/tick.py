@@ -128,7 +128,9 @@ class Tick:
             spool.append(spool.pack(t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2],
                                     sp[0] + self.home_n, sp[1] + self.home_e, sp[2], pi))
             if len(spool.rows) >= CHUNK:
+                self.stage = "recorder"
                 spool.flush()
+                self.tlog.flush()       # a slow run killed later keeps its log up to here
         # 7. the motor commands -> the plant, stepped to t_k+1
         if hooks is not None:
             u1, u2, u3, u4 = hooks.on_actuators(t_us, (u1, u2, u3, u4))

@@ -21,7 +21,8 @@ distributions: uniform(a,b) normal(mu,sigma) truncnormal(mu,sigma,lo,hi) logunif
   choice(v1,v2,...); a draw outside the field's range is an error (no clipping).
 The same command again continues an interrupted study (runs in results.csv are skipped).
 exit status: 0 study done, 1 some runs failed (raised or a component error), 2 bad input,
-130 interrupted."""
+130 after Ctrl-C, 143 after SIGTERM (the runs cut by it get no row: the same command flies
+them again)."""
 
 
 def add_study_options(p: argparse.ArgumentParser, *, default_executor: str) -> None:

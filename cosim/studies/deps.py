@@ -57,6 +57,18 @@ def component_error(res) -> bool:
     return res.exit_reason is ExitReason.COMPONENT_ERROR
 
 
+def interrupted(res) -> bool:
+    """The run was cut by a signal (Ctrl-C, SIGTERM): not a result."""
+    return res.exit_reason.value == cut_exit()
+
+
+def cut_exit() -> str:
+    """The exit reason of a run cut by a signal (a row an older cosim kept: run again)."""
+    from cosim.scenario.records import ExitReason  # a leaf: loads no simulator
+
+    return ExitReason.INTERRUPTED.value
+
+
 def summarize(res) -> dict[str, Any]:
     from cosim.outputs.report import summarize as f
 

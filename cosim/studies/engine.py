@@ -13,7 +13,8 @@ table; the one engine of both.
 
 Rows come back as runs finish (`as_completed`) and are appended to the table at once, so a
 study stopped anywhere (Ctrl-C, a lost worker, a reboot) resumes with the same command and
-skips the runs already in the table. Each finished run also gets a line in `runs.log` (JSON
+skips the runs already in the table. A signal stops the study: the runs it cut get no row
+(`RunInterrupted`), so the resume flies them. Each finished run also gets a line in `runs.log` (JSON
 lines: run id, status, wall time, worker, its resident memory after the run, UTC time): what
 changes from one execution to another stays out of the table.
 """
@@ -25,7 +26,9 @@ import json
 import logging
 import os
 import re
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -34,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.errors import ScenarioError, output_error
-from cosim.studies.jobs import Job, run_job
+from cosim.studies.jobs import Job, RunInterrupted, run_job
 from cosim.studies.table import ResultsTable
 
 EXECUTORS = ("dask", "serial")
@@ -46,7 +49,8 @@ class StudyError(Exception):
 
 
 class StudyInterrupted(Exception):
-    """Ctrl-C: the rows so far are in the table; the same command continues."""
+    """Ctrl-C or SIGTERM: the rows so far are in the table, the runs cut by it have none;
+    the same command continues."""
 
 
 @dataclass
@@ -102,7 +106,7 @@ def run_study(jobs: list[Job], table: ResultsTable, *, executor: str = "dask",
             for row in map_jobs(todo, fn, executor=executor, workers=workers,
                                 scheduler=scheduler):
                 record(row)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, RunInterrupted):   # the run under way is no row: flown again
         raise StudyInterrupted(f"interrupted after {stats.ran} of {len(todo)} runs") from None
     finally:
         bar.close()
@@ -162,12 +166,51 @@ def local_cluster(n: int):
     # a job that kills its worker does not take queued innocent jobs with it. No statistical
     # profiler in the workers: it feeds the dashboard (none here) and keeps a call tree per
     # second of work, 1000 of them, tens of MB per worker (issue 15).
+    # Workers ignore Ctrl-C (worker_ignores_ctrl_c): the preload for a worker the nanny
+    # starts again later, `_ctrl_c_held` for the first ones.
     with dask.config.set({"distributed.scheduler.allowed-failures": 1,
                           "distributed.scheduler.worker-saturation": 1.0,
                           "distributed.worker.profile.enabled": False,
-                          "distributed.nanny.pre-spawn-environ": spawn}):
+                          "distributed.worker.preload": [__name__],
+                          "distributed.nanny.pre-spawn-environ": spawn}), _ctrl_c_held():
+        # no dashboard; the scheduler's HTTP endpoints on a free port (not 8787, which another
+        # study may hold: a warning)
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                            dashboard_address=None, silence_logs=logging.ERROR)
+                            dashboard_address=None, silence_logs=logging.ERROR,
+                            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+
+
+# Ctrl-C in a terminal signals every process of its group, the workers of a local cluster too.
+# A worker that takes it as KeyboardInterrupt closes itself while the client closes the
+# cluster, and each prints tracebacks of the broken connections (issue 43, item 16). The
+# client alone answers Ctrl-C (the study stops, the cluster is closed in order): the workers
+# ignore it.
+def dask_setup(worker) -> None:
+    """Dask's preload hook, run in each worker of our local cluster as it starts."""
+    worker_ignores_ctrl_c()
+
+
+def worker_ignores_ctrl_c() -> None:
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def _ctrl_c_held():
+    """While the first workers start, SIGINT is ignored (a disposition a child inherits, so a
+    worker ignores it from its first instruction on, before the preload runs) and blocked in
+    this process's threads (a blocked signal is kept pending, not dropped: a Ctrl-C in the
+    meantime is delivered when this ends, as KeyboardInterrupt)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})   # threads made now too
+    handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 def _dask(jobs, fn, *, workers, scheduler, lost, **_) -> Iterator[dict[str, Any]]:
@@ -195,6 +238,8 @@ def _dask(jobs, fn, *, workers, scheduler, lost, **_) -> Iterator[dict[str, Any]
             job = by_key.pop(f.key)
             try:
                 row = f.result()
+            except RunInterrupted:    # a signal on the worker: no result, the study stops
+                raise
             except Exception as exc:  # the worker died twice (KilledWorker) or the task broke
                 row = lost(job, exc)
             f.release()
@@ -204,6 +249,9 @@ def _dask(jobs, fn, *, workers, scheduler, lost, **_) -> Iterator[dict[str, Any]
         client.close()
         if cluster is not None:
             cluster.close()
+            from cosim import tempdirs
+
+            tempdirs.sweep()     # what the workers stopped in a run left (issue 43, item 15)
 
 
 def lost_row(job: Job, exc: BaseException) -> dict[str, Any]:

@@ -4,7 +4,9 @@ A job carries the scenario itself (the TOML table with its world file already me
 a path, so a worker on another machine needs no copy of the scenarios folder; it does need the
 same `cosim` install (the code, and the FMU that `fmus.build.fmu_path()` finds or builds next to
 it; see README.md of this package). `run_job` never raises for a failed run: a run that raises
-is a row with status 'failed' and the error text, and the study goes on.
+is a row with status 'failed' and the error text, and the study goes on. A run cut by a signal
+(Ctrl-C, SIGTERM) is no result: `run_job` raises `RunInterrupted`, the engine keeps no row for
+it and stops the study, and the same command flies it again.
 """
 
 from __future__ import annotations
@@ -17,19 +19,22 @@ import json
 import os
 import shutil
 import socket
-import tempfile
 import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cosim import cache, cvthreads
+from cosim import cache, cvthreads, tempdirs
 from cosim.studies import deps
 
 # columns every row has, in this order; then the varied parameters, then the metrics
 HEAD = ("run_id",)
 TAIL = ("seed", "status", "exit_reason", "passed", "app_phase", "message", "error")
+
+
+class RunInterrupted(Exception):
+    """A run cut by a signal: not a result (no row); the study stops, its resume re-flies it."""
 
 
 @dataclass(frozen=True)
@@ -72,7 +77,8 @@ def scenario_of(job: Job):
 
 
 def run_job(job: Job) -> dict[str, Any]:
-    """Fly one mission; return its row. Never raises for a failed run. A worker runs one
+    """Fly one mission; return its row. Never raises for a failed run (a run cut by a signal
+    raises RunInterrupted: it is not a result). A worker runs one
     mission per core: OpenCV on one thread; what is made once per world is kept in the
     study's cache folder (the same results bit for bit: cosim/cvthreads.py, cosim/cache.py)."""
     cvthreads.set_run_threads(1)
@@ -85,10 +91,12 @@ def run_job(job: Job) -> dict[str, Any]:
         sc = scenario_of(job)
         row["seed"] = sc.seed
         if job.keep_dir is None:
-            tmp = tempfile.mkdtemp(prefix="cosim-run-")
+            tmp = tempdirs.make("run")
         out = Path(job.keep_dir or tmp)
         res = deps.run_mission(sc, mode=job.mode, out_dir=out,
                                mcap=job.mcap and job.keep_dir is not None)
+        if deps.interrupted(res):
+            raise RunInterrupted(f"run {job.run_id} cut at t = {res.t_end_s:.2f} s")
         summary = deps.write_run(res, out) if job.keep_dir else deps.summarize(res)
         failed = deps.component_error(res)
         row.update(status="failed" if failed else "ok", exit_reason=res.exit_reason.value,
@@ -100,6 +108,8 @@ def run_job(job: Job) -> dict[str, Any]:
                                           if not c["passed"])
         # the worker's numerics: "portable" runs give the same bits on any x86-64 CPU
         row["numerics"] = summary["numerics"]["mode"]
+    except RunInterrupted:
+        raise
     except Exception as exc:  # a crashed run is a row, the study goes on
         tb = traceback.extract_tb(exc.__traceback__)
         where = f" (at {Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""

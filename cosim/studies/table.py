@@ -1,12 +1,14 @@
 """The results table of a study: one CSV, a row per run, appended and flushed as runs finish.
 
-The file is the study's memory: a re-run of the same command reads it and skips the run ids
-it holds (ok and failed rows alike; `--retry-failed` re-runs failed ones). Each row is written
-with one `write` + flush + fsync, so an interruption loses at most the row being written; a torn
-last line is dropped when the table is opened again. When a run reports a metric no earlier row
-had, the header grows: the file is rewritten to a temporary file and moved into place. At the end
-`finish()` sorts the rows by run id (the last row of a run id wins) and orders the metric
-columns by name, so the file is the same bytes whatever the executor and the finishing order.
+The file is the study's memory: a re-run of the same command reads it and skips the run ids it
+holds (ok and failed rows alike; `--retry-failed` re-runs failed ones), except a run cut by a
+signal that an older cosim kept as a row (exit reason 'interrupted'): it is flown again. Each
+row is written with one `write` + flush + fsync, so an interruption loses at most the row being
+written; a torn last line is dropped when the table is opened again. When a run reports a metric
+no earlier row had, the header grows: the file is rewritten to a temporary file and moved into
+place. At the end `finish()` sorts the rows by run id (the last row of a run id wins) and orders
+the metric columns by name, so the file is the same bytes whatever the executor and the
+finishing order.
 
 Values: floats as `repr` (round-trips bit for bit), booleans True/False, None as empty; text
 keeps to one line (line breaks become ' / ').
@@ -20,6 +22,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from cosim.studies import deps
 from cosim.studies.jobs import HEAD, TAIL
 
 
@@ -65,9 +68,12 @@ class ResultsTable:
             self._rewrite()
 
     def finished(self, *, retry_failed: bool = False) -> set[int]:
-        """Run ids with a row (without the failed ones if `retry_failed`)."""
+        """Run ids with a row (without the failed ones if `retry_failed`), not counting a run
+        cut by a signal (no result: flown again)."""
+        cut = deps.cut_exit()
         last = {int(r["run_id"]): r for r in self.rows}
-        return {i for i, r in last.items() if not (retry_failed and r["status"] == "failed")}
+        return {i for i, r in last.items() if r.get("exit_reason") != cut
+                and not (retry_failed and r["status"] == "failed")}
 
     # ------------------------------------------------------------------ writing
     def append(self, row: dict[str, Any]) -> None:
