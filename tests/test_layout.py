@@ -101,7 +101,7 @@ LAYERS = (
     ("outputs",),
     ("sim",),
     ("load",),
-    ("cli_checks", "bench", "cli_render", "cli_teach"),
+    ("cli_checks", "bench", "cli_render", "cli_teach", "executors"),
     ("studies", "cli_sitl"),
     ("regress",),
     ("cli",),

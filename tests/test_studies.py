@@ -357,8 +357,8 @@ def test_local_workers_run_this_process_numerics(monkeypatch):
     engine's) and its numerics mode, which check_workers compares."""
     from dask.distributed import Client
 
+    from cosim import executors as engine
     from cosim import numerics
-    from cosim.studies import engine
 
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)   # neither changes the mode
     monkeypatch.delenv("MKL_NUM_THREADS", raising=False)

@@ -147,7 +147,7 @@ def test_local_workers_ignore_ctrl_c_even_when_started_again():
     import cloudpickle
     from dask.distributed import Client
 
-    from cosim.studies.engine import local_cluster
+    from cosim.executors import local_cluster
 
     cloudpickle.register_pickle_by_value(sys.modules[__name__])   # workers cannot import tests
     ours = signal.getsignal(signal.SIGINT)

@@ -21,6 +21,7 @@ Definitions (also in docs/outputs.md, Metrics):
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -140,4 +141,24 @@ def evaluate(criteria: Criteria, metrics: dict[str, Any], exit_reason: ExitReaso
         v = metrics.get(metric)
         out[crit] = {"value": v, "limit": limit,
                      "passed": v is not None and math.isfinite(v) and v >= limit}
+    return out
+
+
+def flat_metrics(metrics: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Scalar metrics as columns; nested tables as `name.key`; a list of numbers (e.g. a key's
+    switch times) as its JSON text; other lists stay in the run folder."""
+    out: dict[str, Any] = {}
+    for k, v in metrics.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flat_metrics(v, name + "."))
+        elif isinstance(v, bool | str) or v is None:
+            out[name] = v
+        elif isinstance(v, int | float):
+            out[name] = v
+        elif hasattr(v, "item") and not hasattr(v, "__len__"):  # numpy scalar
+            out[name] = v.item()
+        elif isinstance(v, list | tuple) and all(
+                isinstance(x, int | float) and not isinstance(x, bool) for x in v):
+            out[name] = json.dumps([float(x) for x in v])
     return out

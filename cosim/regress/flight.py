@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from cosim.outputs.metrics import flat_metrics
 from cosim.regress.cases import DEFAULT_SIGNALS, RATE_HZ
 from mav.rotations import yaw_from_quat
 
@@ -171,8 +172,6 @@ def read_run(out: Path, returncode: int = 0, *, signals: tuple[str, ...] = (),
     except (OSError, ValueError):
         return Flight(out, returncode, None, error=f"the run wrote no summary.json (exit "
                       f"{returncode}): {log_tail(out)}")
-    from cosim.studies.jobs import flat_metrics
-
     f = Flight(out, returncode, summary, metrics=flat_metrics(summary.get("metrics", {})))
     if summary.get("exit_reason") == "component_error":
         f.error = f"component_error: {summary.get('message', '')}"

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cosim.executors import map_jobs
 from cosim.regress import baseline as baselines
 from cosim.regress.cases import Case
 from cosim.regress.compare import check
@@ -93,8 +94,6 @@ def _sim_time(case: Case) -> float:
 
 def run_cases(jobs: list[CaseJob], *, executor: str = "dask", workers: int | None = None,
               scheduler: str | None = None) -> Iterator[dict[str, Any]]:
-    from cosim.studies.engine import map_jobs
-
     yield from map_jobs(jobs, run_case, executor=executor, workers=workers,
                         scheduler=scheduler, lost=lost_case)
 

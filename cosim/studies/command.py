@@ -66,7 +66,7 @@ def _engine_kw(args) -> dict:
     if args.scheduler is not None and args.executor != "dask":
         raise ScenarioError("--scheduler", args.scheduler, "only with --executor dask")
     if args.scheduler is not None:
-        from cosim.studies.engine import scheduler_address
+        from cosim.executors import scheduler_address
 
         scheduler_address(args.scheduler)          # a malformed address: refused now
     if args.scheduler is not None and args.workers is not None:

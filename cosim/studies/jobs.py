@@ -15,7 +15,6 @@ import copy
 import ctypes
 import ctypes.util
 import gc
-import json
 import os
 import shutil
 import socket
@@ -26,15 +25,13 @@ from pathlib import Path
 from typing import Any
 
 from cosim import cache, cvthreads, tempdirs
+from cosim.executors import RunInterrupted
+from cosim.outputs.metrics import flat_metrics
 from cosim.studies import deps
 
 # columns every row has, in this order; then the varied parameters, then the metrics
 HEAD = ("run_id",)
 TAIL = ("seed", "status", "exit_reason", "passed", "app_phase", "message", "error")
-
-
-class RunInterrupted(Exception):
-    """A run cut by a signal: not a result (no row); the study stops, its resume re-flies it."""
 
 
 @dataclass(frozen=True)
@@ -176,26 +173,6 @@ def _rss_mb() -> float | None:
     except ImportError:
         return None
     return round(psutil.Process().memory_info().rss / 1e6, 1)
-
-
-def flat_metrics(metrics: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Scalar metrics as columns; nested tables as `name.key`; a list of numbers (e.g. a key's
-    switch times) as its JSON text; other lists stay in the run folder."""
-    out: dict[str, Any] = {}
-    for k, v in metrics.items():
-        name = f"{prefix}{k}"
-        if isinstance(v, dict):
-            out.update(flat_metrics(v, name + "."))
-        elif isinstance(v, bool | str) or v is None:
-            out[name] = v
-        elif isinstance(v, int | float):
-            out[name] = v
-        elif hasattr(v, "item") and not hasattr(v, "__len__"):  # numpy scalar
-            out[name] = v.item()
-        elif isinstance(v, list | tuple) and all(
-                isinstance(x, int | float) and not isinstance(x, bool) for x in v):
-            out[name] = json.dumps([float(x) for x in v])
-    return out
 
 
 def _last_phase(res) -> str:
