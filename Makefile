@@ -39,12 +39,14 @@ test-fast: setup
 	$(VENV)/bin/ruff check .
 	$(PY) -m pytest --fast --durations=10 -q
 
-# the slow checks include a real viewer (tests/viewer): chromium, Playwright, npm packages
+# the slow checks include real viewers (tests/viewer): chromium, Playwright, npm packages,
+# and Lichtblick's web app built from its sources (the first time: tens of minutes, GBs)
 test-slow: setup viewer-setup
 	$(PY) -m cosim.numerics portable -- $(PY) -m pytest -m slow
 
 viewer-setup: setup
 	bash tests/viewer/setup.sh
+	bash tests/viewer/setup_lichtblick.sh
 
 bench: setup
 	$(VENV)/bin/cosim bench

@@ -23,8 +23,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 SHOTS = os.environ.get("COSIM_VIEWER_SHOTS")   # a folder: the tests keep their screenshots there
-NODE = Path(os.environ.get("COSIM_VIEWER_DIR", Path.home() / ".cache" / "cosim-viewer")
-            ) / "node_modules"
+CACHE = Path(os.environ.get("COSIM_VIEWER_DIR", Path.home() / ".cache" / "cosim-viewer"))
+NODE = CACHE / "node_modules"
+LICHTBLICK = CACHE / "lichtblick" / "web"      # Lichtblick's web build (setup_lichtblick.sh)
 CHROMIUM = "/usr/bin/chromium"
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
          "--disable-component-update", "--disable-sync",
@@ -33,14 +34,16 @@ FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-ne
          "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 
 
-def run_url(base: str, t_s: float) -> str:
-    """The page opening base/run.mcap at simulation time t_s (s) with the layout "cosim"."""
+def run_url(base: str, t_s: float, layout_id: str | None = "cosim") -> str:
+    """The page opening base/run.mcap at simulation time t_s (s) with the layout "cosim"
+    (layout_id None: the viewer's current layout)."""
     stamp = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(int(t_s)))
-    return (f"{base}/?ds=remote-file&ds.url={base}/run.mcap&layoutId=cosim"
+    layout = f"&layoutId={layout_id}" if layout_id else ""
+    return (f"{base}/?ds=remote-file&ds.url={base}/run.mcap{layout}"
             f"&time={stamp}.{int(round(t_s % 1 * 1e9)):09d}Z")
 
 
-def _handler(routes: dict[str, Path], node: Path):
+def _handler(routes: dict[str, Path], node: Path, app: Path | None):
     class Handler(BaseHTTPRequestHandler):
         def log_message(self, *args) -> None:   # quiet
             pass
@@ -52,6 +55,10 @@ def _handler(routes: dict[str, Path], node: Path):
             if url.startswith("/node/"):
                 p = (node / url[len("/node/"):]).resolve()
                 if node.resolve() in p.parents and p.is_file():
+                    return p
+            if app is not None:     # a web app's own build: its index.html and assets
+                p = (app / (url.lstrip("/") or "index.html")).resolve()
+                if app.resolve() in p.parents and p.is_file():
                     return p
             return None
 
@@ -96,11 +103,14 @@ def _handler(routes: dict[str, Path], node: Path):
 
 
 @contextlib.contextmanager
-def serve(mcap: Path, layout: Path, node: Path) -> Iterator[str]:
-    """Serve on 127.0.0.1, a free port; yields the base URL."""
-    routes = {"/": HERE / "index.html", "/index.html": HERE / "index.html",
-              "/boot.js": HERE / "boot.js", "/layout.json": layout, "/run.mcap": mcap}
-    server = ThreadingHTTPServer(("127.0.0.1", 0), _handler(routes, node))
+def serve(mcap: Path, layout: Path, node: Path, app: Path | None = None) -> Iterator[str]:
+    """Serve on 127.0.0.1, a free port; yields the base URL. With `app` (a web build's
+    folder, Lichtblick's), the page is that app's own index.html, not ours."""
+    routes = {"/layout.json": layout, "/run.mcap": mcap}
+    if app is None:
+        routes.update({"/": HERE / "index.html", "/index.html": HERE / "index.html",
+                       "/boot.js": HERE / "boot.js"})
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _handler(routes, node, app))
     server.handle_error = lambda *_: None      # a browser dropping a range read it no longer needs
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
