@@ -18,6 +18,7 @@ from cosim.apps.vs import visual_path as VP
 from cosim.apps.vs.features import homography, sort_points
 from cosim.apps.vs.tasks import Obstacle, corridor_task, find_obstacle
 from cosim.cli import main as cli
+from cosim.errors import ScenarioError
 from cosim.load import load_scenario, with_set
 from cosim.outputs.report import summarize
 from cosim.sim.master import run_scenario
@@ -326,9 +327,13 @@ def test_presets_fill_in_and_every_parameter_can_be_set_from_the_command_line():
     app = VisualServoApp(sc.app.params)
     assert app.p["smoothing"] is True and app.p["t_eps_px"] == 12.0   # the e2 preset
     sc2 = with_set(sc, {"app.params.smoothing": False, "app.params.avoidance": False,
-                        "app.params.feedforward": True, "app.params.preset": "e3",
+                        "app.params.rising_n": 7, "app.params.preset": "e3",
                         "app.params.t_eps_px": 9})
     p = VisualServoApp(sc2.app.params).p
-    assert (p["smoothing"], p["avoidance"], p["feedforward"], p["t_eps_px"]) == (
-        False, False, True, 9)
+    assert (p["smoothing"], p["avoidance"], p["rising_n"], p["t_eps_px"]) == (
+        False, False, 7, 9)
+    # feed-forward flies E2's taught legs blind through its bar: refused, the field named
+    with pytest.raises(ScenarioError) as e:
+        with_set(sc, {"app.params.feedforward": True})
+    assert e.value.field == "app.params.feedforward"
     assert p["detector"] == "gftt" and p["l0"] == 2.1                  # the rest from e3
