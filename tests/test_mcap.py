@@ -188,6 +188,7 @@ def test_json_topics_carry_the_recorded_values(run):
     assert sp and all(isinstance(d["type_mask"], int) for d in sp)
 
 
+@pytest.mark.flight          # png and raw fly the mission again with their images
 @pytest.mark.parametrize("images", ["jpeg", "png", "raw"])
 def test_image_payload_is_the_rendered_frame(run, images, tmp_path):
     """The first frame (the camera rendered again at the recorded pose) is the image's
