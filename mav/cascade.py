@@ -218,7 +218,8 @@ class QuadCascade:
             raise ValueError(f"{name} must be finite, got {v!r}")
         if not (spec.min <= v <= spec.max):
             raise ValueError(
-                f"{name} = {v:g} {spec.unit} is outside [{spec.min:g}, {spec.max:g}]")
+                f"{name} = {f'{v:g} {spec.unit}'.rstrip()} is outside "
+                f"[{spec.min:g}, {spec.max:g}]")
         self._p[name] = v
         self._refresh()
 
