@@ -58,7 +58,7 @@ class ParamSpec:
     """One parameter, MAVLink style (PARAM_VALUE carries it as a float): the controllers' gains
     (mav/control.py) and the onboard stack's own (mav/params.py ONBOARD_PARAMS) alike."""
 
-    name: str       # <= 16 characters, MAVLink param id style ("MC_XY_P")
+    name: str       # <= 16 characters, MAVLink param id style ("MPC_XY_P")
     default: float  # in `unit`
     min: float      # in `unit`, inclusive
     max: float      # in `unit`, inclusive
@@ -117,7 +117,7 @@ class Gains:
         "k_xy",                # 1/s, position -> horizontal velocity
         "k_vxy",               # rad s/m, velocity error -> tilt
         "c_drag",              # rad s/m, drag feed-forward tilt per m/s
-        "ki_vxy",              # rad/m, horizontal velocity-error integral -> tilt (wind, PX4's
+        "ki_vxy",              # rad/m, horizontal velocity-error integral -> tilt (wind; as PX4's
                                # MPC_XY_VEL_I_ACC), integrated in the world frame
         "xy_i_lim",            # rad, tilt the horizontal integrator may hold
         "xy_err_max",          # m, per-axis position error saturation
@@ -218,7 +218,8 @@ class QuadCascade:
             raise ValueError(f"{name} must be finite, got {v!r}")
         if not (spec.min <= v <= spec.max):
             raise ValueError(
-                f"{name} = {v:g} {spec.unit} is outside [{spec.min:g}, {spec.max:g}]")
+                f"{name} = {f'{v:g} {spec.unit}'.rstrip()} is outside "
+                f"[{spec.min:g}, {spec.max:g}]")
         self._p[name] = v
         self._refresh()
 

@@ -46,8 +46,11 @@ def float_as_int32(f: float) -> int:
 # PX4's metadata with the file of each; tests/test_px4_params.py checks every PX4 name against
 # it); where the default is not PX4's, `own_default` says why (the room's or the airframe's own
 # value, as PX4's airframe files set theirs). Every other parameter has a name of ours:
-# TPL_ (the Minidrone template stack's own: its estimator's tuning, and the indoor values PX4's
-# ranges do not allow) or MB_ (Parrot's moveBy limits). RENAMED maps the names used before.
+# TPL_ (the Minidrone template stack's own: its estimator's tuning, the Mambo controller's
+# template gains, and the indoor values PX4's ranges do not allow), CAS_ (the Bebop 2
+# controller's own: the cascade's gains per unit inertia or mass, and Parrot's piloting
+# settings it emulates with Parrot's ranges; mav/control.py) or MB_ (Parrot's moveBy limits).
+# RENAMED and RENAMED_CTL map the names used before.
 _ROOM = "indoor: a room a few metres across and high, a 60-200 g vehicle"
 ONBOARD_PARAMS: tuple[ParamSpec, ...] = (
     # PX4: min 0 m, default 2.5 (navigator/mission_params.yaml)
@@ -214,11 +217,45 @@ RENAMED: dict[str, str] = {
     "MPC_XY_CRUISE": "TPL_XY_CRUISE", "MPC_ACC_HOR": "TPL_ACC_HOR",
     "MPC_VEL_MANUAL": "TPL_VEL_MANUAL", "MPC_HOLD_DZ": "TPL_HOLD_DZ",
 }
+# ... and the controllers' (mav/control.py), per vehicle: one old name (MC_RP_I, say) became
+# the Mambo's TPL_ and the Bebop 2's CAS_ parameter.
+RENAMED_CTL: dict[str, dict[str, str]] = {
+    "mambo": {
+        "MC_XY_P": "TPL_XY_P", "MC_XY_D": "TPL_XY_D", "MC_XY_ERR_MAX": "TPL_XY_ERR_MAX",
+        "MC_XY_VEL_I": "TPL_XY_VEL_I", "MC_XY_I_LIM": "TPL_XY_I_LIM",
+        "MPC_TILTMAX_AIR": "TPL_TILTMAX_AIR", "MPC_Z_VEL_MAX": "TPL_Z_VEL_MAX",
+        "MC_PITCH_P": "TPL_PITCH_P", "MC_ROLL_P": "TPL_ROLL_P", "MC_RP_I": "TPL_RP_I",
+        "MC_RP_I_LIM": "TPL_RP_I_LIM", "MC_RP_AW": "TPL_RP_AW", "MC_PITCH_D": "TPL_PITCH_D",
+        "MC_ROLL_D": "TPL_ROLL_D", "MC_YAW_P": "TPL_YAW_P", "MC_YAW_D": "TPL_YAW_D",
+        "MC_Z_P": "TPL_Z_P", "MC_Z_I": "TPL_Z_I", "MC_Z_I_LIM": "TPL_Z_I_LIM",
+        "MC_Z_D": "TPL_Z_D", "MC_THR_MAX": "MPC_THR_MAX",
+    },
+    "bebop2": {
+        "MPC_XY_VEL_P": "CAS_XY_VEL_P", "MPC_XY_ERR_MAX": "CAS_XY_ERR_MAX",
+        "MPC_XY_I_LIM": "CAS_XY_I_LIM", "MPC_TILTMAX_AIR": "CAS_TILTMAX_AIR",
+        "MPC_Z_VEL_P": "CAS_Z_VEL_P", "MPC_Z_VEL_I": "CAS_Z_VEL_I",
+        "MPC_Z_VEL_MAX": "CAS_Z_VEL_MAX", "MC_RP_P": "CAS_RP_P", "MC_RP_I": "CAS_RP_I",
+        "MC_RP_D": "CAS_RP_D", "MC_RP_I_LIM": "CAS_RP_I_LIM", "MC_YAWRATE_P": "CAS_YAWRATE_P",
+        "MC_THR_MAX": "MPC_THR_MAX",
+    },
+}
 
 
-def renamed_error(name: str) -> str | None:
+def renamed_to(name: str, have: Iterable[str] | None = None) -> str | None:
+    """The name a parameter this stack used before issue 44 has now, or None. `have`: the
+    names of one vehicle's table, to name only its own (without: "A or B" where the vehicles
+    differ)."""
+    new = [RENAMED[name]] if name in RENAMED else []
+    new += sorted({m[name] for m in RENAMED_CTL.values() if name in m} - set(new))
+    if have is not None:
+        have = set(have)
+        new = [n for n in new if n in have]
+    return " or ".join(new) or None
+
+
+def renamed_error(name: str, have: Iterable[str] | None = None) -> str | None:
     """The message for a parameter name this stack used before issue 44, or None."""
-    new = RENAMED.get(name)
+    new = renamed_to(name, have)
     if new is None:
         return None
     return (f"{name} is now {new} (this stack's {name} had not PX4's meaning, type or "
@@ -231,12 +268,12 @@ def renamed_error(name: str) -> str | None:
 # velocity gains of both controllers; not integral gains, whose output their limits bound,
 # nor speed/tilt limits, which only slow the vehicle) must stay within a factor GAIN_FACTOR of
 # their defaults, and the thrust limit at least THRUST_HEADROOM times the hover thrust (what
-# climbing and attitude control need on top of hovering; MC_THR_MAX = 0.1 brought a flying
+# climbing and attitude control need on top of hovering; MPC_THR_MAX = 0.1 brought a flying
 # Mambo down). Disarmed, any value in range is stored, but arming is refused while one is
 # outside its envelope, so a vehicle never takes off with it.
-THRUST_LIMIT = "MC_THR_MAX"
+THRUST_LIMIT = "MPC_THR_MAX"
 GAIN_FACTOR = 4.0          # in flight a gain stays within [default / 4, 4 x default]
-THRUST_HEADROOM = 1.5      # in flight MC_THR_MAX >= 1.5 x hover thrust / max thrust
+THRUST_HEADROOM = 1.5      # in flight MPC_THR_MAX >= 1.5 x hover thrust / max thrust
 
 
 def flight_envelope(spec, hover_fraction: float) -> tuple[float, float] | None:
@@ -316,20 +353,23 @@ class ParamTable:
     def spec(self, name: str):
         i = self._by_name.get(name)
         if i is None:
-            raise UnknownParamError(renamed_error(name) or f"unknown parameter {name!r}")
+            raise UnknownParamError(renamed_error(name, self._by_name)
+                                   or f"unknown parameter {name!r}")
         return self._entries[i].spec
 
     def get(self, name: str) -> float:
         i = self._by_name.get(name)
         if i is None:
-            raise UnknownParamError(renamed_error(name) or f"unknown parameter {name!r}")
+            raise UnknownParamError(renamed_error(name, self._by_name)
+                                   or f"unknown parameter {name!r}")
         return float(self._entries[i].get())
 
     def set(self, name: str, value: float) -> float:
         """Set and return the value now in effect; ParamError (a ValueError) names the fault."""
         i = self._by_name.get(name)
         if i is None:
-            raise UnknownParamError(renamed_error(name) or f"unknown parameter {name!r}")
+            raise UnknownParamError(renamed_error(name, self._by_name)
+                                   or f"unknown parameter {name!r}")
         e = self._entries[i]
         v = float(value)
         lo, hi = e.spec.min, e.spec.max
@@ -376,11 +416,9 @@ def read_param_file(path: str | Path) -> list[tuple[str, float]]:
     return out
 
 
-def check_values(vehicle: str, values: Iterable[tuple[str, float]]) -> list[tuple[str, float]]:
-    """Check parameter values for `vehicle`'s flight stack before it starts (a scenario's
-    `[onboard.params]`): every name known (the controller's and the stack's own), every value
-    finite and within its bounds. Returns the pairs as floats; ParamError names the first
-    fault. The stack applies them as it applies a parameter file (`--params`)."""
+def vehicle_table(vehicle: str) -> ParamTable:
+    """`vehicle`'s parameter table (the controller's and the stack's own), values not bound:
+    the names, specs and range checks only."""
     from mav.airframe import get_airframe
     from mav.control import make_controller
 
@@ -388,6 +426,15 @@ def check_values(vehicle: str, values: Iterable[tuple[str, float]]) -> list[tupl
     for spec in make_controller(get_airframe(vehicle)).param_table():
         t.add(spec, lambda: 0.0, lambda v: None)
     t.add_store(ONBOARD_PARAMS, {})
+    return t
+
+
+def check_values(vehicle: str, values: Iterable[tuple[str, float]]) -> list[tuple[str, float]]:
+    """Check parameter values for `vehicle`'s flight stack before it starts (a scenario's
+    `[onboard.params]`): every name known (the controller's and the stack's own), every value
+    finite and within its bounds. Returns the pairs as floats; ParamError names the first
+    fault. The stack applies them as it applies a parameter file (`--params`)."""
+    t = vehicle_table(vehicle)
     out = []
     for name, v in values:
         t.set(name, v)

@@ -320,7 +320,7 @@ def analyse(
         # the identified x/y model is the open-loop response to a tilt command: its F2 is the
         # airframe drag pole, which the plant has as drag_xy/mass
         ident["drag_pole_plant_1_s"] = v.drag_xy / v.mass
-        ident["F1_z_equiv"] = ctrl.get_param("MPC_Z_VEL_MAX") / res["vz"]["t63_s"]
+        ident["F1_z_equiv"] = ctrl.get_param("CAS_Z_VEL_MAX") / res["vz"]["t63_s"]
         ident["F1_yaw_equiv"] = (math.radians(ctrl.get_param("MC_YAWRATE_MAX"))
                                  / res["yaw_rate"]["t63_s"])
         res["_identified"] = ident
@@ -397,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m mav.tune",
         description="Loop margins and step responses of the onboard controllers.",
         epilog="examples:\n  python -m mav.tune mambo\n  python -m mav.tune mambo --preset "
-               "template\n  python -m mav.tune bebop2 --set MC_RP_D=30 --vehicle motor_tau=0.05",
+               "template\n  python -m mav.tune bebop2 --set CAS_RP_D=30 --vehicle motor_tau=0.05",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("vehicle", nargs="+", help="mambo, bebop2 (one or more)")
     ap.add_argument("--preset", default="default", help="controller preset (mambo: template)")

@@ -17,6 +17,15 @@ VEHICLES = [MAMBO, BEBOP2]
 IDS = [v.name for v in VEHICLES]
 
 
+def tilt(v: Airframe) -> str:
+    """The tilt limit's name (the Mambo's template limit, the Bebop 2's Parrot MaxTilt)."""
+    return "TPL_TILTMAX_AIR" if v is MAMBO else "CAS_TILTMAX_AIR"
+
+
+def vz_limit(v: Airframe) -> str:
+    return "TPL_Z_VEL_MAX" if v is MAMBO else "CAS_Z_VEL_MAX"
+
+
 # ----------------------------------------------------------------------------- helpers
 def hover_state(z: float = -1.0, yaw: float = 0.0) -> VehicleState:
     s = VehicleState()
@@ -146,9 +155,9 @@ def test_tilt_limit(v):
     s = hover_state()
     sp = hold_setpoint(s)
     sp.x = 100.0
-    lim = math.radians(ctrl.get_param("MPC_TILTMAX_AIR"))
+    lim = math.radians(ctrl.get_param(tilt(v)))
     assert _pitch_ref(v, ctrl, s, sp) == pytest.approx(-lim, rel=1e-9)
-    ctrl.set_param("MPC_TILTMAX_AIR", 10.0)
+    ctrl.set_param(tilt(v), 10.0)
     ctrl.reset()
     assert _pitch_ref(v, ctrl, s, sp) == pytest.approx(-math.radians(10.0), rel=1e-9)
 
@@ -156,7 +165,7 @@ def test_tilt_limit(v):
 @pytest.mark.parametrize("v", VEHICLES, ids=IDS)
 def test_horizontal_speed_limit(v):
     ctrl = make_controller(v)
-    ctrl.set_param("MPC_TILTMAX_AIR", 45.0 if v is MAMBO else 35.0)
+    ctrl.set_param(tilt(v), 45.0 if v is MAMBO else 35.0)
     ctrl.set_param("MPC_XY_VEL_MAX", 1.0)
     g = ctrl.linear_gains()
     s = hover_state()
@@ -178,17 +187,17 @@ def test_climb_rate_and_thrust_limits(v):
     s = hover_state(z=0.0)
     sp = hold_setpoint(s)
     sp.z = -100.0
-    ctrl.set_param("MPC_Z_VEL_MAX", 0.5)  # small enough not to hit the thrust limit
+    ctrl.set_param(vz_limit(v), 0.5)  # small enough not to hit the thrust limit
     vz_max = 0.5
     T = wrench(v, one_tick(ctrl, s, sp))[0]
     assert T == pytest.approx(v.weight + g["k_vz"] * vz_max, rel=1e-9)
-    ctrl.set_param("MC_THR_MAX", 0.2)  # below the weight + climb demand: saturates
+    ctrl.set_param("MPC_THR_MAX", 0.2)  # below the weight + climb demand: saturates
     ctrl.reset()
     T = wrench(v, one_tick(ctrl, s, sp))[0]
     assert T == pytest.approx(0.2 * 4 * v.thrust_max, rel=1e-9)
     # descent: commanded down at the limit, never a negative rotor command
     sp.z = 100.0
-    ctrl.set_param("MC_THR_MAX", 1.0)
+    ctrl.set_param("MPC_THR_MAX", 1.0)
     ctrl.reset()
     u = one_tick(ctrl, s, sp)
     assert wrench(v, u)[0] == pytest.approx(v.weight - g["k_vz"] * vz_max, rel=1e-9)
@@ -247,7 +256,7 @@ def test_yaw_gets_only_the_headroom_left(v):
     """A yaw demand beyond the rotors' authority is cut; thrust, roll, pitch are kept."""
     ctrl = make_controller(v)
     ctrl.set_param("MC_YAWRATE_MAX", 200.0)
-    ctrl.set_param("MC_YAWRATE_P" if v is BEBOP2 else "MC_YAW_D", 0.02 if v is MAMBO else 50)
+    ctrl.set_param("CAS_YAWRATE_P" if v is BEBOP2 else "TPL_YAW_D", 0.02 if v is MAMBO else 50)
     s = hover_state()
     u = one_tick(ctrl, s, hold_setpoint(s, yaw=3.0))
     T, N, M, L = wrench(v, u)
@@ -270,7 +279,8 @@ def test_param_table_is_well_formed(v):
         assert isinstance(p, ParamSpec)
         assert 0 < len(p.name) <= 16 and p.name == p.name.upper()
         assert p.min <= p.default <= p.max, p.name
-        assert p.unit and p.doc
+        # a PX4 name whose PX4 metadata gives no unit has none here; its doc says it
+        assert p.doc and (p.unit or "1/s" in p.doc), p.name
         assert ctrl.get_param(p.name) == p.default
 
 
@@ -281,23 +291,23 @@ def test_set_param_validates(v):
         ctrl.set_param("NOPE", 1.0)
     with pytest.raises(ValueError, match="unknown parameter"):
         ctrl.get_param("NOPE")
-    with pytest.raises(ValueError, match=r"MPC_TILTMAX_AIR = 90 deg is outside"):
-        ctrl.set_param("MPC_TILTMAX_AIR", 90.0)
+    with pytest.raises(ValueError, match=rf"{tilt(v)} = 90 deg is outside"):
+        ctrl.set_param(tilt(v), 90.0)
     for bad in (math.nan, math.inf, -math.inf):
         with pytest.raises(ValueError, match="finite"):
-            ctrl.set_param("MPC_TILTMAX_AIR", bad)
+            ctrl.set_param(tilt(v), bad)
     with pytest.raises(ValueError, match="number"):
-        ctrl.set_param("MPC_TILTMAX_AIR", "steep")
-    before = ctrl.get_param("MPC_TILTMAX_AIR")
+        ctrl.set_param(tilt(v), "steep")
+    before = ctrl.get_param(tilt(v))
     assert before != 12.5
-    ctrl.set_param("MPC_TILTMAX_AIR", 12.5)
-    assert ctrl.get_param("MPC_TILTMAX_AIR") == 12.5
+    ctrl.set_param(tilt(v), 12.5)
+    assert ctrl.get_param(tilt(v)) == 12.5
 
 
 @pytest.mark.parametrize("v", VEHICLES, ids=IDS)
 def test_set_param_takes_effect_on_next_update(v):
     ctrl = make_controller(v)
-    name = "MC_PITCH_P" if v is MAMBO else "MC_RP_P"
+    name = "TPL_PITCH_P" if v is MAMBO else "CAS_RP_P"
     s = hover_state()
     s.qw, s.qy = math.cos(0.05), math.sin(0.05)  # pitched up 0.1 rad
     sp = hold_setpoint(hover_state())
@@ -310,9 +320,9 @@ def test_set_param_takes_effect_on_next_update(v):
 
 def test_presets():
     ctrl = MamboController(MAMBO, preset="template")
-    assert ctrl.get_param("MC_XY_P") == 0.24 and ctrl.get_param("MC_XY_D") == 0.1
+    assert ctrl.get_param("TPL_XY_P") == 0.24 and ctrl.get_param("TPL_XY_D") == 0.1
     ctrl.apply_preset("default")
-    assert ctrl.get_param("MC_XY_D") == MamboController.PARAMS[1].default
+    assert ctrl.get_param("TPL_XY_D") == MamboController.PARAMS[1].default
     with pytest.raises(ValueError, match="unknown preset 'fast'; choose one of default"):
         ctrl.apply_preset("fast")
 

@@ -55,7 +55,7 @@ async def _session(api_port: int, log: list[str]) -> None:
                 ("NO_SUCH_PARAM", 1.0, ParamResult.DOES_NOT_EXIST),
                 ("TPL_LAND_SPEED", 50.0, ParamResult.VALUE_OUT_OF_RANGE),     # max 2 m/s
                 ("TPL_LAND_SPEED", -1.0, ParamResult.VALUE_OUT_OF_RANGE),
-                ("MC_THR_MAX", math.inf, ParamResult.VALUE_OUT_OF_RANGE)):
+                ("MPC_THR_MAX", math.inf, ParamResult.VALUE_OUT_OF_RANGE)):
             result, dt = await _refused(param.set_param_float(name, value))
             log.append(f"set {name}={value}: {result.name} in {dt * 1000:.1f} ms")
             assert result == want, (name, value, result)
@@ -77,11 +77,11 @@ async def _session(api_port: int, log: list[str]) -> None:
 
         await _step(armable(), "armable")
         await _step(action.arm(), "arm")
-        result, dt = await _refused(param.set_param_float("MC_THR_MAX", 0.1))
-        log.append(f"armed, set MC_THR_MAX=0.1: {result.name} in {dt * 1000:.1f} ms")
+        result, dt = await _refused(param.set_param_float("MPC_THR_MAX", 0.1))
+        log.append(f"armed, set MPC_THR_MAX=0.1: {result.name} in {dt * 1000:.1f} ms")
         assert result == ParamResult.PERMISSION_DENIED
         took.append(dt)
-        await _step(param.set_param_float("MC_THR_MAX", 0.95), "a set inside the envelope")
+        await _step(param.set_param_float("MPC_THR_MAX", 0.95), "a set inside the envelope")
         await _step(action.disarm(), "disarm")
 
         # MAVSDK's timeout, measured here: a get by the extended parameter protocol

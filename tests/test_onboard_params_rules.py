@@ -18,16 +18,8 @@ from mav.params import ONBOARD_PARAMS, THRUST_LIMIT, flight_envelope
 
 M = mavlink2
 
-# PX4's parameter metadata (@min/@max) for the controllers' names used here with PX4's meaning:
-# ours must be the same or narrower; the exceptions are deliberate and said in mav/control.py.
-# The stack's own parameters are checked against mav/px4_params.json (tests/test_px4_params.py).
-PX4_RANGES = {
-    "MPC_XY_VEL_MAX": (0.0, 20.0), "MPC_Z_VEL_MAX": (0.5, 4.0), "MC_YAWRATE_MAX": (0.0, 1800.0),
-    "MPC_XY_P": (0.0, 2.0), "MPC_Z_P": (0.0, 1.5), "MPC_XY_VEL_I_ACC": (0.0, 60.0),
-}
-PX4_EXCEPTIONS = {
-    "MPC_TILTMAX_AIR",                # PX4 20..89 deg; Parrot's MaxTilt goes down to 5 deg
-}
+# PX4's metadata for every PX4 name (type, unit, range, default) is checked against
+# mav/px4_params.json in tests/test_px4_params.py; here the bounds and the flight envelope.
 
 
 def _specs(vehicle: str) -> list:
@@ -35,14 +27,10 @@ def _specs(vehicle: str) -> list:
 
 
 @pytest.mark.parametrize("vehicle", ["mambo", "bebop2"])
-def test_every_parameter_has_bounds_and_px4_names_keep_px4s(vehicle):
+def test_every_parameter_has_bounds(vehicle):
     for spec in _specs(vehicle):
         assert math.isfinite(spec.min) and math.isfinite(spec.max) and spec.min < spec.max
         assert spec.min <= spec.default <= spec.max, spec.name
-        if spec.name in PX4_RANGES:
-            lo, hi = PX4_RANGES[spec.name]
-            assert lo <= spec.min and spec.max <= hi, (spec.name, spec.min, spec.max)
-        assert spec.name not in PX4_EXCEPTIONS or spec.name not in PX4_RANGES
 
 
 @pytest.mark.parametrize("vehicle, thrust_floor", [("mambo", 0.709), ("bebop2", 0.505)])
@@ -58,7 +46,8 @@ def test_flight_envelopes(vehicle, thrust_floor):
     for n in gains:
         lo, hi = flight_envelope(specs[n], hover)
         assert 0.0 < lo < specs[n].default <= hi, n           # zero is never allowed in flight
-    for n in ("MPC_TILTMAX_AIR", "MPC_XY_VEL_MAX", "MIS_TAKEOFF_ALT", "MC_Z_I", "MPC_Z_VEL_I"):
+    for n in ("TPL_TILTMAX_AIR", "CAS_TILTMAX_AIR", "MPC_XY_VEL_MAX", "MIS_TAKEOFF_ALT",
+              "TPL_Z_I", "CAS_Z_VEL_I"):
         if n in specs:
             assert flight_envelope(specs[n], hover) is None   # limits and integrators: free
 
@@ -125,16 +114,16 @@ def test_in_flight_a_thrust_limit_that_cannot_hold_the_vehicle_is_refused():
     rig = _hovering_mambo()
     z0 = rig.plant.y[Y_Z]
     t0 = rig.t_us
-    _set(rig, "MC_THR_MAX", 0.1)
+    _set(rig, "MPC_THR_MAX", 0.1)
     assert _order(rig, "gcs", t0) == ["PARAM_ERROR", "PARAM_VALUE"]
     err = rig.last("gcs", "PARAM_ERROR")
-    assert (err.param_id, err.error) == ("MC_THR_MAX", M.MAV_PARAM_ERROR_PERMISSION_DENIED)
+    assert (err.param_id, err.error) == ("MPC_THR_MAX", M.MAV_PARAM_ERROR_PERMISSION_DENIED)
     assert rig.last("gcs", "PARAM_VALUE").param_value == pytest.approx(0.92)
-    assert "MC_THR_MAX 0.1 refused while armed: in flight 0.709..1" in rig.texts()[-1]
+    assert "MPC_THR_MAX 0.1 refused while armed: in flight 0.709..1" in rig.texts()[-1]
     rig.tick(400)
     assert rig.plant.y[Y_Z] == pytest.approx(z0, abs=0.02)            # still flying there
-    _set(rig, "MC_THR_MAX", 0.8)                                       # inside: fine in flight
-    assert rig.ob.params.get("MC_THR_MAX") == pytest.approx(0.8)
+    _set(rig, "MPC_THR_MAX", 0.8)                                       # inside: fine in flight
+    assert rig.ob.params.get("MPC_THR_MAX") == pytest.approx(0.8)
     st = rig.ob.stats
     assert st["param_denied_armed"] == 1 and st["param_rejected"] == 1
 
@@ -143,23 +132,23 @@ def test_what_the_rule_prevents_a_thrust_limit_below_hover_brings_it_down():
     """The reason for the rule (issue 14): the same 0.1 forced past the protocol."""
     rig = _hovering_mambo()
     z0 = rig.plant.y[Y_Z]
-    rig.ob.params.set("MC_THR_MAX", 0.1)
+    rig.ob.params.set("MPC_THR_MAX", 0.1)
     rig.tick(200)
     assert rig.plant.y[Y_Z] > z0 + 0.3                                # falling
 
 
 def test_in_flight_gains_change_within_the_envelope_only():
     rig = _hovering_mambo()
-    for name, bad, good in (("MC_XY_P", 0.0, 0.3), ("MC_PITCH_P", 0.0, 0.02),
-                            ("MC_Z_D", 5.0, 0.6)):
+    for name, bad, good in (("TPL_XY_P", 0.0, 0.3), ("TPL_PITCH_P", 0.0, 0.02),
+                            ("TPL_Z_D", 5.0, 0.6)):
         _set(rig, name, bad)
         assert rig.last("gcs", "PARAM_ERROR").param_id == name
         assert rig.last("gcs", "PARAM_ERROR").error == M.MAV_PARAM_ERROR_PERMISSION_DENIED
         _set(rig, name, good)
         assert rig.ob.params.get(name) == pytest.approx(good)
-    _set(rig, "MPC_TILTMAX_AIR", 5.0)                 # a limit: only slows it, allowed
-    _set(rig, "MC_Z_I", 0.0)                          # an integrator off: allowed
-    assert rig.ob.params.get("MPC_TILTMAX_AIR") == 5.0 and rig.ob.params.get("MC_Z_I") == 0.0
+    _set(rig, "TPL_TILTMAX_AIR", 5.0)                 # a limit: only slows it, allowed
+    _set(rig, "TPL_Z_I", 0.0)                          # an integrator off: allowed
+    assert rig.ob.params.get("TPL_TILTMAX_AIR") == 5.0 and rig.ob.params.get("TPL_Z_I") == 0.0
     assert rig.ob.stats["param_denied_armed"] == 3
     rig.tick(400)
     assert rig.ob.landed_state == IN_AIR
@@ -168,15 +157,15 @@ def test_in_flight_gains_change_within_the_envelope_only():
 def test_disarmed_any_value_in_range_is_stored_but_arming_waits_for_the_envelope():
     rig = Rig()
     rig.tick()
-    _set(rig, "MC_THR_MAX", 0.1)
-    assert rig.ob.params.get("MC_THR_MAX") == pytest.approx(0.1)
+    _set(rig, "MPC_THR_MAX", 0.1)
+    assert rig.ob.params.get("MPC_THR_MAX") == pytest.approx(0.1)
     assert rig.msgs("gcs", "PARAM_ERROR") == []
     assert "arming refused until it is back" in rig.texts()[-1]
     rig.cmd(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     rig.tick()
     assert rig.ack(M.MAV_CMD_COMPONENT_ARM_DISARM) == M.MAV_RESULT_DENIED and not rig.ob.armed
-    assert rig.texts()[-1] == "Arming denied: MC_THR_MAX 0.1 outside its flight range 0.709..1"
-    _set(rig, "MC_THR_MAX", 0.92)
+    assert rig.texts()[-1] == "Arming denied: MPC_THR_MAX 0.1 outside its flight range 0.709..1"
+    _set(rig, "MPC_THR_MAX", 0.92)
     rig.cmd(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     rig.tick()
     assert rig.ack(M.MAV_CMD_COMPONENT_ARM_DISARM) == M.MAV_RESULT_ACCEPTED and rig.ob.armed
@@ -184,10 +173,10 @@ def test_disarmed_any_value_in_range_is_stored_but_arming_waits_for_the_envelope
 
 def test_a_parameter_file_outside_the_envelope_also_blocks_arming(tmp_path):
     f = tmp_path / "zero_gain.params"
-    f.write_text("MC_PITCH_P 0\n")
+    f.write_text("TPL_PITCH_P 0\n")
     rig = Rig(param_file=str(f))
     rig.tick()
     rig.cmd(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     rig.tick()
     assert rig.ack(M.MAV_CMD_COMPONENT_ARM_DISARM) == M.MAV_RESULT_DENIED
-    assert "MC_PITCH_P 0 outside its flight range" in rig.texts()[-1]
+    assert "TPL_PITCH_P 0 outside its flight range" in rig.texts()[-1]

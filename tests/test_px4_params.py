@@ -1,7 +1,8 @@
 """Every PX4-named parameter the vehicle serves has PX4's meaning, type, unit and a range within
 PX4's, and PX4's default unless its spec says why not (issue 44, item 2). PX4's metadata is data
 in the repository, mav/px4_params.json, each entry with its PX4 source file and commit; every
-other parameter has a name of ours (TPL_, MB_) that PX4 does not use."""
+other parameter has a name of ours (TPL_, CAS_, MB_) that PX4 does not use. The onboard stack's
+table and both controllers' (mav/control.py) are checked."""
 
 from __future__ import annotations
 
@@ -16,11 +17,21 @@ from test_onboard_rig import Rig
 
 from mav.airframe import get_airframe
 from mav.control import make_controller
-from mav.params import ONBOARD_PARAMS, RENAMED, ParamError, ParamTable, UnknownParamError
+from mav.params import (
+    ONBOARD_PARAMS,
+    RENAMED,
+    RENAMED_CTL,
+    ParamError,
+    ParamTable,
+    UnknownParamError,
+    vehicle_table,
+)
 
 M = mavlink2
 PX4 = json.loads((Path(__file__).parents[1] / "mav" / "px4_params.json").read_text())
-OURS = ("TPL_", "MB_")         # prefixes of this stack's own names (mav/params.py)
+OURS = ("TPL_", "CAS_", "MB_")  # prefixes of this stack's own names (mav/params.py)
+VEHICLES = ("mambo", "bebop2")
+CTL_SPECS = [(v, s) for v in VEHICLES for s in make_controller(get_airframe(v)).param_table()]
 
 
 def _bound(v, inf):
@@ -35,8 +46,9 @@ def test_metadata_records_its_source():
         assert _bound(m["min"], -math.inf) <= m["default"] <= _bound(m["max"], math.inf), name
 
 
-@pytest.mark.parametrize("spec", ONBOARD_PARAMS, ids=lambda s: s.name)
-def test_px4_names_have_px4s_type_unit_range_and_default(spec):
+@pytest.mark.parametrize("owner, spec", [("onboard", s) for s in ONBOARD_PARAMS] + CTL_SPECS,
+                         ids=lambda x: x if isinstance(x, str) else x.name)
+def test_px4_names_have_px4s_type_unit_range_and_default(owner, spec):
     name = spec.name
     assert len(name) <= 16
     if name.startswith(OURS):
@@ -61,11 +73,16 @@ def test_px4_names_have_px4s_type_unit_range_and_default(spec):
 
 
 def test_the_px4_names_used_before_with_other_meanings_are_gone():
-    names = {s.name for s in ONBOARD_PARAMS}
-    for v in ("mambo", "bebop2"):
-        names |= {s.name for s in make_controller(get_airframe(v)).param_table()}
+    names = {v: vehicle_table(v).names() for v in VEHICLES}
     for old, new in RENAMED.items():
-        assert old not in names and new in names, (old, new)
+        for v in VEHICLES:
+            assert old not in names[v] and new in names[v], (v, old, new)
+    for v, renamed in RENAMED_CTL.items():
+        for old, new in renamed.items():
+            assert old not in names[v] and new in names[v], (v, old, new)
+    # each old name is recorded: PX4's metadata (another meaning, unit or range) or not PX4's
+    for old in [*RENAMED, *(n for m in RENAMED_CTL.values() for n in m)]:
+        assert (old in PX4["params"]) != (old in PX4["not_in_px4"]), old
     # the ones the issue names: seconds vs microseconds, metres vs standard deviations, ...
     assert PX4["params"]["EKF2_NOAID_TOUT"]["unit"] == "us"
     assert {PX4["params"][n]["unit"] for n in ("EKF2_BARO_GATE", "EKF2_RNG_GATE",
@@ -124,3 +141,48 @@ def test_a_scenario_with_an_old_name_names_the_new_one_a_px4_file_keeps_loading(
     assert rig.ob.parameters.table.get("TPL_NOAID_TOUT") == pytest.approx(1.0)
     assert any("ignored EKF2_NOAID_TOUT" in w and "TPL_NOAID_TOUT" in w
                for w in rig.ob.parameters.warnings)
+
+
+def test_the_controllers_px4_names_the_issue_names():
+    """MC_PITCH_P was a torque per radian (PX4's: a rate per radian), MC_THR_MAX not PX4's,
+    MPC_XY_VEL_P / MPC_Z_VEL_P / MPC_Z_VEL_I since renamed by PX4 (*_ACC, narrower ranges)."""
+    assert PX4["params"]["MC_PITCH_P"]["unit"] == "" and PX4["params"]["MC_PITCH_P"]["max"] == 12
+    assert RENAMED_CTL["mambo"]["MC_PITCH_P"] == "TPL_PITCH_P"
+    for v in VEHICLES:
+        assert RENAMED_CTL[v]["MC_THR_MAX"] == "MPC_THR_MAX"
+        assert RENAMED_CTL[v]["MPC_Z_VEL_MAX"].startswith(("TPL_", "CAS_"))
+    for n in ("MPC_XY_VEL_P", "MPC_Z_VEL_P", "MPC_Z_VEL_I"):
+        assert n in PX4["not_in_px4"] and n + "_ACC" in PX4["params"]
+        assert RENAMED_CTL["bebop2"][n].startswith("CAS_")
+
+
+@pytest.mark.parametrize("vehicle, old, new", [("mambo", "MC_RP_I", "TPL_RP_I"),
+                                               ("bebop2", "MC_RP_I", "CAS_RP_I"),
+                                               ("mambo", "MC_THR_MAX", "MPC_THR_MAX")])
+def test_an_old_controller_name_names_this_vehicles_new_one(vehicle, old, new, tmp_path):
+    from cosim.errors import ScenarioError
+    from cosim.load import load_scenario, with_set
+
+    t = vehicle_table(vehicle)
+    with pytest.raises(UnknownParamError, match=f"{old} is now {new} "):
+        t.set(old, 0.5)
+    name = {"mambo": "scripted_square", "bebop2": "bebop2_room_e1"}[vehicle]
+    sc = load_scenario(Path(__file__).parents[1] / "scenarios" / f"{name}.toml")
+    with pytest.raises(ScenarioError, match=new) as ei:
+        with_set(sc, {f"onboard.params.{old}": 0.5})
+    assert ei.value.field == f"onboard.params.{old}"
+
+
+def test_a_px4_file_keeps_loading_on_either_vehicle(tmp_path):
+    """A PX4 export: MC_YAW_P is PX4's on the Bebop 2 (set) and not the Mambo's TPL_YAW_P."""
+    f = tmp_path / "px4.params"
+    f.write_text("MC_YAW_P 2.5\nMC_PITCH_P 6.5\n")
+    rig = Rig()
+    rig.ob.load_params(str(f))
+    assert rig.ob.parameters.table.get("TPL_PITCH_P") == pytest.approx(0.013)
+    assert any("ignored MC_PITCH_P" in w and "TPL_PITCH_P" in w
+               for w in rig.ob.parameters.warnings)
+    rig = Rig(vehicle="bebop2")
+    rig.ob.load_params(str(f))
+    assert rig.ob.parameters.table.get("MC_YAW_P") == pytest.approx(2.5)
+    assert any("unknown parameter(s): MC_PITCH_P" in w for w in rig.ob.parameters.warnings)

@@ -66,11 +66,11 @@ def test_bebop2_velocity_time_constants_match_identified_model(results):
 @pytest.mark.parametrize(
     ("name", "params", "loop"),
     [
-        ("mambo", {"MC_ROLL_D": 0.02}, "roll"),    # too much rate gain for the motor lag
-        ("mambo", {"MC_PITCH_P": 0.1}, "pitch"),   # underdamped attitude
-        ("mambo", {"MC_XY_P": 1.0}, "x"),          # position loop too fast for attitude
-        ("bebop2", {"MC_RP_D": 2.0}, "pitch"),
-        ("bebop2", {"MPC_XY_P": 2.0, "MPC_XY_VEL_P": 1.0}, "x"),   # position loop too fast
+        ("mambo", {"TPL_ROLL_D": 0.02}, "roll"),    # too much rate gain for the motor lag
+        ("mambo", {"TPL_PITCH_P": 0.1}, "pitch"),   # underdamped attitude
+        ("mambo", {"TPL_XY_P": 1.0}, "x"),          # position loop too fast for attitude
+        ("bebop2", {"CAS_RP_D": 2.0}, "pitch"),
+        ("bebop2", {"MPC_XY_P": 2.0, "CAS_XY_VEL_P": 1.0}, "x"),   # position loop too fast
     ],
 )
 def test_bad_gain_is_flagged(results, name, params, loop):
@@ -80,13 +80,13 @@ def test_bad_gain_is_flagged(results, name, params, loop):
 
 
 def test_unstable_gain_is_reported_unstable():
-    bad = tune.analyse("mambo", {"MC_PITCH_P": 0.1})
+    bad = tune.analyse("mambo", {"TPL_PITCH_P": 0.1})
     assert not bad["pitch"]["stable"]
     assert "pitch: closed loop unstable" in tune.check(bad)
 
 
 def test_template_preset_xy_loop_misses_the_margins():
-    """Why MC_XY_P/MC_XY_D differ from the template (mav/README.md, Controllers)."""
+    """Why TPL_XY_P/TPL_XY_D differ from the template (mav/README.md, Controllers)."""
     res = tune.analyse("mambo", preset="template")
     assert res["y"]["pm_deg"] < 30.0 and res["y"]["overshoot_pct"] > 30.0
     for loop in ("pitch", "roll", "yaw", "alt"):  # the template's inner loops are fine
@@ -178,9 +178,9 @@ def test_main_prints_table_and_exit_codes(capsys):
     assert tune.main(["bebop2"]) == 0
     out = capsys.readouterr().out
     assert "yaw_rate" in out and "identified" in out and "ok" in out
-    assert tune.main(["mambo", "--set", "MC_ROLL_D=0.02"]) == 1
+    assert tune.main(["mambo", "--set", "TPL_ROLL_D=0.02"]) == 1
     assert "FAIL roll" in capsys.readouterr().out
-    assert tune.main(["mambo", "--set", "MC_ROLL_D=5"]) == 2
+    assert tune.main(["mambo", "--set", "TPL_ROLL_D=5"]) == 2
     assert "outside" in capsys.readouterr().err
     assert tune.main(["plane"]) == 2
 

@@ -266,15 +266,16 @@ def parse_scenario(raw: dict, parts: Parts, *, source: str = "",
 def _onboard_params(p: dict, vehicle: str) -> tuple[tuple[str, float], ...]:
     """`[onboard.params]` NAME = value: each name known to the vehicle's flight stack, each
     value a finite number within the parameter's bounds (a fault names the field)."""
-    from mav.params import RENAMED, ParamError, UnknownParamError, check_values
+    from mav.params import ParamError, UnknownParamError, check_values, renamed_to, vehicle_table
 
     pairs = [(k, number(p, k, "onboard.params")) for k in p]
     for k, v in pairs:
         try:
             check_values(vehicle, [(k, v)])
         except UnknownParamError:
-            want = (f"{RENAMED[k]} (the new name of this stack's {k}, whose meaning is not "
-                    "PX4's)" if k in RENAMED else f"a parameter of the {vehicle} flight stack")
+            new = renamed_to(k, vehicle_table(vehicle).names())
+            want = (f"{new} (the new name of this stack's {k}, whose meaning is not PX4's)"
+                    if new else f"a parameter of the {vehicle} flight stack")
             raise ScenarioError(f"onboard.params.{k}", v, want) from None
         except ParamError as exc:
             raise ScenarioError(f"onboard.params.{k}", v,

@@ -26,7 +26,6 @@ from mav.onboard.defs import M, text_of
 from mav.onboard.status import VehicleStatus
 from mav.params import (
     ONBOARD_PARAMS,
-    RENAMED,
     ParamError,
     ParamTable,
     f32,
@@ -34,6 +33,7 @@ from mav.params import (
     float_as_int32,
     int32_as_float,
     read_param_file,
+    renamed_to,
 )
 
 FLT_MIN = 1.1754943508222875e-38      # the smallest normal float32 (IEEE 754)
@@ -121,12 +121,13 @@ class Parameters:
         """Apply a parameter file; unknown names are noted in `warnings`, bad values raise."""
         unknown = []
         for name, v in read_param_file(path):
-            if name in RENAMED:   # PX4's name, with PX4's meaning in a PX4 file: not ours
-                self.warnings.append(f"{path}: ignored {name} (PX4's; not this vehicle's "
-                                     f"{RENAMED[name]}, which has another meaning or range)")
-                continue
             if self.table.index(name) < 0:
-                unknown.append(name)
+                new = renamed_to(name, self.table.names())
+                if new:   # PX4's name, with PX4's meaning in a PX4 file: not ours
+                    self.warnings.append(f"{path}: ignored {name} (PX4's; not this vehicle's "
+                                         f"{new}, which has another meaning or range)")
+                else:
+                    unknown.append(name)
                 continue
             try:
                 self.table.set(name, v)
