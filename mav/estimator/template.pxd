@@ -4,10 +4,10 @@
 
 from mav.hil_sensors cimport Payload
 
-cdef bint _finite(double s)
-cdef (double, double, double) to_world(double roll, double pitch, double yaw, double x,
+cpdef bint _finite(double s)
+cpdef (double, double, double) to_world(double roll, double pitch, double yaw, double x,
                                        double y, double z)
-cdef double wrap(double a)
+cpdef double wrap(double a)
 
 
 cdef class TemplateEstimator:
@@ -24,6 +24,10 @@ cdef class TemplateEstimator:
     cdef public double r_rng
     cdef public double rng_gate, of_q, of_r, of_qmin, of_gate, w_gps
     cpdef update(self, imu, flow, rng, gps, geo, t_us)
+    cdef double _dt(self, t_us) except? -1.0
+    cdef _health(self, t_us)
+    cdef bint _imu_ok(self, Payload m) except -1
+    cdef _watch_tilt(self, double a0, double a1, double a2)
     cdef _imu(self, Payload m, double dt)
     cdef _z_fuse(self, double zm, double r)
     cpdef _reset(self)

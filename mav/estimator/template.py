@@ -66,7 +66,8 @@ _CAL = cython.declare(cython.long, CAL_TICKS)
 # temperature 12 (SensorSource::BARO)
 _F_IMU = cython.declare(cython.long, 0x3F)
 _F_MAG = cython.declare(cython.long, 0x1C0)
-_F_BARO = cython.declare(cython.long, 0x1A00)
+F_BARO = 0x1A00
+_F_BARO = cython.declare(cython.long, F_BARO)
 _PI = cython.declare(cython.double, math.pi)
 _TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
 
@@ -89,10 +90,11 @@ GPS_RESET_US = 7_000_000
 # corrects the tilt); velocity: the flow's (gate EKF2_OF_GATE's PX4 default, 3 SD, of
 # P + TPL_OF_R); height: the barometer's (EKF2_BARO_GATE's PX4 default, 5 SD, of P + R).
 # A tilt or velocity ratio above 1 in flight: the estimate has failed (`fail`), for good.
+VEL_GATE_SD, HGT_GATE_SD, TR_PER_TICK = 3.0, 5.0, 0.005     # TR_PER_TICK: 1 s at 200 Hz
 TILT_GATE2 = cython.declare(cython.double, 0.2 * 0.2)
-VEL_GATE2 = cython.declare(cython.double, 3.0 * 3.0)
-HGT_GATE2 = cython.declare(cython.double, 5.0 * 5.0)
-TR_K = cython.declare(cython.double, 0.005)       # per tick: 1 s at 200 Hz
+VEL_GATE2 = cython.declare(cython.double, VEL_GATE_SD * VEL_GATE_SD)
+HGT_GATE2 = cython.declare(cython.double, HGT_GATE_SD * HGT_GATE_SD)
+TR_K = cython.declare(cython.double, TR_PER_TICK)
 FAIL_TILT, FAIL_VEL = 1, 2                        # `fail`: what failed (0: nothing)
 
 
@@ -176,17 +178,14 @@ class TemplateEstimator:
         self.w_gps = own["TPL_GPS_W"]
 
     # ------------------------------------------------------------------ one tick
-    @cython.locals(dt=f64, lost=cython.bint, fused=cython.bint)
+    @cython.locals(dt=f64, fused=cython.bint)
     def update(self, imu: Payload | None, flow: Payload | None, rng: Payload | None,
                gps: Payload | None, geo, t_us: int) -> None:
         """imu: HIL_SENSOR's payload (mav/hil_sensors.py's Payload: its fields in wire
         order); flow: HIL_OPTICAL_FLOW's; rng: DISTANCE_SENSOR's; gps: HIL_GPS's; None when
         absent this tick. `geo`: FlatEarth."""
         st = self.stats
-        dt = (t_us - self.t_us) * 1e-6 if self.t_us >= 0 else 0.005
-        if not 0.0 < dt < 1.0:
-            dt = 0.005
-        self.t_us = t_us
+        dt = self._dt(t_us)
         if imu is not None:
             self._imu(imu, dt)
         if rng is not None:
@@ -212,6 +211,24 @@ class TemplateEstimator:
                        + self.pitch + self.yaw + self.p + self.q + self.r + self.bz + self.pzz
                        + self.pvv + self.pbb + self.pvx + self.pvy):
             self._reset()
+        self._health(t_us)
+        if imu is not None:
+            st["est_imu"] += 1
+
+    @cython.locals(dt=f64)
+    def _dt(self, t_us: int) -> float:
+        """The time since the last tick (5 ms at the first and after a gap: the stamps were
+        checked before, mav.hil.tick_refusal), and the tick's stamp taken."""
+        dt = (t_us - self.t_us) * 1e-6 if self.t_us >= 0 else 0.005
+        if not 0.0 < dt < 1.0:
+            dt = 0.005
+        self.t_us = t_us
+        return dt
+
+    @cython.locals(lost=cython.bint)
+    def _health(self, t_us: int) -> None:
+        """After a tick: a failed estimate (a test ratio above 1 in flight) and a lost
+        position, as the vehicle reads them."""
         if self.fail == 0 and self.z < -0.15:      # in flight (the vehicle acts on it)
             if self.tr_tilt > 1.0:
                 self.fail = FAIL_TILT
@@ -225,8 +242,29 @@ class TemplateEstimator:
             lost = self.z < -0.5 and t_us - self.aid_us > self.noaid_us
         if lost != self.lost:
             self.lost = lost
-        if imu is not None:
-            st["est_imu"] += 1
+
+    @cython.locals(fields=cython.long)
+    def _imu_ok(self, m: Payload) -> bool:
+        """HIL_SENSOR carries a new, finite, in-range accelerometer and gyro reading (else it
+        is counted, est_rej_imu, and nothing of it is used)."""
+        fields = m.i(14)                  # fields_updated: what this message carries new
+        if ((fields & _F_IMU) == _F_IMU
+                and _finite(m.f(1) + m.f(2) + m.f(3) + m.f(4) + m.f(5) + m.f(6))
+                and abs(m.f(1)) < ACC_MAX and abs(m.f(2)) < ACC_MAX and abs(m.f(3)) < ACC_MAX
+                and abs(m.f(4)) < GYRO_MAX and abs(m.f(5)) < GYRO_MAX
+                and abs(m.f(6)) < GYRO_MAX):
+            self.imu_us = self.t_us
+            return True
+        self.stats["est_rej_imu"] += 1
+        return False
+
+    @cython.locals(a0=f64, a1=f64, a2=f64, er=f64, ep=f64)
+    def _watch_tilt(self, a0: float, a1: float, a2: float) -> None:
+        """The tilt test ratio: the specific force's gravity direction (a0, a1, a2, low-passed,
+        near g in norm) against the estimated roll and pitch."""
+        er = _atan2(-a1, -a2) - self.roll
+        ep = _atan2(a0, _sqrt(a1 * a1 + a2 * a2)) - self.pitch
+        self.tr_tilt += TR_K * ((er * er + ep * ep) / TILT_GATE2 - self.tr_tilt)
 
     @cython.locals(ax=f64, ay=f64, az=f64, gx=f64, gy=f64, gz=f64, n=cython.long, p=f64,
                    q=f64, r=f64, ph=f64, th=f64, sph=f64, cph=f64, sth=f64, cth=f64, tth=f64,
@@ -238,15 +276,10 @@ class TemplateEstimator:
         # m: time_usec, xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag, abs_pressure,
         #    diff_pressure, pressure_alt, temperature, fields_updated, id
         st = self.stats
-        ax, ay, az, gx, gy, gz = m.f(1), m.f(2), m.f(3), m.f(4), m.f(5), m.f(6)
-        fields = m.i(14)                  # fields_updated: what this message carries new
-        if not ((fields & _F_IMU) == _F_IMU and _finite(ax + ay + az + gx + gy + gz)
-                and abs(ax) < ACC_MAX
-                and abs(ay) < ACC_MAX and abs(az) < ACC_MAX and abs(gx) < GYRO_MAX
-                and abs(gy) < GYRO_MAX and abs(gz) < GYRO_MAX):
-            st["est_rej_imu"] += 1
+        if not self._imu_ok(m):
             return
-        self.imu_us = self.t_us
+        ax, ay, az, gx, gy, gz = m.f(1), m.f(2), m.f(3), m.f(4), m.f(5), m.f(6)
+        fields = m.i(14)
         n = self.n
         self.n = n + 1
         if n < _CAL:                               # at rest: gyro bias and initial attitude
@@ -281,7 +314,7 @@ class TemplateEstimator:
             er = _atan2(-self.alp1, -self.alp2) - self.roll
             ep = _atan2(self.alp0, _sqrt(self.alp1 * self.alp1 + self.alp2 * self.alp2)) \
                 - self.pitch
-            self.tr_tilt += TR_K * ((er * er + ep * ep) / TILT_GATE2 - self.tr_tilt)
+            self._watch_tilt(self.alp0, self.alp1, self.alp2)
             self.roll += w * er
             self.pitch += w * ep
             if n >= _CAL:                          # near level: body p, q ~ roll, pitch rates
