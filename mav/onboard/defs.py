@@ -67,7 +67,8 @@ TOUCH_VZ_TAU_S = 0.25       # s, the land detector's filter on vz: odometry nois
                             # reset it (PX4 decides on the estimator's filtered velocity)
 TOUCH_AGL_M = 0.30          # ... and below this height above home ...
 TOUCH_TRIG_US = 200_000     # ... for this long: touched down
-TOUCH_STALL_US = 500_000    # or descent stalled this long after LAND_STALL_AFTER (any height)
+TOUCH_STALL_US = 500_000    # or not descending (vz < TOUCH_VZ_MPS) this long after
+                            # LAND_STALL_AFTER (any height)
 LAND_STALL_AFTER_US = 2_000_000
 TKO_ACCEPT_M = 0.10         # m, takeoff complete within this of the target height
 TKO_SETTLE_US = 3_000_000   # or this long after the ramp reached the target

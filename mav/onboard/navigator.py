@@ -425,7 +425,11 @@ class Navigator:
                 self.touch_since = t
         else:
             self.touch_since = -1
-        if slow and t - self.land_t0 > LAND_STALL_AFTER_US:
+        # stalled: not descending (PX4's land detector: "hit ground" is a descent commanded
+        # and no downward movement). Not |vz| small: an estimate that has no height aiding
+        # near the floor (paper 1's release, below its sonar's 0.44 m) can take the
+        # touchdown's deceleration into a climb it cannot correct
+        if self.vz_f < TOUCH_VZ_MPS and t - self.land_t0 > LAND_STALL_AFTER_US:
             if self.stall_since < 0:
                 self.stall_since = t
         else:
