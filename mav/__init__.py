@@ -18,7 +18,8 @@ COMPILED = [
     "mav.onboard.commander", "mav.onboard.navigator", "mav.onboard.offboard",
     "mav.onboard.failsafe", "mav.onboard.mission", "mav.onboard.manual", "mav.onboard.leg",
     "mav.onboard.moveby",
-    # the onboard estimator and PX4's simulator messages (TPL_EST_TYPE 1, sensor-fed runs)
-    "mav.hil_sensors", "mav.estimator.core", "mav.estimator.template", "mav.estimator.link",
+    # the onboard estimator and PX4's simulator messages (TPL_EST_TYPE 1-2, sensor-fed runs)
+    "mav.hil_sensors", "mav.estimator.core", "mav.estimator.template", "mav.estimator.release",
+    "mav.estimator.link",
 ]
 _compiled.register(_Path(__file__).parent, COMPILED)

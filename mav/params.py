@@ -51,6 +51,9 @@ def float_as_int32(f: float) -> int:
 # controller's own: the cascade's gains per unit inertia or mass, and Parrot's piloting
 # settings it emulates with Parrot's ranges; mav/control.py) or MB_ (Parrot's moveBy limits).
 # RENAMED and RENAMED_CTL map the names used before.
+# TPL_EST_TYPE's values (mav/estimator/core.py): the vehicle on the simulator's ODOMETRY, the
+# template's filters with this stack's additions (template.py), paper 1's release (release.py)
+EST_TRUTH, EST_OURS, EST_RELEASE = 0.0, 1.0, 2.0
 _ROOM = "indoor: a room a few metres across and high, a 60-200 g vehicle"
 ONBOARD_PARAMS: tuple[ParamSpec, ...] = (
     # PX4: min 0 m, default 2.5 (navigator/mission_params.yaml)
@@ -99,10 +102,10 @@ ONBOARD_PARAMS: tuple[ParamSpec, ...] = (
               "holds instead)", ptype="INT32"),
     # the onboard estimator (mav/estimator/): the Minidrone template's filters, not EKF2, so
     # their tuning has names of ours; PX4's EKF2_* only where the meaning is EKF2's
-    ParamSpec("TPL_EST_TYPE", 0.0, 0.0, 1.0, "",
+    ParamSpec("TPL_EST_TYPE", 0.0, 0.0, 2.0, "",
               "estimator: 0 fly on HIL ODOMETRY (truth, like motion capture), 1 the "
-              "Minidrone template's filters on HIL_SENSOR, flow, range (and GPS); read at "
-              "start"),
+              "template's filters with this stack's additions on HIL_SENSOR, flow, range "
+              "(and GPS), 2 paper 1's released estimator (no GPS); read at start"),
     ParamSpec("TPL_ACC_W", 0.001, 0.0, 0.5, "1",
               "attitude: weight per tick of the accelerometer's roll and pitch"),
     ParamSpec("TPL_ACC_GATE", 0.5, 0.0, 5.0, "m/s^2",

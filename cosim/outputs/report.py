@@ -22,6 +22,7 @@ from cosim.outputs.metrics import COL, compute_metrics, evaluate
 from cosim.outputs.result import RunResult
 from cosim.outputs.series import ESTIMATE_COLUMNS, SERIES_COLUMNS
 from cosim.outputs.strict import dumps as strict_dumps
+from mav.params import EST_RELEASE
 from onesource import switch as compiled
 
 FAILED_EXITS = {"component_error", "crashed", "left_arena", "collision", "interrupted",
@@ -47,8 +48,7 @@ def summarize(res: RunResult) -> dict[str, Any]:
         "vehicle": sc.vehicle.name,
         "app": sc.app.name,
         "sensors": sc.sensors.describe() if sc.sensors is not None else "truth ODOMETRY",
-        "estimator": ("template (TPL_EST_TYPE 1)" if sc.sensors is not None and sc.sensors.hil
-                      else "none (truth ODOMETRY)"),
+        "estimator": estimator_name(sc),
         "seed": sc.seed,
         "mode": res.mode,
         "exit_reason": res.exit_reason.value,
@@ -256,3 +256,11 @@ def one_screen(summary: dict[str, Any], out: Path | None = None) -> str:
                  + (f"   outputs in {out}" if out else ""))
     return "\n".join(lines)
 
+
+def estimator_name(sc) -> str:
+    """The estimator the vehicle flies on, as the summary names it."""
+    if sc.sensors is None or not sc.sensors.hil:
+        return "none (truth ODOMETRY)"
+    kind = dict(sc.onboard_params).get("TPL_EST_TYPE")
+    return ("paper 1's release (TPL_EST_TYPE 2)" if kind == EST_RELEASE
+            else "template with ours (TPL_EST_TYPE 1)")

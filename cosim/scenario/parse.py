@@ -28,6 +28,7 @@ from cosim.scenario.records import (
 )
 from cosim.scenario.validate import boolean, integer, no_unknown, number, string, table
 from cosim.scenario.vehicles import PHYSICAL_RANGES, PRESETS, get_vehicle
+from mav.params import EST_OURS, EST_RELEASE
 
 
 @dataclass(frozen=True)
@@ -208,11 +209,18 @@ def parse_scenario(raw: dict, parts: Parts, *, source: str = "",
                             "use [[faults.odometry]], e.g. kind = 'dropout')")
     if sensors.hil:             # the vehicle must run its estimator on the sensor messages
         ekf = dict(onboard_params).get("TPL_EST_TYPE")
-        if ekf is None:
-            onboard_params += (("TPL_EST_TYPE", 1.0),)
+        if ekf is None:         # the Mambo: paper 1's own (2); it has no GPS: with one, or on
+            # the Bebop 2 (not the release's airframe), the template's with ours (1)
+            ekf = EST_RELEASE if preset == "mambo" and not sensors.gps else EST_OURS
+            onboard_params += (("TPL_EST_TYPE", ekf),)
         elif ekf < 1.0:
             raise ScenarioError("onboard.params.TPL_EST_TYPE", ekf,
-                                "1 with [sensors] feed = 'hil' (the vehicle gets no ODOMETRY)")
+                                "1 or 2 with [sensors] feed = 'hil' (the vehicle gets no "
+                                "ODOMETRY)")
+        if ekf == EST_RELEASE and sensors.gps:
+            raise ScenarioError("onboard.params.TPL_EST_TYPE", ekf,
+                                "1 with [sensors.gps] enabled (paper 1's release, 2, fuses no "
+                                "GPS)")
 
     # criteria
     c = table(raw, "criteria", "")

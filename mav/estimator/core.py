@@ -11,8 +11,10 @@ import cython
 from pymavlink.dialects.v20 import common as M
 
 from mav import hil_sensors as hs
+from mav.estimator.release import ReleaseEstimator
 from mav.estimator.template import CAL_TICKS, FAIL_TILT, G, TemplateEstimator
 from mav.hil import odometry_of, tick_refusal
+from mav.params import EST_OURS, EST_RELEASE
 from mav.rotations import quat_from_euler
 
 FRAME_LOCAL_NED = 1
@@ -31,10 +33,13 @@ ARM_TILT = math.radians(60.0)
 class Estimator:
     def __init__(self, own: dict[str, float], stats: dict[str, int], geo) -> None:
         self.own, self.stats, self.geo = own, stats, geo
-        self.impl = TemplateEstimator(own, stats)
+        # read once, when the vehicle starts (as PX4 picks its estimator at boot): 1 the
+        # template's structure with this stack's additions (template.py), 2 paper 1's release
+        kind = own.get("TPL_EST_TYPE", 0.0)
+        self.impl = (ReleaseEstimator(own, stats) if kind == EST_RELEASE
+                     else TemplateEstimator(own, stats))
         self.bundle = hs.Bundle()          # the sensor messages of a tick, read in place
-        # read once, when the vehicle starts (as PX4 picks its estimator at boot)
-        self.enabled = own.get("TPL_EST_TYPE", 0.0) >= 1.0
+        self.enabled = kind >= EST_OURS
         for k in ("est_bad_frames", "est_lost", "dropped_stale_hil", "dropped_jump_hil",
                   "dropped_foreign_hil"):
             stats.setdefault(k, 0)
