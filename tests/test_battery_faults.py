@@ -178,7 +178,7 @@ def test_shipped_battery_scenario_lands_the_same_in_mil_and_sil():
     sc = load_scenario(Path(__file__).resolve().parents[1] / "scenarios"
                        / "mambo_seed_battery.toml")
     # its parameter, and the estimator the default sensor feed sets
-    assert sc.onboard_params == (("COM_LOW_BAT_ACT", 2.0), ("TPL_EST_TYPE", 1.0))
+    assert sc.onboard_params == (("COM_LOW_BAT_ACT", 2.0), ("TPL_EST_TYPE", 2.0))
     mil = run_scenario(sc, RunOptions(mode="mil"))
     sil = run_scenario(sc, RunOptions(mode="sil"))
     assert mil.exit_reason.value == "landed"

@@ -202,5 +202,7 @@ def test_a_stream_of_nan_readings_is_an_imu_failure_and_a_blind_descent(monkeypa
     t, z, vz = res.series[:, 0], res.series[:, 3], res.series[:, 6]
     assert res.exit_reason is ExitReason.LANDED, res.message
     assert z[-1] > -0.01 and t[-1] < 10.0              # on the floor, disarmed
-    assert vz.max() < 0.6                              # m/s: no hard touchdown (0.48)
+    # m/s: no hard touchdown (0.44-0.48), the descent's speed while airborne (the ground
+    # contact's own transient is not a touchdown speed)
+    assert vz[z < -0.005].max() < 0.6
     assert abs(z[t < 3.0 + IMU_FAIL_US * 1e-6][-1] - z[t < 3.0][-1]) < 0.02

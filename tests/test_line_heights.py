@@ -47,8 +47,11 @@ def test_other_heights_pass_within_the_seed_budget(name, height):
     """Measured 2026-11-29 (MIL, seed 0, general preset) before the gains scaled: the seed
     track at 1.3 m in 91.6 s and at 1.5 m not finished in 100 s (0.067 m/s); after: 78-80 s
     at 0.7-1.5 m (0.093-0.096 m/s), the S-curve 64.7-66.3 s (budget 69.9 s)."""
+    # on TPL_EST_TYPE 1: the app's law is under test, and paper 1's release (the default)
+    # flies ~13 % slower by its flow correction (docs/sensors.md), whatever the height
     sc = with_set(load_scenario(ROOT / "scenarios" / f"{name}.toml"),
-                  {"app.params.preset": "general", "app.params.hover_alt_m": height})
+                  {"app.params.preset": "general", "app.params.hover_alt_m": height,
+                   "onboard.params.TPL_EST_TYPE": 1})
     budget = SEED_BUDGET_S_PER_M * sc.world.track_length()
     s = summarize(run_scenario(sc))
     crit = s["criteria"]

@@ -310,7 +310,8 @@ def test_duration_is_a_normal_stop_and_a_failed_part_is_status_1(tmp_path):
     rows = (sitl.out / "0" / "timeseries.csv").read_text().splitlines()
     assert len(rows) == 1 + 200 // 20          # 1 s of 5 ms ticks, one row in 20
     summary = json.loads((sitl.out / "0" / "summary.json").read_text())
-    assert summary["estimator"] == "template (TPL_EST_TYPE 1)"      # on its sensors by default
+    # on its sensors by default: paper 1's release, the Mambo's estimator
+    assert summary["estimator"] == "paper 1's release (TPL_EST_TYPE 2)"
     # the GCS link cannot bind (the port is taken): the flight stack's links failed
     taken = socks[0].getsockname()[1]
     sitl = Sitl(tmp_path, "--duration", "600", *links, "--gcs-bind", f"127.0.0.1:{taken}",

@@ -80,7 +80,7 @@ def test_a_signal_stops_a_serial_study_and_keeps_no_cut_run(tmp_path, sig, group
     study flew on, Ctrl-C exited 0 (or 1 by the cut run's failure), and the resume skipped
     the cut run."""
     out, tmp = tmp_path / "study", tmp_path / "tmp"
-    proc = _study(out, tmp, "serial", "1,3600,3601")
+    proc = _study(out, tmp, "serial", "1,36000,36001")
     _, err = _signal_when_run_1_flies(proc, out, tmp, sig, group)
     assert proc.returncode == 128 + sig, err
     assert "Traceback" not in err and "the same command continues the study" in err
@@ -99,7 +99,7 @@ def test_a_signal_stops_a_dask_study_quietly_and_keeps_no_cut_run(tmp_path, sig,
     """Item 16 too: Ctrl-C reached the workers of the local cluster, and each printed the
     tracebacks of its broken connections while the client closed the cluster."""
     out, tmp = tmp_path / "study", tmp_path / "tmp"
-    proc = _study(out, tmp, "dask", "1,3600,3601,3602", "--workers", "2")
+    proc = _study(out, tmp, "dask", "1,36000,36001,36002", "--workers", "2")
     _, err = _signal_when_run_1_flies(proc, out, tmp, sig, group)
     assert proc.returncode == 128 + sig, err
     assert "Traceback" not in err and "ERROR" not in err and "Warning" not in err, err

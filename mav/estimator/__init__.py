@@ -6,15 +6,16 @@ sensor-fed HIL datagram, it answers the state estimate.
                                # -> True if the estimate moved on (the datagram had a HIL_SENSOR)
     est.odometry(mav)          # -> the estimate as an ODOMETRY frame (quality -1: position lost)
     od = est.on_hil(data)      # both, as the same 17-tuple wire.decode_odometry gives, or None
-    est.impl                   -> TemplateEstimator (the estimate in its fields)
+    est.impl                   -> TemplateEstimator or ReleaseEstimator (its subclass): the
+                               estimate in its fields
     est.link(hil, mav)         -> the HIL link with the estimator in front of the vehicle's
                                tick (link.py: sensor datagrams in, ODOMETRY of the estimate
                                to the tick, appended to the HIL answer for the logs)
 
-Which estimator: the parameter TPL_EST_TYPE (0: none, the vehicle flies on ODOMETRY; 1: the
-Minidrone template's filters, `template.py`, for both the Mambo and the Bebop 2: the same
-sensor set, so the same structure; an EKF is future work). The truth in HIL_STATE_QUATERNION
-is never read here.
+Which estimator: the parameter TPL_EST_TYPE (0: none, the vehicle flies on ODOMETRY; 2: paper
+1's released estimator, `release.py`, the Mambo's default; 1: the template's structure with
+this stack's additions, `template.py`, the Bebop 2's and a Mambo with a GPS; an EKF is future
+work). The truth in HIL_STATE_QUATERNION is never read here.
 """
 
 from mav.estimator.core import Estimator

@@ -250,7 +250,8 @@ class ReleaseEstimator(TemplateEstimator):
         if not (_finite(ix + iy + gx + gy) and 0 < dt_us < 1_000_000
                 and quality >= self.of_qmin):
             self.stats["est_rej_flow"] += 1
-            self.of_ok = False
+            self.of_ok = False         # as the Mambo's zeros: the acceleration input stops
+            self.fx = self.fy = 0.0    # too (the release's gate on a non-zero flow)
             return False
         dt = dt_us * 1e-6
         gx -= self.bg0 * dt            # the flow sensor's gyro integral is the IMU's: less

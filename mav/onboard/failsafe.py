@@ -41,7 +41,9 @@ from mav.onboard.status import VehicleStatus
 # an estimate, commander's estimatorCheck, but its vehicle is still controlled meanwhile).
 IMU_FAIL_US = 100_000
 BLIND_ACC = 0.15             # m/s^2, downward (PX4 FlightTaskDescend)
-BLIND_MARGIN_M = 0.3         # m, added to the height the descent must cover
+BLIND_MARGIN_M = 0.6         # m, added to the height the descent must cover (drag slows it:
+                             # from 1.05 m the Mambo took 4.3 s, ~0.11 m/s^2; with 0.3 m it
+                             # was disarmed 60 ms above the floor and fell the rest)
 
 
 class Failsafe:
