@@ -29,7 +29,7 @@ demo: setup
 # on every x86-64 CPU, so it passes on any; tests/test_numerics_levels.py flies native too
 test: setup
 	$(VENV)/bin/ruff check .
-	$(PY) -m cosim.numerics portable -- $(PY) -m pytest -m "not slow" --durations=25
+	$(PY) -m cosim.numerics portable -- $(PY) -m pytest -m "not slow" -n auto --durations=25
 	$(VENV)/bin/cosim test tests/regress/shipped.toml --require-baselines --quiet \
 		--out runs/test-shipped --junit runs/test-shipped/junit.xml --report runs/test-shipped/report
 
