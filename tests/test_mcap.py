@@ -254,3 +254,24 @@ def test_a_study_keeps_an_mcap_per_kept_run(tmp_path):
     for run in ("000000", "000001"):
         _, msgs = _read(out / "runs" / run / "run.mcap")
         assert len(msgs["/vehicle/pose"]) == 400
+
+
+def test_a_failed_write_of_a_realtime_runs_mcap_ends_it_as_a_recorder_failure(tmp_path,
+                                                                            monkeypatch):
+    """Each simulated second a real-time run writes its MCAP so far (`progress`); a write
+    that fails there (a full disk) ends the run as the recorder's failure, with what was
+    recorded written, not as a traceback."""
+    from cosim.outputs import mcap as mcap_mod
+    from cosim.scenario.records import ExitReason
+
+    def full(*_a, **_k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(mcap_mod.McapRun, "progress", full)
+    sc = with_set(load_scenario(ROOT / "scenarios" / "mambo_hover.toml"),
+                  {"timing.t_final_s": 3.0, "sensors.feed": "truth"})
+    res = run_scenario(sc, RunOptions(out_dir=tmp_path, mcap=True, realtime=True,
+                                      speed=50.0))
+    assert res.exit_reason is ExitReason.COMPONENT_ERROR
+    assert res.message.startswith("recorder: OSError") and "No space left" in res.message
+    assert 0.9 < res.t_end_s < 1.2                   # at the first second's write

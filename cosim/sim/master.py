@@ -348,9 +348,10 @@ def keep_so_far(tlog: Tlog, mcap, spool: SeriesSpool, phases: list[str], feed):
     """What a real-time run writes out each simulated second: its tlog's buffer, and with
     `--mcap` the rows recorded since the last time (cosim/outputs/mcap.py `progress`)."""
     def keep() -> None:
-        tlog.flush()
-        if mcap is not None:
-            mcap.progress(spool, phases, feed.spool if feed is not None else None)
+        with part("recorder"):         # a write that fails ends the run as a part's failure
+            tlog.flush()
+            if mcap is not None:
+                mcap.progress(spool, phases, feed.spool if feed is not None else None)
     return keep
 
 
