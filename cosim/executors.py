@@ -87,16 +87,25 @@ def local_cluster(n: int):
     # second of work, 1000 of them, tens of MB per worker (issue 15).
     # Workers ignore Ctrl-C (worker_ignores_ctrl_c): the preload for a worker the nanny
     # starts again later, `_ctrl_c_held` for the first ones.
-    with dask.config.set({"distributed.scheduler.allowed-failures": 1,
-                          "distributed.scheduler.worker-saturation": 1.0,
-                          "distributed.worker.profile.enabled": False,
-                          "distributed.worker.preload": [__name__],
-                          "distributed.nanny.pre-spawn-environ": spawn}), _ctrl_c_held():
-        # no dashboard; the scheduler's HTTP endpoints on a free port (not 8787, which another
-        # study may hold: a warning)
-        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                            dashboard_address=None, silence_logs=logging.ERROR,
-                            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+    cluster = None
+    try:
+        with dask.config.set({"distributed.scheduler.allowed-failures": 1,
+                              "distributed.scheduler.worker-saturation": 1.0,
+                              "distributed.worker.profile.enabled": False,
+                              "distributed.worker.preload": [__name__],
+                              "distributed.nanny.pre-spawn-environ": spawn}), _ctrl_c_held():
+            # no dashboard; the scheduler's HTTP endpoints on a free port (not 8787, which
+            # another study may hold: a warning)
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR,
+                                   scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+    except BaseException:
+        # a Ctrl-C held while the workers started is raised as it ends: the cluster made
+        # meanwhile is closed, not left running behind the interrupted study
+        if cluster is not None:
+            cluster.close()
+        raise
+    return cluster
 
 
 # Ctrl-C in a terminal signals every process of its group, the workers of a local cluster too.

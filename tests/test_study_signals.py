@@ -168,3 +168,35 @@ def test_local_workers_ignore_ctrl_c_even_when_started_again():
     finally:
         cluster.close()
     assert signal.getsignal(signal.SIGINT) is ours      # this process answers Ctrl-C again
+
+
+def test_a_ctrl_c_while_the_local_cluster_starts_closes_it(monkeypatch):
+    """Ctrl-C is held while the workers start (so they are born ignoring it) and raised as
+    the start ends (`_ctrl_c_held`): the cluster made meanwhile must be closed, not left
+    behind."""
+    import contextlib
+
+    import dask.distributed
+
+    from cosim import executors
+
+    made = []
+
+    class Cluster:
+        def __init__(self, **_kw) -> None:
+            self.closed = False
+            made.append(self)
+
+        def close(self) -> None:
+            self.closed = True
+
+    @contextlib.contextmanager
+    def held():                 # the held Ctrl-C, delivered as the start ends
+        yield
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", Cluster)
+    monkeypatch.setattr(executors, "_ctrl_c_held", held)
+    with pytest.raises(KeyboardInterrupt):
+        executors.local_cluster(1)
+    assert len(made) == 1 and made[0].closed
