@@ -94,6 +94,11 @@ def test_bench_quick_reports_every_figure(tmp_path):
     assert p2["breakdown"]["rendered"] < p2["breakdown"]["frames"]   # take-off not rendered
     pl = p2["breakdown"]["pipelined"]            # the same mission flown whole, pipelined
     assert pl["wall_s"] > 0.5 and pl["main_cpu_s"] > 0.5 and pl["worker_cpu_s"] > 0.5
+    e2 = p2["E2"]                                # a study run's CPU: the run + its renderer
+    assert len(e2["run_cpu_s"]) == len(e2["cpu_s"]) == 1
+    if pl["worker"] == "process":
+        assert e2["run_cpu_s"][0] > e2["cpu_s"][0] + 0.5
+    assert "CPU s per run, the process and its render worker" in r.stdout
 
 
 def test_the_peer_row_says_how_to_install_a_missing_peer(monkeypatch):
