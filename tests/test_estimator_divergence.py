@@ -39,10 +39,11 @@ def _texts(res) -> list[str]:
     return _statustexts(res)
 
 
-def _at_rest(**params) -> str | None:
-    """The estimator's preflight answer after 1 s at rest on the floor with these sensors."""
+def _at_rest(kind: float = 1.0, **params) -> str | None:
+    """The estimator's preflight answer after 1 s at rest on the floor with these sensors
+    (estimator `kind`: TPL_EST_TYPE)."""
     own = {p.name: p.default for p in ONBOARD_PARAMS}
-    own["TPL_EST_TYPE"] = 1.0
+    own["TPL_EST_TYPE"] = kind
     est = Estimator(own, {}, FlatEarth(42.3, -71.35, 71.0))
     su = SensorSuite(SensorsSpec(feed="hil", params=replace(SensorParams(), **params)), 0,
                      0.005, (0.0, 0.0), True)
@@ -60,8 +61,9 @@ def _at_rest(**params) -> str | None:
     ({"gyro_noise": (0.5, 0.5, 0.5)}, "Preflight Fail: Gyro 0 inconsistent at rest"),
     ({"gyro_bias": (0.2, 0.0, 0.0)}, "Preflight Fail: High Gyro Bias"),
 ])
-def test_an_implausible_imu_at_rest_fails_the_preflight_checks(params, why):
-    assert _at_rest(**params) == why
+@pytest.mark.parametrize("kind", [1.0, 2.0], ids=["type1", "release"])
+def test_an_implausible_imu_at_rest_fails_the_preflight_checks(params, why, kind):
+    assert _at_rest(kind, **params) == why
 
 
 @pytest.mark.flight

@@ -93,3 +93,12 @@ def test_a_flight_on_the_release_shows_its_flow_correction(tmp_path):
             if r["phase_name"] == "following"][::20]
     ratio = _length(rows, "est_x", "est_y") / _length(rows, "x", "y")
     assert 1.08 < ratio < 1.22, ratio
+
+
+@pytest.mark.parametrize("b,a", [((1.0,) * 7, (1.0,)), ((1.0,), (0.0,)), ((), ()),
+                                 ((1.0, 1.0), (1.0, 2.0, 3.0))])
+def test_a_filter_of_more_coefficients_than_it_holds_is_refused(b, a):
+    """Its coefficients live in fixed C arrays of 6 once compiled: more is a ValueError,
+    never a write past them."""
+    with pytest.raises(ValueError):
+        rel.Lti(b, a)

@@ -6,7 +6,7 @@ from mav.hil_sensors cimport Payload
 
 
 cdef class Lti:
-    cdef public int n
+    cdef readonly int n
     cdef double b[6]
     cdef double a[6]
     cdef double z[6]

@@ -123,6 +123,9 @@ class Lti:
     `step(x)` -> y. At most 6 coefficients."""
 
     def __init__(self, b: tuple[float, ...], a: tuple[float, ...]) -> None:
+        if not (1 <= len(b) <= 6 and 1 <= len(a) <= len(b) and a[0] != 0.0):
+            raise ValueError(f"an Lti filter takes 1-6 coefficients b and as many or fewer "
+                             f"a, a[0] not 0 (got {len(b)} and {len(a)})")
         self.n = len(b)
         self.b = [0.0] * 6
         self.a = [0.0] * 6
