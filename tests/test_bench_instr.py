@@ -4,6 +4,7 @@ executable (the real one is a system tool CI may lack), and the error without Va
 
 from __future__ import annotations
 
+import json
 import stat
 import sys
 from pathlib import Path
@@ -108,3 +109,22 @@ def test_parts_from_callgrind_inclusive_counts():
            "before_over_now": 2.0, "parts_per_tick": parts}
     text = "\n".join(bench_instr.format_instructions(res))
     assert "518.7k" in text and "17.3%" in text and "the rest" in text
+
+
+def test_the_bench_counts_both_feeds(monkeypatch, capsys, tmp_path):
+    """Truth-fed (the figure's history) and on the sensors and the onboard estimator (the
+    default's), each with its own heading and its own entry in the JSON."""
+    def fake(feed: str = "truth", **_kw):
+        n = 130_000.0 if feed == "truth" else 150_000.0
+        return {"feed": feed, "now": {"per_tick": n, "ticks": 10},
+                "before": {"per_tick": 3 * n}, "before_over_now": 3.0}
+
+    monkeypatch.setattr(bench_instr, "bench_instructions", fake)
+    rc = bench.main(instructions=True, json_path=Path(tmp_path) / "i.json")
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "per MIL tick, truth-fed" in out and "130.0k" in out
+    assert "per MIL tick, on the sensors and the onboard estimator" in out and "150.0k" in out
+    res = json.loads((tmp_path / "i.json").read_text())
+    assert res["instructions"]["feed"] == "truth"
+    assert res["instructions_estimate"]["feed"] == "hil"

@@ -442,12 +442,14 @@ def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = 
     if instructions:   # instructions per tick, now and before (bench_instr.py)
         from cosim.bench.instructions import ToolMissing, bench_instructions, format_instructions
 
-        try:
-            res = {"machine": machine(), "instructions": bench_instructions()}
+        try:        # both feeds: truth-fed (the figure's history) and the default's
+            res = {"machine": machine(), "instructions": bench_instructions(),
+                   "instructions_estimate": bench_instructions(feed="hil")}
         except ToolMissing as exc:
             print(f"cosim bench: {exc}", file=sys.stderr)
             return 2
-        print("\n".join(format_instructions(res["instructions"])))
+        print("\n".join(format_instructions(res["instructions"]) + [""]
+                        + format_instructions(res["instructions_estimate"])))
         return _write(res, json_path or Path("runs") / "bench_instructions.json")
     if flood_only:     # the flood figure alone (issue 14 item 9)
         res = {"machine": machine(), "quick": quick,

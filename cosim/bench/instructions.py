@@ -11,7 +11,9 @@ Each variant is one Python process under cachegrind flying the seed mission once
 flying it twice; the difference over the mission's ticks is the work per tick, without the
 imports, the FMU load and the first-run setup. Variants: "now" with `COSIM_COMPILED=1` (the
 compiled modules, onesource/switch.py); "before" with `COSIM_COMPILED=0` (the same sources
-interpreted, and the plant through ctypes). Four processes, two at a time: ~5-8 minutes.
+interpreted, and the plant through ctypes). Four processes, two at a time, for each feed
+(`cosim bench --instructions` counts both: truth-fed, the figure's history, and on the
+sensors and the onboard estimator, the default): ~8-15 minutes.
 
 Where the compiled tick's instructions go (`parts`): one more process, under callgrind, flies
 the mission once; the inclusive count of each part's entry point (its own code and everything
@@ -179,8 +181,10 @@ def format_instructions(res: dict[str, Any]) -> list[str]:
     rows = (("now (compiled)", f"{now['per_tick'] / 1e3:.1f}k"),
             ("before (COSIM_COMPILED=0, interpreted)", f"{before['per_tick'] / 1e3:.1f}k"),
             ("before / now", f"{res['before_over_now']:.2f}x"))
-    lines = [f"instructions per MIL tick (cachegrind; seed mission flown twice minus once, "
-             f"{now['ticks']} ticks):"] + [f"  {a:<44}{b:>10}" for a, b in rows]
+    feed = {"truth": "truth-fed", "hil": "on the sensors and the onboard estimator"}.get(
+        res.get("feed", "truth"), res.get("feed", ""))
+    lines = [f"instructions per MIL tick, {feed} (cachegrind; seed mission flown twice minus "
+             f"once, {now['ticks']} ticks):"] + [f"  {a:<44}{b:>10}" for a, b in rows]
     if "parts_per_tick" in res:
         lines.append("where the compiled tick's go (callgrind, inclusive counts of each entry "
                      "point, per tick; share of the tick):")
