@@ -20,6 +20,7 @@ cdef class ReleaseEstimator(TemplateEstimator):
     cdef public double zpr, vpr, z_prev, z_son, z_prs, fx, fy, bx, by, bx_out, by_out
     cdef public double pf_prev, qf_prev, sx, sy
     cdef public bint son_ok, of_ok
+    cdef public object son_us, of_us
     cpdef _restart(self)
     cdef _sonar(self, Payload m)
     cdef bint _of(self, Payload m) except -1

@@ -42,8 +42,19 @@ What differs, and why (docs/sensors.md, "paper 1's release vs ours"):
   EKF2_OF_QMIN) is not fused (the Mambo sends zeros, which the release fuses).
 - A sensor absent in a tick (a slower sonar or flow, `range_every`, `flow_every`) holds its
   last reading, as Simulink's zero-order hold does (the release's flow is 60 Hz held at 200 Hz).
+- A reading not renewed for HOLD_US (a sensor that stopped sending) expires: the sonar is
+  then absent, the flow reads zero.
 - double precision throughout (the model casts its outputs to single); asin's argument held
-  within [-1, 1]; yaw wrapped to +-pi. No GPS (the release has none: TPL_EST_TYPE 1 fuses it).
+  within [-1, 1]; roll not corrected when az is exactly 0 (the model would divide by it); yaw
+  wrapped to +-pi. No GPS (the release has none: TPL_EST_TYPE 1 fuses it).
+- The altitude starts (and the floor resets it) at 0, the start's height: the model's X0 is
+  the plant's absolute -0.046 m; ours is relative to the floor the vehicle starts on.
+- The outputs are what the vehicle's ODOMETRY carries: the velocity in world axes (the body
+  velocity rotated, as the model integrates it) and the filter's world vz, where the model's
+  bus carries body dx, dy and a mixed dz (FCS L7587 [1926], read by its own controller).
+- Its tuning that the template's parameters share with type 1 is read from them: TPL_ACC_W
+  (0.001, EV:15), TPL_OF_Q / TPL_OF_R (0.09 / 5, EV:59-60), TPL_OF_GATE (5 m/s, EV:54); their
+  defaults are the release's numbers.
 - The vehicle's own checks stay as with TPL_EST_TYPE 1: readings NaN or out of range rejected
   and counted, the position `lost` without aiding, the test ratios and the estimator failure.
 """
@@ -108,6 +119,7 @@ OF_PITCH_ROLL_MAX = 0.6          # EV:49
 OF_PQ_MAX = 7.0                  # EV:50
 OF_PQ_HOV_MAX = 0.5              # EV:51
 OF_DPQ_MAX = 80.0                # EV:52
+HOLD_US = 100_000                # a reading held longer than this without a new one: none
 _RHO_G = cython.declare(cython.double, 1.225 * G)     # SV:47-48 altToPrsGain
 # the template module's figures as C values here (its C globals are its own)
 _G = cython.declare(cython.double, G)
@@ -207,8 +219,11 @@ class ReleaseEstimator(TemplateEstimator):
         self.bx_out = self.by_out = 0.0            # ... and its last output
         self.pf_prev = self.qf_prev = 0.0          # cheby2-filtered p, q of the last step
         self.sx = self.sy = 0.0                    # position integrator
+        self.son_us = self.of_us = -1
         self.x = self.y = self.z = self.vx = self.vy = self.vz = 0.0
         self.roll = self.pitch = self.yaw = 0.0
+        self.p = self.q = self.r = 0.0
+        self.tr_tilt = self.tr_vel = self.tr_hgt = 0.0
 
     @cython.locals(dt=f64, ok=cython.bint)
     def update(self, imu: Payload | None, flow: Payload | None, rng: Payload | None,
@@ -217,9 +232,14 @@ class ReleaseEstimator(TemplateEstimator):
         dt = self._dt(t_us)
         if rng is not None:
             self._sonar(rng)
+        elif self.son_ok and t_us - self.son_us > HOLD_US:
+            self.son_ok = False          # the sonar has stopped: its last reading expires
         new_flow = False
         if flow is not None:
             new_flow = self._of(flow)
+        elif self.of_ok and t_us - self.of_us > HOLD_US:
+            self.of_ok = False           # the flow has stopped: as the Mambo's zeros
+            self.fx = self.fy = 0.0
         ok = imu is not None and self._imu_ok(imu)
         if ok:
             self._step(imu, dt, t_us, new_flow)
@@ -244,6 +264,7 @@ class ReleaseEstimator(TemplateEstimator):
             return
         self.z_son = -cur * 0.01                   # FCS L8261 [1972]: no tilt compensation
         self.son_ok = True
+        self.son_us = self.t_us
 
     @cython.locals(dt_us=cython.longlong, ix=f64, iy=f64, gx=f64, gy=f64, quality=cython.long,
                    dt=f64)
@@ -262,6 +283,7 @@ class ReleaseEstimator(TemplateEstimator):
         self.fx = (iy - gy) / dt       # body x velocity over height (the Mambo's de-rotated
         self.fy = -(ix - gx) / dt      # flow)
         self.of_ok = True
+        self.of_us = self.t_us
         return True
 
     @cython.locals(n=cython.long, ax=f64, ay=f64, az=f64, gx=f64, gy=f64, gz=f64, p=f64,
@@ -327,7 +349,7 @@ class ReleaseEstimator(TemplateEstimator):
                 self.p0_hpa = hpa if self.nb == 1 else self.p0_hpa + (hpa - self.p0_hpa) / self.nb
             elif self.nb == 0:       # none at rest: the first, at the altitude estimated then
                 self.nb = 1
-                self.p0_hpa = hpa + self.z * _RHO_G / 100.0
+                self.p0_hpa = hpa - self.z * _RHO_G / 100.0
             else:
                 st["est_baro_fused"] += 1
                 self.z_prs = (hpa - self.p0_hpa) * 100.0 / _RHO_G
@@ -351,9 +373,10 @@ class ReleaseEstimator(TemplateEstimator):
             e = self.z_son - zk
             zk += self.ka0 * e
             vzk += self.ka1 * e
-            self.rng_us = t_us
-            st["est_rng_fused"] += 1
-        elif self.son_ok:
+            if self.son_us == t_us:          # a new reading (a held one is not counted)
+                self.rng_us = t_us
+                st["est_rng_fused"] += 1
+        elif self.son_ok and self.son_us == t_us:
             st["est_rej_rng"] += 1
         self.zpr = zk + dt * vzk
         self.vpr = vzk + dt * u

@@ -376,7 +376,7 @@ class TemplateEstimator:
             return
         if self.nb == 0:
             self.nb = 1
-            self.p0_hpa = hpa + self.z * (1.225 * _G) / 100.0
+            self.p0_hpa = hpa - self.z * (1.225 * _G) / 100.0
             return
         z_b = (hpa - self.p0_hpa) * 100.0 / (1.225 * _G)
         self.tr_hgt += TR_K * ((z_b - self.z) * (z_b - self.z) / ((self.pzz + self.r_baro)
