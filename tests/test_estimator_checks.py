@@ -69,6 +69,22 @@ def test_no_barometer_at_rest_takes_the_reference_at_the_altitude_estimated_then
     assert abs(est.impl.p0_hpa - P0_HPA) < 1e-3 and st["est_baro_fused"] > 200
 
 
+@pytest.mark.parametrize("kind", [1.0, 2.0], ids=["type1", "release"])
+def test_a_reference_taken_in_the_air_is_the_floors(kind):
+    """No barometer at rest, the first one 1 m up: the reference is the floor's pressure
+    (p + rho g h), so the barometer's altitude is the height (it was 2 h off: the sign)."""
+    est, st = _estimator()
+    if kind == 2.0:
+        from mav.estimator.release import ReleaseEstimator
+
+        est.impl = ReleaseEstimator(est.own, st)
+    for k in range(150):
+        est.on_hil(_sensor(k, 0.0, NO_BARO))
+    est.impl.z = -1.0                          # 1 m above the floor when the first comes
+    est.on_hil(_sensor(150, None, z=-1.0))
+    assert abs(est.impl.p0_hpa - P0_HPA) < 2e-3, est.impl.p0_hpa
+
+
 def test_fields_updated_is_honoured():
     """A pressure 0.5 m off, carried without its bit: not read (not fused, not rejected);
     with its bit it moves the estimate. Accelerometer and gyro without theirs: no IMU step."""
