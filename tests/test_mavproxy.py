@@ -85,20 +85,25 @@ class Proxy:
 
 
 class Watch:
-    """The vehicle's API link, decoded by pymavlink (what the vehicle says of itself)."""
+    """The vehicle's API link, decoded by pymavlink (what the vehicle says of itself). A thread
+    reads it all the time: read only while waiting, the socket's buffer filled with telemetry
+    during MAVProxy's steps on a loaded host, and a STATUSTEXT sent meanwhile was dropped."""
 
     def __init__(self, port: int) -> None:
         self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=200)
         self.hb = self.ext = self.lpos = self.sys = None
         self.texts: list[str] = []
         self.reached: list[int] = []
+        self._stop = threading.Event()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
 
-    def until(self, cond, what: str, timeout_s: float = STEP_S) -> None:
-        end = time.monotonic() + timeout_s
-        while not cond(self):
-            left = end - time.monotonic()
-            assert left > 0, f"vehicle: {what} not within {timeout_s} s"
-            m = self.conn.recv_match(blocking=True, timeout=min(left, 0.2))
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                m = self.conn.recv_match(blocking=True, timeout=0.2)
+            except OSError:                  # the link closed
+                return
             if m is None:
                 continue
             t = m.get_type()
@@ -114,6 +119,17 @@ class Watch:
                 self.texts.append(m.text)
             elif t == "MISSION_ITEM_REACHED":
                 self.reached.append(m.seq)
+
+    def until(self, cond, what: str, timeout_s: float = STEP_S) -> None:
+        end = time.monotonic() + timeout_s
+        while not cond(self):
+            assert time.monotonic() < end, f"vehicle: {what} not within {timeout_s} s"
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._reader.join(5.0)
+        self.conn.close()
 
     @property
     def mode(self) -> str:
@@ -220,7 +236,7 @@ def test_mavproxy_flies_cosim_sitl(tmp_path):
     finally:
         if mp is not None:
             mp.close()
-        w.conn.close()
+        w.close()
 
 
 def test_mavproxy_uploads_and_flies_a_mission_then_rtl(tmp_path):
@@ -273,4 +289,4 @@ def test_mavproxy_uploads_and_flies_a_mission_then_rtl(tmp_path):
     finally:
         if mp is not None:
             mp.close()
-        w.conn.close()
+        w.close()
