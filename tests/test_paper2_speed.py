@@ -179,6 +179,22 @@ def test_brightness_scales_frames_and_is_checked():
         with_set(load_scenario(E2), {"camera.brightness": 0.0})
 
 
+def test_exposure_noise_by_table_is_the_per_pixel_formula():
+    """Without pixel noise the exposure's gain and offset are looked up per value (noise.py):
+    the same bytes as the formula applied to each pixel, for any gain and offset."""
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (48, 86, 3), dtype=np.uint8)
+    noise = FrameNoise(rng, 0.0, 0.01, img.size, 1.0, 1.0)
+    for gain, offset in ((1.0, 0.3), (0.97, -1.2), (1.3, 0.0), (0.7, 0.0), (-0.1, 2.0),
+                         (2.5, -300.0), (1.0001, 0.49999), (1.0, -0.5)):
+        if offset:
+            ref = img.astype(np.float32) * np.float32(max(gain, 0.0)) + np.float32(offset + 0.5)
+            ref = np.clip(ref, 0.0, 255.0).astype(np.uint8)
+        else:
+            ref = cv2.convertScaleAbs(img, alpha=max(gain, 0.0))
+        assert np.array_equal(noise.apply(img, (gain, offset, 0)), ref), (gain, offset)
+
+
 # ------------------------------------------------------------------ OpenCV threads
 def test_thread_count_setting(monkeypatch):
     saved = cvthreads._run_threads

