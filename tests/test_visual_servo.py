@@ -15,7 +15,7 @@ from scipy.linalg import expm
 from cosim.apps.visual_servo import VisualServoApp
 from cosim.apps.vs import geometry as G
 from cosim.apps.vs import visual_path as VP
-from cosim.apps.vs.features import homography, sort_points
+from cosim.apps.vs.features import Tracker, homography, sort_points, spread
 from cosim.apps.vs.tasks import Obstacle, corridor_task, find_obstacle
 from cosim.cli import main as cli
 from cosim.errors import ScenarioError
@@ -206,12 +206,41 @@ def test_visual_path_round_trip_and_bad_folders(tmp_path):
         VP.load(tmp_path / "nowhere")
 
 
+def test_a_capped_point_set_is_spread_over_the_image_best_matches_first():
+    rng = np.random.default_rng(5)
+    W, H = 856, 480
+    pts = np.column_stack([rng.uniform(0, 60, 300), rng.uniform(0, 40, 300)])  # one corner
+    far = np.array([[800.0, 450.0], [430.0, 250.0], [20.0, 470.0]])            # 3 loners
+    pts = np.vstack([pts, far])
+    score = rng.uniform(0.1, 0.8, len(pts))
+    assert np.array_equal(spread(pts, 0, W, H, score), np.arange(len(pts)))
+    assert np.array_equal(spread(pts, 400, W, H, score), np.arange(len(pts)))
+    keep = spread(pts, 48, W, H, score)
+    assert len(keep) == 48 and np.all(np.diff(keep) > 0)
+    assert {300, 301, 302} <= set(keep.tolist())        # every covered cell is kept
+    corner = keep[keep < 300]
+    assert set(corner.tolist()) == set(np.argsort(score[:300])[:45].tolist())  # its best 45
+    assert np.array_equal(spread(pts, 48, W, H, score), keep)                # deterministic
+
+
+def test_the_lk_window_scales_with_the_width():
+    t = Tracker(win=15)
+    t._scaled(856)
+    assert t.params["winSize"] == (15, 15) and t.params["maxLevel"] == 3
+    t._scaled(428)
+    assert t.params["winSize"] == (9, 9) and t.params["maxLevel"] == 2
+
+
 def test_bad_parameters_name_the_parameter():
     for params, name in [({"preset": "e9"}, "preset"), ({"keys": [[1, 2, 3]]}, "keys"),
                          ({"keys": [[1, 0, -1, 0]], "sigma": [0.1, -1]}, "sigma"),
                          ({"keys": [[1, 0, -1, 0]], "detector": "akaze"}, "detector"),
                          ({"keys": [[1, 0, -1, 0]], "min_tracked": 4}, "min_tracked"),
-                         ({"keys": [[1, 0, -1, 0]], "p": 1.5}, "p"), ({}, "keys")]:
+                         ({"keys": [[1, 0, -1, 0]], "p": 1.5}, "p"), ({}, "keys"),
+                         ({"keys": [[1, 0, -1, 0]], "lk_win_px": 14}, "lk_win_px"),
+                         ({"keys": [[1, 0, -1, 0]], "lk_win_px": 3}, "lk_win_px"),
+                         ({"keys": [[1, 0, -1, 0]], "track_max": 10}, "track_max"),
+                         ({"keys": [[1, 0, -1, 0]], "track_max": -1}, "track_max")]:
         with pytest.raises(ValueError, match=f"app.params.{name}"):
             VisualServoApp(params)
 

@@ -47,6 +47,7 @@ from cosim.apps.vs.features import (
     px_scale,
     robust_inliers,
     sort_points,
+    spread,
 )
 from cosim.apps.vs.lowlevel import LowLevel
 from cosim.apps.vs.memory import ObstacleMemory
@@ -135,7 +136,7 @@ class VisualServoApp:
         self.W, self.H = vp.size
         self.px = px_scale(self.W)     # the pixel thresholds are the 856-px stream's
         self.det = Detector(vp.detector, vp.n_features)
-        self.tracker = Tracker()
+        self.tracker = Tracker(win=p["lk_win_px"])
         self.body_from_cam = G.body_from_camera_matrix(vp.mount_B)
         self.cam_from_body = G.camera_from_body_matrix(vp.mount_B)
         self.h_a = G.Ramp(p["ramp_s"])
@@ -195,10 +196,10 @@ class VisualServoApp:
     def _match(self, t: float, gray: np.ndarray) -> None:
         key = self.path.keys[self.k]
         pts, desc = self.det.detect(gray)
-        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + self.k,
-                         px=self.px)
+        tgt, cur, ratio = match(self.det, key.pts, key.desc, pts, desc, self.seed + self.k,
+                                px=self.px, quality=True)
         if len(tgt) >= self.p["min_matches"]:
-            self._use_points(t, tgt, cur)
+            self._use_points(t, tgt, cur, ratio)
             self.phase = "servo"
             self._lost_since = NAN
             self._eps_hist = []
@@ -206,9 +207,12 @@ class VisualServoApp:
         self._rematches += 1
         self._hover(t, "few matches")
 
-    def _use_points(self, t: float, tgt: np.ndarray, cur: np.ndarray) -> None:
-        """Servo on a freshly matched point set from now on."""
-        self.tgt, self.cur = sort_points(tgt, cur)
+    def _use_points(self, t: float, tgt: np.ndarray, cur: np.ndarray, ratio: np.ndarray
+                    ) -> None:
+        """Servo on a freshly matched point set from now on: at most `track_max` of them,
+        spread over the image, the most distinct matches first (features.spread)."""
+        keep = spread(cur, self.p["track_max"], self.W, self.H, ratio)
+        self.tgt, self.cur = sort_points(tgt[keep], cur[keep])
         self.hchoice.reset()
         self.refresh.matched(t, len(tgt))
 
@@ -217,11 +221,11 @@ class VisualServoApp:
         servo on them. Whether it did."""
         key = self.path.keys[self.k]
         pts, desc = self.det.detect(gray)
-        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * salt,
-                         px=self.px)
+        tgt, cur, ratio = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * salt,
+                                px=self.px, quality=True)
         if len(tgt) < self.p["min_matches"]:
             return False
-        self._use_points(t, tgt, cur)
+        self._use_points(t, tgt, cur, ratio)
         self._rematches += 1
         return True
 
@@ -374,14 +378,14 @@ class VisualServoApp:
         the key afresh (ours). When the fresh matches disagree, servoing goes on with them."""
         key = self.path.keys[self.k]
         pts, desc = self.det.detect(gray)
-        tgt, cur = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * self.k,
-                         px=self.px)
+        tgt, cur, ratio = match(self.det, key.pts, key.desc, pts, desc,
+                                self.seed + 7 * self.k, px=self.px, quality=True)
         if len(tgt) < self.p["min_tracked"]:
             return False
         eps = float(np.mean(np.linalg.norm(cur - tgt, axis=1)))
         if eps < self.p["t_eps_final_px"] * self.px:
             return True
-        self._use_points(t, tgt, cur)
+        self._use_points(t, tgt, cur, ratio)
         self._rematches += 1
         return False
 

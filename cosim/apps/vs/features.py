@@ -82,26 +82,31 @@ def gray_of(rgb: np.ndarray) -> np.ndarray:
 
 def match(det: Detector, pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray,
           desc_b: np.ndarray, seed: int, ratio: float = 0.8, ransac_px: float = 1.5,
-          px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+          px: float = 1.0, quality: bool = False) -> tuple[np.ndarray, ...]:
     """Matched (a, b) pixel positions (M x 2 each) after the ratio test, the one-to-one check
-    and the robust filter; empty arrays when fewer than 8 survive."""
+    and the robust filter; empty arrays when fewer than 8 survive. With `quality`, a third
+    array: each match's distance ratio to the second-best neighbour (lower: more distinct)."""
     empty = (np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32))
+    if quality:
+        empty += (np.zeros(0),)
     if len(pts_a) < 8 or len(pts_b) < 8:
         return empty
     bf = cv2.BFMatcher(det.norm)
     pairs = bf.knnMatch(desc_a, desc_b, k=2)
-    best: dict[int, tuple[float, int]] = {}
+    best: dict[int, tuple[float, int, float]] = {}
     for p in pairs:
         if len(p) == 2 and p[0].distance < ratio * p[1].distance:
             m = p[0]
             if m.trainIdx not in best or m.distance < best[m.trainIdx][0]:
-                best[m.trainIdx] = (m.distance, m.queryIdx)
+                best[m.trainIdx] = (m.distance, m.queryIdx, m.distance / p[1].distance)
     if len(best) < 8:
         return empty
     ib = np.array(sorted(best), dtype=int)
     ia = np.array([best[i][1] for i in ib], dtype=int)
     a, b = pts_a[ia], pts_b[ib]
     keep = robust_inliers(a, b, seed, ransac_px, px)
+    if quality:
+        return a[keep], b[keep], np.array([best[i][2] for i in ib])[keep]
     return a[keep], b[keep]
 
 
@@ -135,6 +140,27 @@ def sort_points(target: np.ndarray, current: np.ndarray) -> tuple[np.ndarray, np
     rest = [i for i in range(n) if i not in head]
     idx = np.array(head + rest)
     return target[idx], current[idx]
+
+
+def spread(pts: np.ndarray, n_max: int, width: int, height: int, score: np.ndarray,
+           cols: int = 8, rows: int = 6) -> np.ndarray:
+    """Indices (ascending) of at most `n_max` of the points (N x 2 px), spread over the image:
+    the image is cut into `cols` x `rows` cells and the points are taken one per cell in
+    turn (cells in raster order, each cell's points by ascending `score`, ties in their given
+    order), so a cap keeps every part of the image the matches cover, its best points first.
+    All of them when `n_max` <= 0 or there are no more than that."""
+    n = len(pts)
+    if n_max <= 0 or n <= n_max:
+        return np.arange(n)
+    cx = np.clip((pts[:, 0] * (cols / width)).astype(np.int64), 0, cols - 1)
+    cy = np.clip((pts[:, 1] * (rows / height)).astype(np.int64), 0, rows - 1)
+    cell = cy * cols + cx
+    order = np.lexsort((np.arange(n), score, cell))     # by cell, then score, then index
+    first = np.searchsorted(cell[order], cell[order])   # where each point's cell starts
+    rank = np.empty(n, np.int64)
+    rank[order] = np.arange(n) - first                  # the point's place in its cell
+    key = rank * (cols * rows) + cell
+    return np.sort(np.argsort(key, kind="stable")[:n_max])
 
 
 class Tracker:

@@ -26,6 +26,10 @@ Ours, for rooms and paths nobody tuned the app for (issue 28; docs/papers/visual
   `vis_v_max_mps`, `vis_wz_max_dps`: the bounds of the velocity it asks for on its own.
 - `stall_s`, `refresh_frac`: match afresh when eps has not improved by 10 % for `stall_s`,
   or fewer than `refresh_frac` of the matched points are still tracked (vs/choice.py Refresh).
+- `lk_win_px`, `track_max`: the LK window (px at the 856-px stream, odd; scaled with the
+  width as the other pixel values) and the most matched points tracked, spread over the image
+  by a grid (features.spread; 0: all). The paper gives neither (it needs "at least 16 image
+  points", Sec. 5).
 - `turn_deg`, `turn_t_ev`, `turn_wait_s`: a key turned more than `turn_deg` from the previous
   one also needs |e_v| < `turn_t_ev` (0: off), at most `turn_wait_s` after eps < T_eps.
 Out-of-view columns are remembered in the vehicle's local frame (vs/memory.py): no parameter
@@ -64,6 +68,9 @@ DEFAULTS: dict[str, Any] = {
     "ff_clearance_m": 0.4,        # m: feed-forward only on a taught path this clear of the room
     "rising_max_px": 0.0,         # 0: no bound (the paper's rule)
     "min_matches": 16, "min_tracked": 8, "outlier_px": 2.0,
+    # tracking (features.Tracker, spread): the LK window (px at 856, odd) and the most
+    # matched points tracked, spread over the image (0: all)
+    "lk_win_px": 21, "track_max": 0,
     "v_max_mps": 1.0, "wz_max_dps": 60.0,
     "lost_timeout_s": 5.0, "target_timeout_s": 90.0, "hold_final_s": 1.0,
     "vision_every": 1,
@@ -126,6 +133,15 @@ def resolve(params: dict[str, Any]) -> dict[str, Any]:
               "h_hold_n"):
         if not isinstance(out[k], int) or out[k] < 1:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected an integer >= 1")
+    w = out["lk_win_px"]
+    if not isinstance(w, int) or isinstance(w, bool) or not 5 <= w <= 61 or w % 2 == 0:
+        raise ValueError(f"app.params.lk_win_px: got {w!r}; expected an odd integer in "
+                         "[5, 61] (px at the 856-px stream)")
+    n = out["track_max"]
+    if (not isinstance(n, int) or isinstance(n, bool)
+            or not (n == 0 or n >= out["min_matches"])):
+        raise ValueError(f"app.params.track_max: got {n!r}; expected 0 (all) or an integer "
+                         f">= min_matches ({out['min_matches']})")
     if out["min_tracked"] < 8 or out["min_matches"] < out["min_tracked"]:
         raise ValueError("app.params.min_tracked: a homography needs >= 8 points, and "
                          "min_matches must be >= min_tracked")
