@@ -397,7 +397,7 @@ def test_pixel_thresholds_scale_with_the_width():
     from cosim.apps.vs.features import Detector, Tracker, px_scale
 
     assert px_scale(856) == 1.0 and px_scale(428) == 0.5
-    t = Tracker()
+    t = Tracker(win=21)
     img = np.zeros((480, 856), np.uint8)
     t.track(img, img, np.zeros((1, 2), np.float32))
     assert t.params["winSize"] == (21, 21) and t.params["maxLevel"] == 3 and t.fb_px == 1.0

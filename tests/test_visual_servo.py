@@ -15,7 +15,7 @@ from scipy.linalg import expm
 from cosim.apps.visual_servo import VisualServoApp
 from cosim.apps.vs import geometry as G
 from cosim.apps.vs import visual_path as VP
-from cosim.apps.vs.features import Tracker, homography, sort_points, spread
+from cosim.apps.vs.features import homography, sort_points, spread
 from cosim.apps.vs.tasks import Obstacle, corridor_task, find_obstacle
 from cosim.cli import main as cli
 from cosim.errors import ScenarioError
@@ -223,12 +223,22 @@ def test_a_capped_point_set_is_spread_over_the_image_best_matches_first():
     assert np.array_equal(spread(pts, 48, W, H, score), keep)                # deterministic
 
 
-def test_the_lk_window_scales_with_the_width():
-    t = Tracker(win=15)
-    t._scaled(856)
-    assert t.params["winSize"] == (15, 15) and t.params["maxLevel"] == 3
-    t._scaled(428)
-    assert t.params["winSize"] == (9, 9) and t.params["maxLevel"] == 2
+def test_the_app_servos_on_the_capped_set_and_counts_it_as_matched():
+    """`track_max` caps the matched points the app tracks, and the thinning rule (a fresh
+    match when fewer than `refresh_frac` of the matched points are left) counts the capped
+    set: counted against all the matches, 64 of 200 is thin after 5 points are lost."""
+    from cosim.apps.vs.choice import HomographyChoice, Refresh
+
+    app = VisualServoApp({"keys": [[1, 0, -1, 0]], "track_max": 64})
+    app.W, app.H = 856, 480
+    app.hchoice = HomographyChoice("virtual_plane", 0.15, 5, True, 0.3)
+    app.refresh = Refresh(3.0, 4.0, 0.3)
+    rng = np.random.default_rng(2)
+    cur = np.column_stack([rng.uniform(0, 856, 200), rng.uniform(0, 480, 200)])
+    app._use_points(1.0, cur + 3.0, cur, rng.uniform(0.2, 0.8, 200))
+    assert len(app.cur) == len(app.tgt) == 64 and np.allclose(app.tgt - app.cur, 3.0)
+    assert app.refresh.n_match == 64
+    assert app.refresh.due(3.0, 59, 5.0) is None          # 59 of 64 left: not thin
 
 
 def test_bad_parameters_name_the_parameter():

@@ -214,7 +214,7 @@ class VisualServoApp:
         keep = spread(cur, self.p["track_max"], self.W, self.H, ratio)
         self.tgt, self.cur = sort_points(tgt[keep], cur[keep])
         self.hchoice.reset()
-        self.refresh.matched(t, len(tgt))
+        self.refresh.matched(t, len(self.tgt))
 
     def _fresh_match(self, t: float, gray: np.ndarray, salt: int) -> bool:
         """Match this frame with the key afresh (vs/choice.py Refresh); on enough matches

@@ -24,6 +24,7 @@ def bench_vision(n: int, repeats: int, per_call_us, stat) -> dict[str, Any]:
         robust_inliers,
         sort_points,
     )
+    from cosim.apps.vs.presets import DEFAULTS
     from cosim.load import load_scenario
     from cosim.sensors.front import FrontCamera
 
@@ -33,7 +34,7 @@ def bench_vision(n: int, repeats: int, per_call_us, stat) -> dict[str, Any]:
     frames = [gray_of(cam.render((0.6 * i / n, 0.3 * i / n, -1.0 + 0.4 * i / n),
                                  (1.0, 0.0, 0.0, 0.0))) for i in range(n + 1)]
     key = gray_of(cam.render((1.5, 0.0, -0.5), (1.0, 0.0, 0.0, 0.0)))
-    det, tracker = Detector("sift", 800), Tracker()
+    det, tracker = Detector("sift", 800), Tracker(win=DEFAULTS["lk_win_px"])
     kp, kd = det.detect(key)
     S = G.body_from_camera_matrix(sc.camera.mount_B)
     it = iter(())

@@ -170,7 +170,7 @@ class Tracker:
     (`px_scale`): the window by the scale (odd), one level fewer per halving, so the
     coarsest level sees the same part of the scene."""
 
-    def __init__(self, win: int = 21, levels: int = 3, fb_px: float = 1.0) -> None:
+    def __init__(self, win: int, levels: int = 3, fb_px: float = 1.0) -> None:
         self.win, self.levels, self.fb = win, levels, fb_px
         self._width = -1
 

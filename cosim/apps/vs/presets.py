@@ -70,7 +70,7 @@ DEFAULTS: dict[str, Any] = {
     "min_matches": 16, "min_tracked": 8, "outlier_px": 2.0,
     # tracking (features.Tracker, spread): the LK window (px at 856, odd) and the most
     # matched points tracked, spread over the image (0: all)
-    "lk_win_px": 21, "track_max": 0,
+    "lk_win_px": 15, "track_max": 0,
     "v_max_mps": 1.0, "wz_max_dps": 60.0,
     "lost_timeout_s": 5.0, "target_timeout_s": 90.0, "hold_final_s": 1.0,
     "vision_every": 1,
