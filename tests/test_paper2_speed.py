@@ -403,6 +403,14 @@ def test_pixel_thresholds_scale_with_the_width():
     assert t.params["winSize"] == (21, 21) and t.params["maxLevel"] == 3 and t.fb_px == 1.0
     t.track(img[::2, ::2], img[::2, ::2], np.zeros((1, 2), np.float32))
     assert t.params["winSize"] == (11, 11) and t.params["maxLevel"] == 2 and t.fb_px == 0.5
+    t = Tracker(win=15)                   # the default: 15 px at 856, not below 11 px
+    t.track(img, img, np.zeros((1, 2), np.float32))
+    assert t.params["winSize"] == (15, 15)
+    t.track(img[::2, ::2], img[::2, ::2], np.zeros((1, 2), np.float32))
+    assert t.params["winSize"] == (11, 11)
+    t = Tracker(win=7)                    # a smaller window asked for is kept
+    t.track(img[::2, ::2], img[::2, ::2], np.zeros((1, 2), np.float32))
+    assert t.params["winSize"] == (7, 7)
     rng = np.random.default_rng(0)
     noise = cv2.GaussianBlur(rng.integers(0, 255, (240, 428), dtype=np.uint8), (0, 0), 1.0)
     pts, desc = Detector("gftt", 300).detect(noise)

@@ -27,9 +27,9 @@ Ours, for rooms and paths nobody tuned the app for (issue 28; docs/papers/visual
 - `stall_s`, `refresh_frac`: match afresh when eps has not improved by 10 % for `stall_s`,
   or fewer than `refresh_frac` of the matched points are still tracked (vs/choice.py Refresh).
 - `lk_win_px`, `track_max`: the LK window (px at the 856-px stream, odd; scaled with the
-  width as the other pixel values) and the most matched points tracked, spread over the image
-  by a grid (features.spread; 0: all). The paper gives neither (it needs "at least 16 image
-  points", Sec. 5).
+  width as the other pixel values, but not below 11 px: features.WIN_MIN_PX) and the most
+  matched points tracked, spread over the image by a grid (features.spread; 0: all). The
+  paper gives neither (it needs "at least 16 image points", Sec. 5).
 - `turn_deg`, `turn_t_ev`, `turn_wait_s`: a key turned more than `turn_deg` from the previous
   one also needs |e_v| < `turn_t_ev` (0: off), at most `turn_wait_s` after eps < T_eps.
 Out-of-view columns are remembered in the vehicle's local frame (vs/memory.py): no parameter
