@@ -98,7 +98,7 @@ def test_bench_quick_reports_every_figure(tmp_path):
     assert len(e2["run_cpu_s"]) == len(e2["cpu_s"]) == 1
     if pl["worker"] == "process":
         assert e2["run_cpu_s"][0] > e2["cpu_s"][0] + 0.5
-    assert "CPU s per run (a study run's cost) = (the process" in r.stdout
+    assert "CPU s per run (a study run's cost) = (this process, all its threads" in r.stdout
 
 
 def test_the_peer_row_says_how_to_install_a_missing_peer(monkeypatch):

@@ -186,13 +186,16 @@ def test_exposure_noise_by_table_is_the_per_pixel_formula():
     img = rng.integers(0, 256, (48, 86, 3), dtype=np.uint8)
     noise = FrameNoise(rng, 0.0, 0.01, img.size, 1.0, 1.0)
     for gain, offset in ((1.0, 0.3), (0.97, -1.2), (1.3, 0.0), (0.7, 0.0), (-0.1, 2.0),
-                         (2.5, -300.0), (1.0001, 0.49999), (1.0, -0.5)):
+                         (2.5, -300.0), (1.0001, 0.49999), (1.0, -0.5), (-0.5, 0.0)):
         if offset:
             ref = img.astype(np.float32) * np.float32(max(gain, 0.0)) + np.float32(offset + 0.5)
             ref = np.clip(ref, 0.0, 255.0).astype(np.uint8)
         else:
             ref = cv2.convertScaleAbs(img, alpha=max(gain, 0.0))
         assert np.array_equal(noise.apply(img, (gain, offset, 0)), ref), (gain, offset)
+    assert noise.apply(img[:, :, :1], (1.2, 0.3, 0)).shape == (48, 86, 1)
+    with pytest.raises(TypeError, match="uint8"):
+        noise.apply(img.astype(np.float32), (1.2, 0.3, 0))
 
 
 # ------------------------------------------------------------------ OpenCV threads

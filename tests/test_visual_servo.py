@@ -221,6 +221,13 @@ def test_a_capped_point_set_is_spread_over_the_image_best_matches_first():
     corner = keep[keep < 300]
     assert set(corner.tolist()) == set(np.argsort(score[:300])[:45].tolist())  # its best 45
     assert np.array_equal(spread(pts, 48, W, H, score), keep)                # deterministic
+    # a cap below the cells that hold points: a round's best points, not the top rows'
+    grid = np.array([[(i + 0.5) * W / 8, (j + 0.5) * H / 6] for j in range(6) for i in range(8)])
+    pts2 = np.repeat(grid, 2, axis=0)                        # 2 points in each of 48 cells
+    score2 = np.tile([0.5, 0.6], 48)
+    score2[-2] = 0.1                                         # the bottom-right cell's best
+    keep2 = spread(pts2, 16, W, H, score2)
+    assert len(keep2) == 16 and 94 in keep2 and pts2[keep2, 1].max() > H / 2
 
 
 def test_the_app_servos_on_the_capped_set_and_counts_it_as_matched():
@@ -248,7 +255,8 @@ def test_bad_parameters_name_the_parameter():
                          ({"keys": [[1, 0, -1, 0]], "min_tracked": 4}, "min_tracked"),
                          ({"keys": [[1, 0, -1, 0]], "p": 1.5}, "p"), ({}, "keys"),
                          ({"keys": [[1, 0, -1, 0]], "lk_win_px": 14}, "lk_win_px"),
-                         ({"keys": [[1, 0, -1, 0]], "lk_win_px": 3}, "lk_win_px"),
+                         ({"keys": [[1, 0, -1, 0]], "lk_win_px": 9}, "lk_win_px"),
+                         ({"keys": [[1, 0, -1, 0]], "lk_win_px": 15.0}, "lk_win_px"),
                          ({"keys": [[1, 0, -1, 0]], "track_max": 10}, "track_max"),
                          ({"keys": [[1, 0, -1, 0]], "track_max": -1}, "track_max")]:
         with pytest.raises(ValueError, match=f"app.params.{name}"):

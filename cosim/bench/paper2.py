@@ -16,8 +16,9 @@ front-camera tick goes (issue 29).
 - E3 and E4 (the 30-key oval, at both sizes) likewise, without --quick.
 - "CPU s per run": the run's own CPU time and its render worker's (a child process joined
   when the run ends), i.e. what one run of a study costs its worker, whatever the load; and
-  each of the two apart (the process: its main thread, mostly; the render worker: render,
-  grey, columns), to see which side a pipelined run waits on.
+  each of the two apart (the process, all its threads: the main thread mostly; its children:
+  the render worker when it is a process, with render, grey and columns), to see which side
+  a pipelined run waits on.
 - The breakdown of E2's front-camera tick at 428 x 240, ms per camera frame, from a
   sequential run on one thread (each part timed where it runs): render, grey conversion,
   column detection, tracking (LK + the epipolar outlier test), matching at a key change
@@ -263,8 +264,8 @@ def format_paper2(res: dict[str, Any]) -> list[str]:
         lines += [row(f"paper 2 {k} mission (x real time)", d),
                   f"  first run in the process (cold: textures, tiles, keys made): {cold:.2f}x",
                   f"  simulated s per CPU s of the process, each run: {per_cpu}",
-                  f"  CPU s per run (a study run's cost) = (the process, its main thread "
-                  f"mostly + its render worker): {run_cpu}"]
+                  f"  CPU s per run (a study run's cost) = (this process, all its threads "
+                  f"+ its children: the render worker when it is a process): {run_cpu}"]
         if k == "E2" and "E2_one_thread" in res:
             lines.append(row("  E2, OpenCV on one thread", res["E2_one_thread"]))
     for k in ("E3", "E4", "E3 at 428x240", "E4 at 428x240"):

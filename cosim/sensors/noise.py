@@ -18,7 +18,8 @@ import cv2
 import numpy as np
 
 NOISE_BANK = 1 << 21      # samples in the per-camera Gaussian noise bank (8 MiB float32)
-_VALUES = np.arange(256, dtype=np.float32)   # the values of a uint8 pixel
+_BYTES = np.arange(256, dtype=np.uint8)      # the values of a uint8 pixel
+_VALUES = _BYTES.astype(np.float32)
 
 
 class FrameNoise:
@@ -63,6 +64,8 @@ class FrameNoise:
         """The frame with its noise: new draws, or ``drawn`` (a frame's, from ``draw``)."""
         if not self.active:
             return img
+        if img.dtype != np.uint8:
+            raise TypeError(f"FrameNoise: a uint8 frame, not {img.dtype}")
         gain, offset, k = self.draw() if drawn is None else drawn
         if self.bank is not None:
             noise = self.bank[k:k + img.size].reshape(img.shape)
@@ -79,5 +82,5 @@ class FrameNoise:
             np.clip(lut, 0.0, 255.0, out=lut)
             lut = lut.astype(np.uint8)
         else:
-            lut = cv2.convertScaleAbs(_VALUES.astype(np.uint8), alpha=max(gain, 0.0))
-        return cv2.LUT(img, lut)
+            lut = cv2.convertScaleAbs(_BYTES, alpha=max(gain, 0.0))
+        return lut[img] if img.size == 0 else cv2.LUT(img, lut).reshape(img.shape)

@@ -34,10 +34,11 @@ HOMOGRAPHIES = ("virtual_plane", "dominant_plane")
 # bound) is given for the Bebop 2's 856-px-wide stream, the paper's, and scales with the
 # image's width (`px_scale`): at half the resolution a point's error is half as many pixels.
 REF_WIDTH_PX = 856
-# The smallest LK window a scaled one gets, in pixels of the image tracked (the floor issue 41
-# set at 856 px; docs/papers/visual-servoing.md, "Tracking"): E2 at 428 x 240 with the 15 px
-# window scaled to 9 px passed 5 of seeds 0-6 (a collision on seed 0), with 11 px 6 of 7;
-# at 11 px the half-size flights are the ones measured before (the 100-run study, 90/100)
+# The smallest LK window a scaled one gets, in pixels of the image tracked (issue 41's floor
+# for the window, applied at every width; docs/papers/visual-servoing.md, "Tracking"): E2 at
+# 428 x 240 with the 15 px window scaled to 9 px passed 5 of seeds 0-6 (a collision on seed
+# 0), with 11 px 6 of 7; at 11 px the half-size flights are the ones measured before (the
+# 100-run study, 90/100)
 WIN_MIN_PX = 11
 
 
@@ -150,10 +151,12 @@ def sort_points(target: np.ndarray, current: np.ndarray) -> tuple[np.ndarray, np
 def spread(pts: np.ndarray, n_max: int, width: int, height: int, score: np.ndarray,
            cols: int = 8, rows: int = 6) -> np.ndarray:
     """Indices (ascending) of at most `n_max` of the points (N x 2 px), spread over the image:
-    the image is cut into `cols` x `rows` cells and the points are taken one per cell in
-    turn (cells in raster order, each cell's points by ascending `score`, ties in their given
-    order), so a cap keeps every part of the image the matches cover, its best points first.
-    All of them when `n_max` <= 0 or there are no more than that."""
+    the image is cut into `cols` x `rows` cells and the points are taken in rounds, one per
+    cell a round (each cell's points by ascending `score`); within a round the cells' points
+    go by ascending score too (ties: raster order of the cells), so a cap keeps every part of
+    the image the matches cover when it can (`n_max` >= the cells holding points), and
+    otherwise the best points of a round wherever they are, not the top rows. All of them
+    when `n_max` <= 0 or there are no more than that."""
     n = len(pts)
     if n_max <= 0 or n <= n_max:
         return np.arange(n)
@@ -164,8 +167,8 @@ def spread(pts: np.ndarray, n_max: int, width: int, height: int, score: np.ndarr
     first = np.searchsorted(cell[order], cell[order])   # where each point's cell starts
     rank = np.empty(n, np.int64)
     rank[order] = np.arange(n) - first                  # the point's place in its cell
-    key = rank * (cols * rows) + cell
-    return np.sort(np.argsort(key, kind="stable")[:n_max])
+    pick = np.lexsort((np.arange(n), cell, score, rank))   # by round, score, cell, index
+    return np.sort(pick[:n_max])
 
 
 class Tracker:
@@ -182,7 +185,7 @@ class Tracker:
 
     def _scaled(self, width: int) -> None:
         s = px_scale(width)
-        half = max(min(self.win, WIN_MIN_PX) // 2, round((self.win - 1) / 2 * s))
+        half = max(1, min(self.win, WIN_MIN_PX) // 2, round((self.win - 1) / 2 * s))
         levels = max(0, self.levels + round(math.log2(s)))
         self.params = dict(winSize=(2 * half + 1, 2 * half + 1), maxLevel=levels,
                            criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))

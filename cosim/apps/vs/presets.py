@@ -26,8 +26,8 @@ Ours, for rooms and paths nobody tuned the app for (issue 28; docs/papers/visual
   `vis_v_max_mps`, `vis_wz_max_dps`: the bounds of the velocity it asks for on its own.
 - `stall_s`, `refresh_frac`: match afresh when eps has not improved by 10 % for `stall_s`,
   or fewer than `refresh_frac` of the matched points are still tracked (vs/choice.py Refresh).
-- `lk_win_px`, `track_max`: the LK window (px at the 856-px stream, odd; scaled with the
-  width as the other pixel values, but not below 11 px: features.WIN_MIN_PX) and the most
+- `lk_win_px`, `track_max`: the LK window (px at the 856-px stream, odd, 11-61; scaled with
+  the width as the other pixel values, but not below 11 px: features.WIN_MIN_PX) and the most
   matched points tracked, spread over the image by a grid (features.spread; 0: all). The
   paper gives neither (it needs "at least 16 image points", Sec. 5).
 - `turn_deg`, `turn_t_ev`, `turn_wait_s`: a key turned more than `turn_deg` from the previous
@@ -134,9 +134,9 @@ def resolve(params: dict[str, Any]) -> dict[str, Any]:
         if not isinstance(out[k], int) or out[k] < 1:
             raise ValueError(f"app.params.{k}: got {out[k]!r}; expected an integer >= 1")
     w = out["lk_win_px"]
-    if not isinstance(w, int) or isinstance(w, bool) or not 5 <= w <= 61 or w % 2 == 0:
+    if not isinstance(w, int) or isinstance(w, bool) or not 11 <= w <= 61 or w % 2 == 0:
         raise ValueError(f"app.params.lk_win_px: got {w!r}; expected an odd integer in "
-                         "[5, 61] (px at the 856-px stream)")
+                         "[11, 61] (px at the 856-px stream; 11: features.WIN_MIN_PX)")
     n = out["track_max"]
     if (not isinstance(n, int) or isinstance(n, bool)
             or not (n == 0 or n >= out["min_matches"])):
