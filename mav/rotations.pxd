@@ -6,3 +6,6 @@ cpdef double yaw_from_quat(double qw, double qx, double qy, double qz) except? -
 cpdef double tilt_cos(double qw, double qx, double qy, double qz) except? -1.0
 cpdef tuple rotate_body_to_world(double qw, double qx, double qy, double qz, double bx,
                                  double by, double bz)
+cpdef (double, double, double) euler_to_world(double roll, double pitch, double yaw, double x,
+                                             double y, double z)
+cpdef double wrap_pi(double a)

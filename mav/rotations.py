@@ -34,7 +34,11 @@ from cython.cimports.libc.math import sin as _sin
 __all__ = [
     "quat_from_euler", "euler_from_quat", "yaw_from_quat", "tilt_cos", "quat_mul", "quat_conj",
     "rotate_body_to_world", "rotate_world_to_body", "R_from_quat", "quat_from_R", "rotate_ne",
+    "euler_to_world", "wrap_pi",
 ]
+
+_PI = cython.declare(cython.double, math.pi)
+_TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
 
 
 @cython.locals(cr=cython.double, sr=cython.double, cp=cython.double, sp=cython.double,
@@ -167,3 +171,20 @@ def rotate_ne(fwd: float, right: float, yaw: float) -> tuple[float, float]:
     rad (roll and pitch ignored: the vector lies in the horizontal plane)."""
     c, s = math.cos(yaw), math.sin(yaw)
     return c * fwd - s * right, s * fwd + c * right
+
+
+@cython.locals(sph=cython.double, cph=cython.double, sth=cython.double, cth=cython.double,
+               sps=cython.double, cps=cython.double)
+def euler_to_world(roll: float, pitch: float, yaw: float, x: float, y: float,
+                   z: float) -> tuple[float, float, float]:
+    """A body FRD vector (x, y, z) in world NED, by Z-Y-X Euler angles (rad)."""
+    sph, cph, sth, cth = _sin(roll), _cos(roll), _sin(pitch), _cos(pitch)
+    sps, cps = _sin(yaw), _cos(yaw)
+    return (cth * cps * x + (sph * sth * cps - cph * sps) * y + (cph * sth * cps + sph * sps) * z,
+            cth * sps * x + (sph * sth * sps + cph * cps) * y + (cph * sth * sps - sph * cps) * z,
+            -sth * x + sph * cth * y + cph * cth * z)
+
+
+def wrap_pi(a: float) -> float:
+    """An angle (rad) wrapped into [-pi, pi)."""
+    return (a + _PI) % _TWO_PI - _PI

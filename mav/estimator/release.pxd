@@ -1,7 +1,8 @@
 # Types Cython reads beside mav/estimator/release.py (plain Python): the release's filter
 # states as C doubles. ReleaseEstimator extends TemplateEstimator's fields (template.pxd).
 
-from mav.estimator.template cimport TemplateEstimator, _finite, to_world, wrap
+from mav.estimator.template cimport TemplateEstimator, _finite
+from mav.rotations cimport euler_to_world, wrap_pi
 from mav.hil_sensors cimport Payload
 
 

@@ -81,9 +81,8 @@ from mav.estimator.template import (
     G,
     TemplateEstimator,
     _finite,
-    to_world,
-    wrap,
 )
+from mav.rotations import euler_to_world, wrap_pi
 
 if TYPE_CHECKING:
     from mav.hil_sensors import Payload
@@ -327,7 +326,7 @@ class ReleaseEstimator(TemplateEstimator):
         sph, cph, cth, tth = _sin(ph), _cos(ph), _cos(th), _tan(th)
         self.roll = ph + (p + sph * tth * q + cph * tth * r) * dt
         self.pitch = th + (cph * q - sph * r) * dt
-        self.yaw = wrap(ps + (sph * q + cph * r) / cth * dt)
+        self.yaw = wrap_pi(ps + (sph * q + cph * r) / cth * dt)
         an = _sqrt(a0 * a0 + a1 * a1 + a2 * a2)
         if (1.0 - ACC_THRESHOLD) * _G < an < (1.0 + ACC_THRESHOLD) * _G:
             w = self.w_acc
@@ -359,7 +358,7 @@ class ReleaseEstimator(TemplateEstimator):
                                        / ((self.pz_ss + self.r_baro) * HGT_GATE2)
                                        - self.tr_hgt)
         ph, th, ps = self.roll, self.pitch, self.yaw
-        u = to_world(ph, th, ps, a0, a1, a2)[2] + _G          # world-down acceleration
+        u = euler_to_world(ph, th, ps, a0, a1, a2)[2] + _G          # world-down acceleration
         zp = self.z_prev
         if zp > 0.0:                                          # below the floor: at rest
             self.zpr, self.vpr = 0.0, 0.0
@@ -422,7 +421,7 @@ class ReleaseEstimator(TemplateEstimator):
               + (cph * sth * sps - sph * cps) * self.by_out + cph * cth * vzk)
         self.bx_out, self.by_out = bx, by
         self.bx, self.by = bx + dt * ux, by + dt * uy
-        self.vx, self.vy, _ = to_world(ph, th, ps, bx, by, dz)
+        self.vx, self.vy, _ = euler_to_world(ph, th, ps, bx, by, dz)
         self.vz = vzk
         self.x, self.y = self.sx, self.sy
         self.sx += dt * self.vx

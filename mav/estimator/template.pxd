@@ -3,11 +3,9 @@
 # ints: time_usec is a uint64 on the wire, and any value must behave as in Python.
 
 from mav.hil_sensors cimport Payload
+from mav.rotations cimport euler_to_world, wrap_pi
 
 cpdef bint _finite(double s)
-cpdef (double, double, double) to_world(double roll, double pitch, double yaw, double x,
-                                       double y, double z)
-cpdef double wrap(double a)
 
 
 cdef class TemplateEstimator:

@@ -1,31 +1,29 @@
 """The Minidrone template's estimator (reference/minidrone.md §2.2), as its own part like PX4's
 EKF2: sensor messages in, a state estimate out, in plain floats (200 Hz in the vehicle's tick).
 
-- Attitude: complementary filter on Euler angles. The gyro (less the bias measured at rest in
+- Attitude: complementary filter on Euler angles. The gyro (less its bias measured at rest in
   the first `CAL_TICKS` ticks) is integrated; the low-passed accelerometer corrects roll and
-  pitch with weight TPL_ACC_W per tick only while its norm is within TPL_ACC_GATE of g; the
+  pitch with weight TPL_ACC_W per tick while its norm is within TPL_ACC_GATE of g; the
   tilt-compensated compass corrects the heading with weight TPL_MAG_W.
 - Altitude: Kalman filter on (z, vz) driven by the vertical acceleration, corrected by the
   barometer (altitude from the pressure drop since start) and the sonar (slant range times
-  cos roll cos pitch). Outlier rules of the template: sonar > TPL_RNG_GATE (0.3 m) from the
-  estimate and pressure > TPL_BARO_GATE (0.8 m) rejected; a sonar rejected for 0.5 s in a row
+  cos roll cos pitch). The template's outlier rules: sonar > TPL_RNG_GATE (0.3 m) and pressure
+  > TPL_BARO_GATE (0.8 m) from the estimate are rejected; a sonar rejected for 0.5 s in a row
   resets the altitude to it (the estimate, not the sonar, had gone wrong).
 - Horizontal velocity: per axis a Kalman filter (Q = TPL_OF_Q, R = TPL_OF_R: the template's
   0.09 / 5) driven by the horizontal acceleration, corrected by the flow velocity (flow rate
-  less the flow sensor's gyro, times the distance to the floor along the optical axis). The
-  flow is used only with quality >= EKF2_OF_QMIN, above 0.4 m, |roll|, |pitch| < 0.6 rad,
-  |p|, |q| < 7 rad/s, and within TPL_OF_GATE (5 m/s) of the estimate (template rules).
+  less the flow sensor's gyro, times the distance to the floor along the optical axis), used
+  only with quality >= EKF2_OF_QMIN, above 0.4 m, |roll|, |pitch| < 0.6 rad, |p|, |q| < 7
+  rad/s, within TPL_OF_GATE (5 m/s) of the estimate (template rules).
 - Horizontal position: the velocity integrated (the template has no absolute position without
   its marker); with a GPS, each fix pulls it by TPL_GPS_W.
-- On the ground (estimated height < 0.15 m, no flow) the velocity decays to zero (zero-velocity
-  update, as PX4 does while landed); the floor the vehicle started on bounds the altitude (not
-  below it, not descending through it: without that the estimate kept "descending" after a
-  touchdown and the land detector, which reads it, waited).
+- On the ground (estimated height < 0.15 m, no flow) the velocity decays to zero (as PX4's
+  zero-velocity update while landed); the floor it started on bounds the altitude (without
+  that the estimate kept "descending" after a touchdown and the land detector waited).
 
-Every reading that is NaN or outside its sensor's range is rejected and counted (`stats`),
-never propagated. The position estimate is `lost` when no flow or GPS was fused for
-TPL_NOAID_TOUT while above 0.5 m, and stays lost until one is fused again (at any height: a
-descent below 0.5 m on dead reckoning regains nothing).
+A reading that is NaN or outside its sensor's range is rejected and counted (`stats`), never
+propagated. The position is `lost` when no flow or GPS was fused for TPL_NOAID_TOUT above
+0.5 m, until one is fused again (a descent below 0.5 m on dead reckoning regains nothing).
 """
 
 from __future__ import annotations
@@ -39,6 +37,8 @@ from cython.cimports.libc.math import cos as _cos
 from cython.cimports.libc.math import sin as _sin
 from cython.cimports.libc.math import sqrt as _sqrt
 from cython.cimports.libc.math import tan as _tan
+
+from mav.rotations import euler_to_world, wrap_pi
 
 if TYPE_CHECKING:
     from mav.hil_sensors import Payload
@@ -68,28 +68,22 @@ _F_IMU = cython.declare(cython.long, 0x3F)
 _F_MAG = cython.declare(cython.long, 0x1C0)
 F_BARO = 0x1A00
 _F_BARO = cython.declare(cython.long, F_BARO)
-_PI = cython.declare(cython.double, math.pi)
-_TWO_PI = cython.declare(cython.double, 2.0 * math.pi)
 
 STATS = ("est_imu", "est_rej_imu", "est_rej_baro", "est_baro_fused", "est_rej_rng",
          "est_rng_fused", "est_rng_none", "est_rej_flow", "est_flow_fused", "est_rej_mag",
          "est_gps_fused", "est_rej_gps", "est_rng_resets", "est_resets", "est_gps_resets")
-# EKF2's GPS checks with PX4's defaults (ekf2 module.yaml): quality EKF2_REQ_EPH 3 m,
-# EKF2_REQ_NSATS 6, a 3D fix; the position innovation gate EKF2_GPS_P_GATE 5 standard
-# deviations of max(eph, EKF2_GPS_P_NOISE 0.5 m); a reset to GPS after ekf's reset timeout
-# (7 s of fixes rejected in a row)
+# EKF2's GPS checks, PX4's defaults (ekf2 module.yaml): EKF2_REQ_EPH 3 m, EKF2_REQ_NSATS 6, a
+# 3D fix; gate EKF2_GPS_P_GATE 5 SD of max(eph, EKF2_GPS_P_NOISE 0.5 m); reset after 7 s gated
 GPS_REQ_EPH_CM = 300
 GPS_REQ_NSATS = 6
 GPS_P_GATE = cython.declare(cython.double, 5.0)
 GPS_P_NOISE_M = cython.declare(cython.double, 0.5)
 GPS_RESET_US = 7_000_000
 # Innovation test ratios, EKF2's: innovation^2 / (gate^2 * innovation variance), > 1 outside
-# the gate; here each low-passed by TR_K (1 s: a ratio above 1 is then sustained, not one
-# noisy sample), kept in tr_tilt, tr_vel, tr_hgt. Tilt: the accelerometer's gravity direction
-# against the estimated roll and pitch (gate TILT_GATE rad, whenever the accelerometer
-# corrects the tilt); velocity: the flow's (gate EKF2_OF_GATE's PX4 default, 3 SD, of
-# P + TPL_OF_R); height: the barometer's (EKF2_BARO_GATE's PX4 default, 5 SD, of P + R).
-# A tilt or velocity ratio above 1 in flight: the estimate has failed (`fail`), for good.
+# the gate; each low-passed by TR_K (1 s: a ratio above 1 is sustained, not one noisy sample)
+# in tr_tilt (accelerometer's gravity against roll and pitch, gate TILT_GATE rad), tr_vel
+# (flow, EKF2_OF_GATE's default 3 SD of P + TPL_OF_R), tr_hgt (barometer, EKF2_BARO_GATE's
+# 5 SD of P + R). A tilt or velocity ratio above 1 in flight: failed (`fail`), for good.
 VEL_GATE_SD, HGT_GATE_SD, TR_PER_TICK = 3.0, 5.0, 0.005     # TR_PER_TICK: 1 s at 200 Hz
 TILT_GATE2 = cython.declare(cython.double, 0.2 * 0.2)
 VEL_GATE2 = cython.declare(cython.double, VEL_GATE_SD * VEL_GATE_SD)
@@ -102,21 +96,6 @@ def _finite(s: float) -> bool:
     """Of a sum of readings: whether all are finite (a NaN or an infinity among them makes the
     sum NaN or infinite; finite ones whose sum overflows are rejected too)."""
     return s - s == 0.0
-
-
-@cython.locals(sph=f64, cph=f64, sth=f64, cth=f64, sps=f64, cps=f64)
-def to_world(roll: float, pitch: float, yaw: float, x: float, y: float,
-             z: float) -> tuple[float, float, float]:
-    """Body FRD -> world NED (ZYX Euler angles)."""
-    sph, cph, sth, cth = _sin(roll), _cos(roll), _sin(pitch), _cos(pitch)
-    sps, cps = _sin(yaw), _cos(yaw)
-    return (cth * cps * x + (sph * sth * cps - cph * sps) * y + (cph * sth * cps + sph * sps) * z,
-            cth * sps * x + (sph * sth * sps + cph * cps) * y + (cph * sth * sps - sph * cps) * z,
-            -sth * x + sph * cth * y + cph * cth * z)
-
-
-def wrap(a: float) -> float:
-    return (a + _PI) % _TWO_PI - _PI
 
 
 class TemplateEstimator:
@@ -142,9 +121,8 @@ class TemplateEstimator:
         self.nb = 0                                        # barometer readings in p0_hpa
         self.resets = 0                                    # non-finite states reset
         self.bz = 0.0                                      # accelerometer bias, world down
-        # altitude covariance (z, vz, bz): it starts at rest on the floor, z = vz = 0 known
-        # (a variance of 1 m^2 made the first barometer reading, 2.5 sigma of noise at seed 0,
-        # a 0.31 m jump of the estimate on the ground)
+        # altitude covariance (z, vz, bz): at rest on the floor, z = vz = 0 known (with 1 m^2
+        # the first barometer reading, 2.5 sigma of noise at seed 0, jumped it by 0.31 m)
         self.pzz, self.pzv, self.pvv = 1e-4, 0.0, 1e-4
         self.pzb = self.pvb = 0.0
         self.pbb = self.abl_lim * self.abl_lim
@@ -193,9 +171,8 @@ class TemplateEstimator:
         fused = False
         if flow is not None:
             fused = self._flow(flow, t_us)
-        # resting on the floor, the flow not fused (it is rejected below 0.4 m): ZUPT. (Before
-        # 2026-11-27 only on ticks without a flow message: with one every tick, a vehicle left
-        # on the ground drifted ~6 cm/s, found by a ground station in `cosim sitl`.)
+        # resting on the floor, the flow not fused (rejected below 0.4 m): ZUPT. (Once only on
+        # ticks without a flow message: a vehicle on the ground drifted ~6 cm/s.)
         if not fused and self.z > -0.15 and abs(self.vz) < 0.3:
             self.vx *= ZUPT_DECAY
             self.vy *= ZUPT_DECAY
@@ -302,7 +279,7 @@ class TemplateEstimator:
         tth = _tan(th)
         self.roll = ph + (p + (sph * q + cph * r) * tth) * dt
         self.pitch = th + (cph * q - sph * r) * dt
-        self.yaw = wrap(self.yaw + (sph * q + cph * r) / cth * dt)
+        self.yaw = wrap_pi(self.yaw + (sph * q + cph * r) / cth * dt)
         if n < _CAL:
             ax, ay, az = self.alp0, self.alp1, self.alp2
         self.alp0 += ACC_LP * (ax - self.alp0)
@@ -329,13 +306,13 @@ class TemplateEstimator:
             sph, cph, sth, cth = _sin(ph), _cos(ph), _sin(th), _cos(th)
             hx = mx * cth + my * sph * sth + mz * cph * sth
             hy = my * cph - mz * sph
-            yaw_m = wrap(_atan2(-hy, hx) + self.decl)
+            yaw_m = wrap_pi(_atan2(-hy, hx) + self.decl)
             w = 1.0 / (n + 1) if n < _CAL else self.w_mag
-            self.yaw = wrap(self.yaw + w * wrap(yaw_m - self.yaw))
+            self.yaw = wrap_pi(self.yaw + w * wrap_pi(yaw_m - self.yaw))
         else:
             st["est_rej_mag"] += 1
         # world acceleration from the specific force
-        fx_w, fy_w, fz_w = to_world(self.roll, self.pitch, self.yaw, ax, ay, az)
+        fx_w, fy_w, fz_w = euler_to_world(self.roll, self.pitch, self.yaw, ax, ay, az)
         az_w = fz_w + _G - self.bz if n >= _CAL else 0.0
         # altitude filter (z, vz and the accelerometer's bias bz, as EKF2 estimates it):
         # predict with F = [[1, dt, -dt^2/2], [0, 1, -dt], [0, 0, 1]], P = F P F' + Q
@@ -475,7 +452,7 @@ class TemplateEstimator:
         sps, cps = _sin(ps), _cos(ps)
         vbz = (cph * sth * cps + sph * sps) * self.vx + (cph * sth * sps - sph * cps) * self.vy \
             + cph * cth * self.vz
-        vn, ve, _ = to_world(ph, th, ps, vbx, vby, vbz)
+        vn, ve, _ = euler_to_world(ph, th, ps, vbx, vby, vbz)
         self.tr_vel += TR_K * (max((vn - self.vx) * (vn - self.vx) / (self.pvx + self.of_r),
                                    (ve - self.vy) * (ve - self.vy) / (self.pvy + self.of_r))
                                / VEL_GATE2 - self.tr_vel)

@@ -155,10 +155,6 @@ def hz_to_us(hz: float) -> int:
     return int(round(1e6 / hz)) if hz > 0.0 else -1
 
 
-def wrap_pi(a: float) -> float:
-    return (a + math.pi) % TWO_PI - math.pi
-
-
 def text_of(s) -> str:
     if isinstance(s, bytes | bytearray):
         return bytes(s).split(b"\x00", 1)[0].decode("ascii", errors="replace")

@@ -40,8 +40,8 @@ from __future__ import annotations
 
 import math
 
-from mav.onboard.defs import NAN, wrap_pi
-from mav.rotations import yaw_from_quat
+from mav.onboard.defs import NAN
+from mav.rotations import wrap_pi, yaw_from_quat
 
 MB_ARRIVE_M = 0.0005     # m, the reference is at its target within this, once slowed down
 

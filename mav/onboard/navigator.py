@@ -35,11 +35,11 @@ from mav.onboard.defs import (
     TOUCH_VZ_MPS,
     TOUCH_VZ_TAU_S,
     M,
-    wrap_pi,
 )
 from mav.onboard.leg import Leg
 from mav.onboard.status import VehicleStatus
 from mav.params import ONBOARD_PARAMS
+from mav.rotations import wrap_pi
 
 RTL_IDLE, RTL_CLIMB, RTL_RETURN, RTL_DESCEND, RTL_WAIT, RTL_LAND, RTL_DONE = range(7)
 RTL_PHASE_NAMES = ("idle", "climb", "return", "descend", "wait", "land", "done")

@@ -28,10 +28,10 @@ from mav.onboard.defs import (
     SP_MAX_YAW_RAD,
     SP_MAX_YAW_RATE,
     M,
-    wrap_pi,
 )
 from mav.onboard.moveby import MoveBy
 from mav.onboard.status import VehicleStatus
+from mav.rotations import wrap_pi
 
 FRAME_GLOBAL_INT = M.MAV_FRAME_GLOBAL_INT                       # altitude AMSL
 FRAME_GLOBAL_REL_ALT_INT = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT  # altitude above home
