@@ -2,7 +2,16 @@
 compiled when built, the default); tests/test_compiled.py runs flights and the onboard
 behaviour tests interpreted too, back to back."""
 
+import signal
+
 import pytest
+
+# The Ctrl-C tests send SIGINT to the programs they start. A test run started as a background
+# job (a shell's `cmd &`, some CI runners) has SIGINT ignored, and a program it starts inherits
+# that and never sees the signal (Python then installs no KeyboardInterrupt handler): the tests
+# would fail for the runner's reason. They restore the default, as a terminal's user has it.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_addoption(parser):
