@@ -194,10 +194,7 @@ class VisualServoApp:
         self._prev = gray
 
     def _match(self, t: float, gray: np.ndarray) -> None:
-        key = self.path.keys[self.k]
-        pts, desc = self.det.detect(gray)
-        tgt, cur, ratio = match(self.det, key.pts, key.desc, pts, desc, self.seed + self.k,
-                                px=self.px, quality=True)
+        tgt, cur, ratio = self._match_key(gray, self.seed + self.k)
         if len(tgt) >= self.p["min_matches"]:
             self._use_points(t, tgt, cur, ratio)
             self.phase = "servo"
@@ -206,6 +203,13 @@ class VisualServoApp:
             return
         self._rematches += 1
         self._hover(t, "few matches")
+
+    def _match_key(self, gray: np.ndarray, seed: int
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This frame matched with the current key: (key points, frame points, match ratios)."""
+        key = self.path.keys[self.k]
+        pts, desc = self.det.detect(gray)
+        return match(self.det, key.pts, key.desc, pts, desc, seed, px=self.px, quality=True)
 
     def _use_points(self, t: float, tgt: np.ndarray, cur: np.ndarray, ratio: np.ndarray
                     ) -> None:
@@ -219,10 +223,7 @@ class VisualServoApp:
     def _fresh_match(self, t: float, gray: np.ndarray, salt: int) -> bool:
         """Match this frame with the key afresh (vs/choice.py Refresh); on enough matches
         servo on them. Whether it did."""
-        key = self.path.keys[self.k]
-        pts, desc = self.det.detect(gray)
-        tgt, cur, ratio = match(self.det, key.pts, key.desc, pts, desc, self.seed + 7 * salt,
-                                px=self.px, quality=True)
+        tgt, cur, ratio = self._match_key(gray, self.seed + 7 * salt)
         if len(tgt) < self.p["min_matches"]:
             return False
         self._use_points(t, tgt, cur, ratio)
@@ -376,10 +377,7 @@ class VisualServoApp:
         """At the last key: eps from tracked points can drift low while the pose is still off
         (LK drift, a thinned point set), so the goal is confirmed by matching the frame with
         the key afresh (ours). When the fresh matches disagree, servoing goes on with them."""
-        key = self.path.keys[self.k]
-        pts, desc = self.det.detect(gray)
-        tgt, cur, ratio = match(self.det, key.pts, key.desc, pts, desc,
-                                self.seed + 7 * self.k, px=self.px, quality=True)
+        tgt, cur, ratio = self._match_key(gray, self.seed + 7 * self.k)
         if len(tgt) < self.p["min_tracked"]:
             return False
         eps = float(np.mean(np.linalg.norm(cur - tgt, axis=1)))
