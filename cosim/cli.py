@@ -107,6 +107,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--hil-transport", choices=("udp", "unix"), default="udp",
                    help="SIL: the simulator link between the processes (unix: a Unix-domain "
                         "socket; the api and gcs links stay UDP; same results)")
+    r.add_argument("--hil-exchange", choices=("auto", "typed", "framed"), default="auto",
+                   help="MIL: the HIL exchange in this process as the records its MAVLink "
+                        "frames decode to (typed) or as the frames (framed, as SIL's); auto: "
+                        "typed unless the scenario has [faults]; same results")
     r.add_argument("--realtime", action="store_true", help="pace against the wall clock")
     r.add_argument("--speed", type=float, default=1.0, help="real-time speed factor (--realtime)")
     r.add_argument("--out", type=Path, help="run folder (default runs/<scenario>-<mode>)")
@@ -409,11 +413,14 @@ def _run(args) -> int:
     check_out_dir(out, "--out")
     if args.hil_transport != "udp" and args.mode != "sil":
         raise ScenarioError("--hil-transport", args.hil_transport, "only with --mode sil")
+    if args.hil_exchange == "typed" and (args.mode != "mil" or sc.faults):
+        raise ScenarioError("--hil-exchange", args.hil_exchange, "only with --mode mil and a "
+                            "scenario without [faults] (they act on the HIL datagrams)")
     if args.foxglove is not None and not args.realtime:
         raise ScenarioError("--foxglove", args.foxglove, "together with --realtime (a live "
                             "view of a run faster than real time shows nothing useful)")
     opts = RunOptions(mode=args.mode, realtime=args.realtime, speed=args.speed,
-                      hil_transport=args.hil_transport,
+                      hil_transport=args.hil_transport, hil_exchange=args.hil_exchange,
                       video=args.video, png_every=args.png_every, mcap=args.mcap,
                       images=args.images,
                       progress=not args.quiet and sys.stderr.isatty(), out_dir=out,

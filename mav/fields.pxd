@@ -26,3 +26,4 @@ cpdef double get_f(object data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
                    Py_ssize_t k) except? -1.0
 cpdef long long get_i(object data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
                       Py_ssize_t k) except? -1
+cpdef double f32(double v) except? -1.0

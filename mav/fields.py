@@ -207,6 +207,21 @@ def get_i(data: bytes, p0: int, plen: int, lay: Layout, k: int) -> int:
         return _unpack(data, p0, plen, c, at)
 
 
+@cython.locals(tmp=cython.char[4])
+def f32(v: float) -> float:
+    """v as a MAVLink 'f' field carries it: rounded to the nearest float (the value get_f
+    reads back after put_f wrote v; OverflowError for a finite v too large, as put_f), for
+    a typed exchange that must give what the framed one gives (cosim/sim/onboard.py)."""
+    if cython.compiled:
+        PyFloat_Pack4(v, tmp, 1)                        # noqa: F821 (fields.pxd)
+        return PyFloat_Unpack4(tmp, 1)                  # noqa: F821
+    else:
+        return _F32.unpack(_F32.pack(v))[0]
+
+
+_F32 = _ST["f"]
+
+
 def _unpack(data: bytes, p0: int, plen: int, c: int, at: int):
     """Interpreted: field `chr(c)` at `at` of data[p0:p0 + plen], zero past plen."""
     payload = bytes(data[p0:p0 + plen]) + bytes(at + 8)

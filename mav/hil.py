@@ -16,7 +16,7 @@ import cython
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
-from mav.fields import Layout, copy_of, done, put_f, put_i
+from mav.fields import Layout, copy_of, done, f32, put_f, put_i
 
 SIM_SYSID = 250
 SIM_COMPID = mavlink2.MAV_COMP_ID_SYSTEM_CONTROL
@@ -102,6 +102,21 @@ def odometry_of(mav, t_us: int, x: float, y: float, z: float, qw: float, qx: flo
     return done(out)
 
 
+_FRAME_LOCAL_NED = cython.declare(cython.int, mavlink2.MAV_FRAME_LOCAL_NED)
+
+
+def odometry_record(t_us: int, x: float, y: float, z: float, qw: float, qx: float,
+                    qy: float, qz: float, vx: float, vy: float, vz: float, p: float, q: float,
+                    r: float, lost: bool) -> tuple:
+    """What the vehicle's tick reads (`wire.decode_odometry`) from `odometry_of`'s frame of
+    the same values, without the frame: (time_usec, x .. r each rounded to a float as the
+    frame carries it, frame ids LOCAL_NED, quality 100, -1 if `lost`). MIL's typed HIL
+    exchange (cosim/sim/onboard.py), tested to give the framed path's flights."""
+    return (t_us, f32(x), f32(y), f32(z), f32(qw), f32(qx), f32(qy), f32(qz), f32(vx),
+            f32(vy), f32(vz), f32(p), f32(q), f32(r), _FRAME_LOCAL_NED, _FRAME_LOCAL_NED,
+            -1 if lost else 100)
+
+
 class HilSimulatorCodec:
     def __init__(self) -> None:
         self.mav = mavlink2.MAVLink(None, srcSystem=SIM_SYSID, srcComponent=SIM_COMPID)
@@ -114,6 +129,19 @@ class HilSimulatorCodec:
         """The same with quality -1 (MAVLink: odometry has failed): the position and velocity
         in `m` are stale, attitude and rates live (a fault: cosim.faults.core)."""
         return odometry(self.mav, t_us, m, True)
+
+    def record_odometry(self, t_us: int, m: tuple[float, ...]) -> tuple:
+        """`encode_odometry` as the typed record the vehicle reads (`odometry_record`)."""
+        return odometry_record(t_us, m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8],
+                               m[9], m[10], m[11], m[12], False)
+
+    def record_odometry_lost(self, t_us: int, m: tuple[float, ...]) -> tuple:
+        return odometry_record(t_us, m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8],
+                               m[9], m[10], m[11], m[12], True)
+
+    def decode_record(self, ans: tuple) -> tuple[int, float, float, float, float]:
+        """(t_us, u1..u4) of the vehicle's typed answer (`Onboard.step_record`)."""
+        return ans[0]
 
     def decode_actuators(self, data: bytes) -> tuple[int, float, float, float, float]:
         f = wire.decode_hil_actuator_controls(data)

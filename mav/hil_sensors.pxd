@@ -33,6 +33,7 @@ cdef class Bundle:
     cdef public Payload imu, flow, rng, gps
     cdef public long bad, foreign
     cpdef read(self, bytes data)
+    cpdef take(self, list parts)
 
 
 cpdef tuple decode_bundle(bytes data)

@@ -314,6 +314,30 @@ class Bundle:
         self.foreign = foreign
 
 
+    @cython.locals(i=cython.Py_ssize_t, m=wire.FastMsg, v=Payload, p=bytes)
+    def take(self, parts: list) -> None:
+        """The messages of parts = [message, payload, message, payload, ...] (`stamp_all`'s:
+        the simulator's own, whole payloads, not framed) as `read` finds them in their frames:
+        MIL's typed HIL exchange (cosim/sim/onboard.py)."""
+        self.imu.data = self.flow.data = self.rng.data = self.gps.data = None
+        for i in range(0, len(parts), 2):
+            m = parts[i]
+            p = parts[i + 1]
+            if m is _M_SENSOR:
+                v = self.imu
+            elif m is _M_FLOW:
+                v = self.flow
+            elif m is _M_DIST:
+                v = self.rng
+            elif m is _M_GPS:
+                v = self.gps
+            else:                          # the truth (HIL_STATE_QUATERNION): not kept
+                continue
+            v.data, v.p0, v.plen, v.at, v.end = p, 0, len(p), 0, len(p)
+        self.bad = 0
+        self.foreign = 0
+
+
 _SIM_SYSID = cython.declare(cython.long, SIM_SYSID)
 _MAGIC2 = cython.declare(cython.long, wire.MAGIC_V2)
 _M_SENSOR = cython.declare(wire.FastMsg, HIL_SENSOR)

@@ -39,10 +39,17 @@ def _imu(mav, t_us: int, nan: bool = False) -> bytes:
                                 1012.0, 0.0, 25.0, 0x1FFF)
 
 
+# datagrams on the HIL link: MIL's framed exchange (the typed one has no link to put them
+# on), SIL's; each clean run they are compared with is MIL's default, typed
+def framed() -> RunOptions:
+    return RunOptions(hil_exchange="framed")
+
+
 class Injector:
     """Wraps OnboardHandle.exchange: `before(k, t_us, data)` returns the datagrams to put on
     the vehicle's HIL link before the tick's own (MIL: in memory; SIL: from a socket of its
-    own to the vehicle's HIL port), and `replace(k, t_us, data)` the tick's own datagram."""
+    own to the vehicle's HIL port), and `replace(k, t_us, data)` the tick's own datagram. The
+    run must use the framed exchange (`framed()`, or SIL)."""
 
     def __init__(self, monkeypatch, before=None, replace=None) -> None:
         self.k = 0
@@ -131,7 +138,7 @@ def test_seeded_hostile_datagrams_change_nothing_and_each_is_counted(monkeypatch
         return [d for _, d in out]
 
     inj = Injector(monkeypatch, before=before)
-    res = run_scenario(sc, RunOptions())
+    res = run_scenario(sc, framed())
     assert res.exit_reason is clean.exit_reason, res.message
     assert inj.sent > 200 and all(want.values()), want
     assert res.series.tobytes() == clean.series.tobytes()
@@ -173,7 +180,7 @@ def test_single_nan_datagrams_step_nothing(monkeypatch):
         return data
 
     Injector(monkeypatch, replace=replace)
-    res = run_scenario(sc, RunOptions())
+    res = run_scenario(sc, framed())
     assert res.exit_reason is clean.exit_reason, res.message
     st = res.onboard_stats
     assert st["est_rej_imu"] == len(res_k) and st["failsafe_imu"] == 0
@@ -193,7 +200,7 @@ def test_a_stream_of_nan_readings_is_an_imu_failure_and_a_blind_descent(monkeypa
     sc = with_set(load_scenario(HOVER), {"timing.t_final_s": 12.0})
     sim = M.MAVLink(None, SIM_SYSID, M.MAV_COMP_ID_SYSTEM_CONTROL)
     Injector(monkeypatch, replace=lambda k, t, d: _imu(sim, t, nan=True) if k >= 600 else d)
-    res = run_scenario(sc, RunOptions())
+    res = run_scenario(sc, framed())
     texts = _texts(res)
     assert "Failsafe: no valid IMU data, landing" in texts, texts
     assert "Landing detected, disarmed" not in texts

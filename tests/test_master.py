@@ -275,7 +275,8 @@ def test_fmu_error_is_named_and_outputs_kept(tmp_path, monkeypatch):
         return (t, float("nan"), u2, u3, u4) if t >= 1_500_000 else (t, u1, u2, u3, u4)
 
     monkeypatch.setattr(wire, "decode_hil_actuator_controls", poisoned)
-    res = run_scenario(load_scenario(SQUARE), RunOptions())
+    # (the framed exchange decodes the answer's frame; the typed one has no frame to poison)
+    res = run_scenario(load_scenario(SQUARE), RunOptions(hil_exchange="framed"))
     assert res.exit_reason is ExitReason.COMPONENT_ERROR
     assert res.message.startswith("plant:") and "u1" in res.message
     assert res.t_end_s == pytest.approx(1.505)

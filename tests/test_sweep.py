@@ -59,7 +59,7 @@ def test_alpha_trade_off_on_the_seed_track(tmp_path):
     for a, v in zip(alphas, speeds, strict=True):       # speed ~ proportional to alpha
         assert v / a == pytest.approx(speeds[0] / alphas[0], rel=0.2)
     rms = [float(r["path_error_rms_m"]) for r in rows]
-    assert rms[-1] > min(rms) * 2                       # the fastest is the least accurate
+    assert rms[-1] == max(rms) > min(rms) * 1.5         # the fastest is the least accurate
 
 
 @pytest.mark.slow

@@ -18,7 +18,8 @@ sensors and the onboard estimator, the default): ~8-15 minutes.
 Where the compiled tick's instructions go (`parts`): one more process, under callgrind, flies
 the mission once; the inclusive count of each part's entry point (its own code and everything
 it calls; Cython's function for the method), per tick, is exact where a wall-clock timer
-around the part is not: the vehicle's tick with MIL's HIL exchange (`OnboardHandle.exchange`),
+around the part is not: the vehicle's tick with MIL's HIL exchange (`OnboardHandle.exchange`,
+`exchange_record` when typed),
 the plant (`Stepper.step`), the simulator's ODOMETRY, the client's poll and setpoint, and the
 master's tick (`Tick._run`) less the parts it calls. The rest (the app's Python, the camera and
 image processing, the master's loop, and the per-run setup the once/twice difference keeps) is
@@ -64,9 +65,10 @@ _IREFS = re.compile(r"I\s+refs:\s+([\d,]+)")
 # FMI binding's); "master" is computed (its tick less the others)
 PART_SYMBOLS = (
     ("onboard (vehicle tick + MIL HIL exchange)",
-     r"__pyx_pw_5cosim_3sim_7onboard_\d+OnboardHandle_\d+exchange"),
+     r"__pyx_pw_5cosim_3sim_7onboard_\d+OnboardHandle_\d+exchange(?:_record)?"),
     ("plant (FMI stepper + FMU)", r"Stepper_step"),
-    ("ODOMETRY encode (simulator)", r"__pyx_pw_3mav_3hil_\d+HilSimulatorCodec_\d+encode_odometry"),
+    ("ODOMETRY encode (simulator)",
+     r"__pyx_pw_3mav_3hil_\d+HilSimulatorCodec_\d+(?:encode|record)_odometry"),
     ("camera + app (Python), of which:", r"__pyx_pw_5cosim_3sim_4tick_\d+Tick_\d+_camera_and_app"),
     ("  app: client poll (telemetry in)", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+poll"),
     ("  app: client setpoint out", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+_setpoint"),

@@ -19,7 +19,11 @@ _TICK_PARTS = (
     ("cosim.sensors.odometry", "OdometrySensor", "measure", "sensor model", None, "__init__"),
     # sensor-fed (feed = "hil"): the sensor models, the vehicle's estimator, the answer split
     # (the suite is a compiled extension type: timed through the feed that calls it)
+    # (each part's framed and typed forms, cosim/sim/onboard.py, under one label: a run
+    # uses one of them)
     ("cosim.sim.estimate", "SensorFeed", "encode_odometry", "sensor models + HIL_SENSOR & co.",
+     None, None),
+    ("cosim.sim.estimate", "SensorFeed", "record_odometry", "sensor models + HIL_SENSOR & co.",
      None, None),
     ("cosim.sensors.down", "DownwardCamera", "render", "camera render (per tick)", None, None),
     ("cosim.apps.line_follower", "LineFollowerApp", "on_frame", "app on_frame: IPS", None, None),
@@ -29,9 +33,13 @@ _TICK_PARTS = (
     ("mav.client", "OffboardClient", "set_position_target", "  setpoint encode+send",
      "app on_tick", None),
     ("mav.hil", "HilSimulatorCodec", "encode_odometry", "ODOMETRY encode", None, None),
+    ("mav.hil", "HilSimulatorCodec", "record_odometry", "ODOMETRY encode", None, None),
     ("cosim.sim.onboard", "OnboardHandle", "exchange", _HIL, None, None),
+    ("cosim.sim.onboard", "OnboardHandle", "exchange_record", _HIL, None, None),
     ("mav.estimator.core", "Estimator", "estimate", "  onboard estimator (decode + filters)",
      _HIL, None),
+    ("mav.estimator.core", "Estimator", "estimate_parts",
+     "  onboard estimator (decode + filters)", _HIL, None),
     ("mav.onboard.channels", "LinkInput", "drain", "  onboard drain api+gcs", _HIL, None),
     ("mav.onboard.vehicle", "Onboard", "_step_modes", "  onboard modes", _HIL, None),
     ("mav.cascade", "QuadCascade", "update", "  onboard controller", _HIL, None),
@@ -39,7 +47,11 @@ _TICK_PARTS = (
     ("mav.onboard.telemetry", "Telemetry", "publish", "  onboard telemetry out", _HIL, None),
     ("mav.hil", "HilSimulatorCodec", "decode_actuators", "HIL_ACTUATOR_CONTROLS decode", None,
      None),
+    ("mav.hil", "HilSimulatorCodec", "decode_record", "HIL_ACTUATOR_CONTROLS decode", None,
+     None),
     ("cosim.sim.estimate", "SensorFeed", "decode_actuators", "HIL answer + estimate decode",
+     None, None),
+    ("cosim.sim.estimate", "SensorFeed", "decode_record", "HIL answer + estimate decode",
      None, None),
     ("cosim.plant.fmu", "Plant", "step", "plant step", None, "_use_stepper"),
 )

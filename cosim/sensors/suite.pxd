@@ -11,7 +11,6 @@ cdef class SensorSuite:
     cdef public FlatEarth geo
     cdef public list n, queue, active, fired
     cdef public set _seen
-    cdef public bytes truth
     cdef public Imu3 acc, gyro
     cdef public Gauss g_baro, g_mag, g_range, g_flow
     cdef public double h, home_n, home_e, ba0, ba1, ba2, bg0, bg1, bg2, acc_max, gyro_max
@@ -22,4 +21,6 @@ cdef class SensorSuite:
     cdef public long long k
     cdef public bint gps
     cpdef bytes encode(self, t_us, y)
+    cpdef list messages(self, t_us, y, bint truth)
+    cpdef bytes truth_of(self, t_us, y)
     cpdef list read(self, t_us, y)

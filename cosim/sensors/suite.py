@@ -125,7 +125,6 @@ class SensorSuite:
         self.fa0 = self.fa1 = self.fa2 = self.fa3 = self.fa4 = 0.0   # integrated flow x, y,
         self.flow_n = 0                                              # gyro x, y, z
         self.queue: list[list] = []
-        self.truth = b""
         cfg = OnboardConfig()
         self.geo = FlatEarth(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
         self.faults = faults
@@ -145,18 +144,33 @@ class SensorSuite:
         return (y[Y_X], y[Y_Y], y[Y_Z])
 
     # ------------------------------------------------------------------ one tick
-    @cython.locals(q=list, parts=list, out=list)
     def encode(self, t_us: int, y) -> bytes:
-        """The datagram sent at t_us: this tick's readings are queued and the one
-        `delay_ticks` old is sent (the first tick's repeated until the queue fills), then the
-        truth of this tick (HIL_STATE_QUATERNION, not delayed)."""
+        """The datagram sent at t_us: the frames of `messages`."""
+        return hs.frames(self.mav, self.messages(t_us, y, True))
+
+    @cython.locals(q=list, parts=list, out=list)
+    def messages(self, t_us: int, y, truth: bool) -> list:
+        """The messages sent at t_us as [message, payload, ...]: this tick's readings are
+        queued and the one `delay_ticks` old is sent (the first tick's repeated until the
+        queue fills), then, with `truth`, the truth of this tick (HIL_STATE_QUATERNION, not
+        delayed: for the simulator's logs, the vehicle never reads it). MIL's typed exchange
+        hands them to the vehicle as they are, without the truth (cosim/sim/onboard.py)."""
         q = self.queue
         q.append(self.read(t_us, y))
         parts = q.pop(0) if len(q) > self.delay else q[0]
         out = hs.stamp_all(parts, t_us, [])     # (message, payload less its stamp) pairs
-        out.append(_M_TRUTH)
-        out.append(self.truth)
-        return hs.frames(self.mav, out)
+        if truth:
+            out.append(_M_TRUTH)
+            out.append(self.truth_of(t_us, y))
+        return out
+
+    def truth_of(self, t_us: int, y) -> bytes:
+        """HIL_STATE_QUATERNION's payload of y(t_k), stamped t_k, in the vehicle's geodetic
+        frame (origin = the start point)."""
+        lat, lon, alt = self.geo.to_int(y[_YX] - self.home_n, y[_YY] - self.home_e, y[_YZ])
+        return hs.truth_payload(t_us, y[_YQW], y[_YQX], y[_YQY], y[_YQZ], y[_YP], y[_YQ],
+                                y[_YR], lat, lon, alt, _cms(y[_YVX]), _cms(y[_YVY]),
+                                _cms(y[_YVZ]))
 
     @cython.locals(k=cython.longlong, t=cython.double, qw=cython.double, qx=cython.double,
                    qy=cython.double, qz=cython.double, pr=cython.double, qr=cython.double,
@@ -176,8 +190,7 @@ class SensorSuite:
                    n1=cython.double, n2=cython.double, lo=cython.long, hi=cython.long)
     def read(self, t_us: int, y) -> list:
         """The readings of y(t_k) as (message, payload less its stamp) pairs, flat (the delay
-        line sends them one tick later, stamped with the lockstep time then); the truth of
-        y(t_k) in `truth` (HIL_STATE_QUATERNION's payload, stamped t_k)."""
+        line sends them one tick later, stamped with the lockstep time then)."""
         k = self.k
         self.k = k + 1
         t = 0.0
@@ -297,12 +310,9 @@ class SensorSuite:
                                           self.fa3, self.fa4, qual))
             self.flow_n = 0
             self.fa0 = self.fa1 = self.fa2 = self.fa3 = self.fa4 = 0.0
-        # GPS and the truth, in the vehicle's geodetic frame (origin = the start point)
+        # GPS, in the vehicle's geodetic frame (origin = the start point)
         if self.gps and k % self.p.gps_every == 0:
             parts += self._gps(y)
-        lat, lon, alt = self.geo.to_int(y[_YX] - self.home_n, y[_YY] - self.home_e, y[_YZ])
-        self.truth = hs.truth_payload(t_us, qw, qx, qy, qz, pr, qr, rr, lat, lon, alt,
-                                      _cms(vx), _cms(vy), _cms(vz))
         return parts
 
     def _gps(self, y) -> list:

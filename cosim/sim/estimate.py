@@ -94,8 +94,7 @@ class SensorFeed:
     encode_odometry_lost = encode_odometry
 
     @cython.locals(end=cython.Py_ssize_t, n=cython.Py_ssize_t, p0=cython.Py_ssize_t,
-                   plen=cython.Py_ssize_t, x=cython.double, y=cython.double, z=cython.double,
-                   row=bytearray, k=cython.Py_ssize_t)
+                   plen=cython.Py_ssize_t)
     def decode_actuators(self, ans: bytes) -> tuple[int, float, float, float, float]:
         """(t_us, u1..u4) of the answer's HIL_ACTUATOR_CONTROLS (ValueError if it has none,
         as HilSimulatorCodec's); its estimate (if any: the ODOMETRY after it, the checks of
@@ -105,34 +104,68 @@ class SensorFeed:
         if act is None:
             raise ValueError(f"not a valid HIL_ACTUATOR_CONTROLS frame ({len(ans)} bytes)")
         n = len(ans)
-        est = self.est
-        row = new_payload(_ROW_L.size)
         if end >= n or not wire.frame_ok(_ODO, ans, end, n):
-            self.bad_answers += 1
-            est[0] = est[1] = est[2] = math.nan
-            for k in range(_ROW_L.n):
-                put_f(row, _ROW_L, k, math.nan)
-            self.rows.append(done(row))
+            self._log_none()
             return act
         p0, plen = end + _HDR, ans[end + 1]
-        x = get_f(ans, p0, plen, _ODO_L, 1) + self.home[0]
-        y = get_f(ans, p0, plen, _ODO_L, 2) + self.home[1]
-        z = get_f(ans, p0, plen, _ODO_L, 3)
+        self._log(get_f(ans, p0, plen, _ODO_L, 1), get_f(ans, p0, plen, _ODO_L, 2),
+                  get_f(ans, p0, plen, _ODO_L, 3), get_f(ans, p0, plen, _ODO_L, 4),
+                  get_f(ans, p0, plen, _ODO_L, 5), get_f(ans, p0, plen, _ODO_L, 6),
+                  get_f(ans, p0, plen, _ODO_L, 7), get_f(ans, p0, plen, _ODO_L, 8),
+                  get_f(ans, p0, plen, _ODO_L, 9), get_f(ans, p0, plen, _ODO_L, 10),
+                  get_i(ans, p0, plen, _ODO_L, _QUALITY) < 0)
+        return act
+
+    def record_odometry(self, t_us: int, meas) -> list:
+        """MIL's typed exchange (cosim/sim/onboard.py): the messages of `encode_odometry`'s
+        datagram the vehicle reads, not framed (the truth, for logs, left out)."""
+        return self.suite.messages(t_us, self._y, False)
+
+    record_odometry_lost = record_odometry
+
+    def decode_record(self, ans: tuple) -> tuple[int, float, float, float, float]:
+        """`decode_actuators` of the vehicle's typed answer (`Onboard.step_record`):
+        (t_us, u1..u4), its estimate logged."""
+        od = ans[1]
+        if od is None:
+            self._log_none()
+        else:
+            self._log(od[1], od[2], od[3], od[4], od[5], od[6], od[7], od[8], od[9], od[10],
+                      od[16] < 0)
+        return ans[0]
+
+    @cython.locals(row=bytearray, k=cython.Py_ssize_t)
+    def _log_none(self) -> None:
+        """An answer without an estimate: NaN logged (counted in `bad_answers`)."""
+        self.bad_answers += 1
+        est = self.est
+        est[0] = est[1] = est[2] = math.nan
+        row = new_payload(_ROW_L.size)
+        for k in range(_ROW_L.n):
+            put_f(row, _ROW_L, k, math.nan)
+        self.rows.append(done(row))
+
+    @cython.locals(x=cython.double, y=cython.double, z=cython.double, row=bytearray)
+    def _log(self, x: float, y: float, z: float, qw: float, qx: float, qy: float, qz: float,
+             vx: float, vy: float, vz: float, lost: bool) -> None:
+        """The estimate of the answer (its local frame: x, y shifted to world NED) logged."""
+        x += self.home[0]
+        y += self.home[1]
+        est = self.est
         est[0], est[1], est[2] = x, y, z
-        roll, pitch, yaw = euler_from_quat(
-            get_f(ans, p0, plen, _ODO_L, 4), get_f(ans, p0, plen, _ODO_L, 5),
-            get_f(ans, p0, plen, _ODO_L, 6), get_f(ans, p0, plen, _ODO_L, 7))
+        roll, pitch, yaw = euler_from_quat(qw, qx, qy, qz)
+        row = new_payload(_ROW_L.size)
         put_f(row, _ROW_L, 0, x)
         put_f(row, _ROW_L, 1, y)
         put_f(row, _ROW_L, 2, z)
-        for k in range(3):
-            put_f(row, _ROW_L, 3 + k, get_f(ans, p0, plen, _ODO_L, 8 + k))     # vx, vy, vz
+        put_f(row, _ROW_L, 3, vx)
+        put_f(row, _ROW_L, 4, vy)
+        put_f(row, _ROW_L, 5, vz)
         put_f(row, _ROW_L, 6, roll)
         put_f(row, _ROW_L, 7, pitch)
         put_f(row, _ROW_L, 8, yaw)
-        put_f(row, _ROW_L, 9, 1.0 if get_i(ans, p0, plen, _ODO_L, _QUALITY) < 0 else 0.0)
+        put_f(row, _ROW_L, 9, 1.0 if lost else 0.0)
         self.rows.append(done(row))
-        return act
 
     def array(self) -> np.ndarray:
         """The estimate rows of the run so far, (ticks, ESTIMATE_COLUMNS): the spool closed

@@ -158,10 +158,12 @@ class SitlVehicle:
             # (its rows are not kept: sitl runs for hours; the series' columns have it)
             self.feed = sensor = codec = SensorFeed(dataclasses.replace(sc, seed=sc.seed + k),
                                                     self.h, keep=False)
-        self.tick = Tick(plant=self.plant, sensor=sensor,
-                         codec=codec, exchange=self.handle.exchange,
+        hd = self.handle
+        self.tick = Tick(plant=self.plant, sensor=sensor, codec=codec,
+                         exchange=hd.exchange_record if hd.typed else hd.exchange,
                          gcs_recv=None, tlog=self.tlog, spool=self.spool, monitor=self.monitor,
-                         h_us=int(round(self.h * 1e6)), record_every=SERIES_EVERY)
+                         h_us=int(round(self.h * 1e6)), record_every=SERIES_EVERY,
+                         typed=hd.typed)
 
     @contextlib.contextmanager
     def named(self) -> Iterator[None]:

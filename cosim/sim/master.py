@@ -262,9 +262,10 @@ def run_scenario(sc: Scenario, opts: RunOptions | None = None) -> RunResult:
 
             sensor = codec = feed = SensorFeed(sc, h, Path(spool_tmp.name) / "estimate.f64")
         tick = Tick(plant=plant, sensor=sensor, codec=codec,
-                    exchange=vehicle.exchange, gcs_recv=vehicle.gcs.recv, tlog=tlog,
-                    spool=spool, monitor=monitor, h_us=h_us, app=app, stream=stream, ctx=ctx,
-                    cam_every=cam_every, sinks=sinks, hooks=hooks, home=(home_n, home_e))
+                    exchange=vehicle.exchange_record if vehicle.typed else vehicle.exchange,
+                    gcs_recv=vehicle.gcs.recv, tlog=tlog, spool=spool, monitor=monitor,
+                    h_us=h_us, app=app, stream=stream, ctx=ctx, cam_every=cam_every,
+                    sinks=sinks, hooks=hooks, home=(home_n, home_e), typed=vehicle.typed)
         phases = tick.phases
         run_tick = tick.run
         wind = sc.wind_ned_mps

@@ -1,5 +1,6 @@
 """The onboard flight stack seen from the master: in this process (MIL) or as its own OS
-process (SIL), behind one interface: `exchange` one HIL datagram for the answer, the API and
+process (SIL), behind one interface: `exchange` one HIL datagram for the answer (MIL:
+`exchange_record`, the same without the frames), the API and
 GCS links (tapped into the run's tlog), `stats`, `close`; for `cosim sitl`, `respawn`."""
 
 from __future__ import annotations
@@ -28,6 +29,14 @@ class OnboardHandle:
         MAVLink system id; `origin`: the geodetic origin of its local frame (lat deg, lon deg,
         alt m AMSL; None: the flight stack's default)."""
         self.mode = opts.mode
+        if opts.hil_exchange not in ("auto", "typed", "framed"):
+            raise ValueError(f"hil_exchange: 'auto', 'typed' or 'framed', not "
+                             f"{opts.hil_exchange!r}")
+        if opts.hil_exchange == "typed" and (opts.mode != "mil" or hooks is not None):
+            raise ValueError("hil_exchange 'typed' is MIL's, without fault hooks (they act "
+                             "on the HIL datagrams): use 'framed' or 'auto'")
+        # the typed exchange (`exchange_record`) or datagrams (`exchange`)
+        self.typed = opts.mode == "mil" and hooks is None and opts.hil_exchange != "framed"
         self.proc = None
         self._own: tuple = ()
         self.bound: dict[str, tuple[str, int]] = {}   # external links: their local addresses
@@ -169,6 +178,18 @@ class OnboardHandle:
         if ans is None:
             what = self.proc.failure_text()
             raise ComponentError("onboard", f"stopped answering HIL ({what})")
+        return ans
+
+    def exchange_record(self, rec):
+        """MIL's typed exchange (`typed`): `exchange` of the record the datagram's frames
+        decode to (`Onboard.step_record`: the simulator's ODOMETRY fields or sensor messages,
+        not framed), the answer as the record its frames decode to."""
+        try:
+            ans = self.onboard.step_record(rec)
+        except Exception as exc:  # the onboard stack is a separate part: name it
+            raise ComponentError("onboard", f"{type(exc).__name__}: {exc}") from exc
+        if ans is None:
+            raise ComponentError("onboard", "no HIL_ACTUATOR_CONTROLS answer")
         return ans
 
     def respawn(self) -> None:

@@ -30,6 +30,12 @@ class RunOptions:
     # links are UDP).
     # Results do not depend on it.
     hil_transport: str = "udp"
+    # MIL: the HIL exchange between the master and the vehicle in this process. "framed": a
+    # datagram of MAVLink frames each way, as over a socket (SIL's); "typed": the records
+    # those frames decode to, handed over without the frames (cosim/sim/onboard.py; tested to
+    # give the same series, tlog and counters); "auto": typed unless fault hooks are on the
+    # links (they act on datagrams). Results do not depend on it.
+    hil_exchange: str = "auto"
     app_override: Any = None          # an app object to use instead of the scenario's
     # sitl: the onboard stack's API and GCS links are real UDP sockets for outside clients,
     # {'gcs': ((bind_host, port), (remote_host, port)), 'api': (...)}; MIL only

@@ -39,18 +39,24 @@ class Tick:
     `sinks` are called `(k, t, img)` with each delivered frame, k and t its capture tick and
     time (`frame_y`: the plant outputs at capture), before the app sees it; `record_every`
     ticks make one recorded row; `home` is the vehicle's local origin in world NED (setpoints
-    are recorded in world coordinates)."""
+    are recorded in world coordinates); `typed`: `exchange` is the vehicle's typed HIL exchange
+(`OnboardHandle.exchange_record`) and `codec` gives and reads its records."""
 
     def __init__(self, *, plant, sensor, codec, exchange, gcs_recv, tlog, spool, monitor,
                  h_us: int, app=None, stream=None, ctx=None, cam_every: int = 1, sinks=(),
                  hooks=None, home: tuple[float, float] = (0.0, 0.0),
-                 record_every: int = 1) -> None:
+                 record_every: int = 1, typed: bool = False) -> None:
         self.y = plant.y
         self.plant_step = plant.step
         self.measure = sensor.measure
-        self.encode = codec.encode_odometry
-        self.encode_lost = codec.encode_odometry_lost
-        self.decode = codec.decode_actuators
+        if typed:     # MIL's typed HIL exchange: records, not frames (cosim/sim/onboard.py)
+            self.encode = codec.record_odometry
+            self.encode_lost = codec.record_odometry_lost
+            self.decode = codec.decode_record
+        else:
+            self.encode = codec.encode_odometry
+            self.encode_lost = codec.encode_odometry_lost
+            self.decode = codec.decode_actuators
         self.exchange = exchange
         self.gcs_recv = gcs_recv
         self.tlog = tlog

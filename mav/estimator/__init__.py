@@ -5,7 +5,10 @@ sensor-fed HIL datagram, it answers the state estimate.
     est.estimate(data)         # data: HIL_SENSOR + HIL_OPTICAL_FLOW + DISTANCE_SENSOR (+ HIL_GPS)
                                # -> True if the estimate moved on (the datagram had a HIL_SENSOR)
     est.odometry(mav)          # -> the estimate as an ODOMETRY frame (quality -1: position lost)
-    od = est.on_hil(data)      # both, as the same 17-tuple wire.decode_odometry gives, or None
+    est.estimate_parts(parts)  # `estimate` of the messages unframed (MIL's typed exchange)
+    est.record()               # -> the estimate as the 17-tuple wire.decode_odometry gives of
+                               #    `odometry`'s frame (the same values, no frame)
+    od = est.on_hil(data)      # `estimate`, then `record`, or None
     est.impl                   -> TemplateEstimator or ReleaseEstimator (its subclass): the
                                estimate in its fields
     est.link(hil, mav)         -> the HIL link with the estimator in front of the vehicle's

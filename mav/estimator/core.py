@@ -13,11 +13,10 @@ from pymavlink.dialects.v20 import common as M
 from mav import hil_sensors as hs
 from mav.estimator.release import ReleaseEstimator
 from mav.estimator.template import CAL_TICKS, FAIL_TILT, G, TemplateEstimator
-from mav.hil import odometry_of, tick_refusal
+from mav.hil import SIM_SYSID, odometry_of, odometry_record, tick_refusal
 from mav.params import EST_OURS, EST_RELEASE
 from mav.rotations import quat_from_euler
 
-FRAME_LOCAL_NED = 1
 # The preflight checks of the IMU at rest (its CAL_TICKS readings of the alignment, then the
 # low-passed specific force), as PX4's commander's with its defaults: COM_ARM_IMU_ACC 0.7 m/s^2
 # and COM_ARM_IMU_GYR 0.25 rad/s (imuConsistencyCheck: with one IMU, the accelerometer against
@@ -100,7 +99,7 @@ class Estimator:
         return f
 
 
-    @cython.locals(e=TemplateEstimator, b=hs.Bundle, imu=hs.Payload)
+    @cython.locals(b=hs.Bundle)
     def estimate(self, data: bytes) -> bool:
         """Run on a HIL datagram: True if it was a sensor datagram with a HIL_SENSOR (the
         estimate moved on: `odometry`), False for anything else (nothing done). A sensor
@@ -112,6 +111,23 @@ class Estimator:
             return False
         b = self.bundle
         b.read(data)
+        return self._estimate(b, data[b.imu.at + 5] if b.imu.data is not None else -1)
+
+    @cython.locals(b=hs.Bundle)
+    def estimate_parts(self, parts: list) -> bool:
+        """`estimate` of the simulator's sensor messages handed over unframed, as
+        parts = [message, payload, ...] (`hil_sensors.stamp_all`'s): MIL's typed HIL
+        exchange (cosim/sim/onboard.py), the same estimate as of their frames."""
+        self.refused = False
+        if not self.enabled:
+            return False
+        b = self.bundle
+        b.take(parts)
+        return self._estimate(b, SIM_SYSID)
+
+    @cython.locals(e=TemplateEstimator, b=hs.Bundle, imu=hs.Payload)
+    def _estimate(self, b, sysid: int) -> bool:
+        """The estimate's step on the messages in `b`, HIL_SENSOR's sent by system `sysid`."""
         st = self.stats
         if b.bad:
             st["est_bad_frames"] += b.bad
@@ -123,7 +139,7 @@ class Estimator:
                 self.refused = True
             return False
         t_us = imu.i(0)
-        why = tick_refusal(data[imu.at + 5], t_us, e.t_us)
+        why = tick_refusal(sysid, t_us, e.t_us)
         if why is not None:
             st[why] += 1
             self.refused = True
@@ -146,14 +162,20 @@ class Estimator:
                            e.q, e.r, e.lost)
 
     @cython.locals(e=TemplateEstimator)
-    def on_hil(self, data: bytes) -> tuple | None:
-        """`estimate`, then the estimate as ODOMETRY's fields (None if it did not move on)."""
-        if not self.estimate(data):
-            return None
+    def record(self) -> tuple:
+        """The estimate as the fields the vehicle's tick reads from `odometry`'s frame
+        (`mav.hil.odometry_record`: the same values, without the frame)."""
         e = self.impl
         qw, qx, qy, qz = quat_from_euler(e.roll, e.pitch, e.yaw)
-        return (e.t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p, e.q, e.r,
-                FRAME_LOCAL_NED, FRAME_LOCAL_NED, -1 if e.lost else 100)
+        return odometry_record(e.t_us, e.x, e.y, e.z, qw, qx, qy, qz, e.vx, e.vy, e.vz, e.p,
+                               e.q, e.r, e.lost)
+
+    def on_hil(self, data: bytes) -> tuple | None:
+        """`estimate`, then the estimate as ODOMETRY's fields (`record`; None if it did not
+        move on)."""
+        if not self.estimate(data):
+            return None
+        return self.record()
 
     def link(self, hil, mav):
         """The vehicle's HIL link with this estimator in front of its tick (link.py); a link

@@ -13,3 +13,4 @@ cdef class Onboard:
     cdef public object _hil, _api, _gcs, _hil_mav, input, telemetry, failsafe, commander
     cdef public object navigator, manual, mission, vehicle, origin, stats
     cdef public object _decode_hil
+    cdef bint _tick(self, tuple od, bint own, long sysid) except -1

@@ -29,6 +29,7 @@ from mav import wire
 from mav.airframe import Airframe, get_airframe
 from mav.battery import BATTERIES, Battery
 from mav.estimator import Estimator
+from mav.fields import f32
 from mav.hil import SIM_SYSID, tick_refusal
 from mav.onboard.channels import Chan, LinkInput, Outbox, Stream
 from mav.onboard.commander import Commander
@@ -284,13 +285,7 @@ class Onboard:
         self.parameters.load_file(path)
 
     # ------------------------------------------------------------------ the tick
-    @cython.locals(vs=VehicleStatus, s=VehicleState, sp=Setpoint, t_us=cython.longlong,
-                   dt_us=cython.longlong, x=cython.double, y=cython.double, z=cython.double,
-                   qw=cython.double, qx=cython.double, qy=cython.double, qz=cython.double,
-                   vx=cython.double, vy=cython.double, vz=cython.double, p=cython.double,
-                   q=cython.double, r=cython.double, chk=cython.double, frame_id=cython.int,
-                   child=cython.int, quality=cython.int, lost=cython.bint, u=list,
-                   own=cython.bint, imu_ok=cython.bint)
+    @cython.locals(vs=VehicleStatus, u=list)
     def poll(self) -> bool:
         """Handle one waiting HIL datagram (see module docstring). False if none was waiting
         or it was not a usable ODOMETRY (then nothing else is touched)."""
@@ -298,8 +293,7 @@ class Onboard:
         if data is None:
             return False
         vs = self.status
-        st = vs.stats
-        st["rx_hil"] += 1
+        vs.stats["rx_hil"] += 1
         try:
             od = self._decode_hil(data)
         except Exception:   # defensive: the decoder is total on bytes, but never crash here
@@ -307,15 +301,61 @@ class Onboard:
         if od is None:
             self._hil_not_odometry(data)
             return False
+        # the estimator's ODOMETRY was checked as its sensor datagram (refused ones never get
+        # here), and is the vehicle's own system's frame
+        own = self._est_link is not None and self._est_link.made(data)
+        if not self._tick(od, own, SIM_SYSID if own else data[5]):
+            return False
+        # HIL_ACTUATOR_CONTROLS (wire.encode_hil_actuator_controls)
+        u = vs.u
+        pl = wire.HIL_CTRL_PACK(vs.t_us, 1, u[0], u[1], u[2], u[3],
+                                HIL_MODE_ARMED if vs.armed else HIL_MODE_DISARMED)
+        self._hil.send(wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
+        return True
+
+    @cython.locals(vs=VehicleStatus, u=list)
+    def step_record(self, rec) -> tuple | None:
+        """MIL's typed HIL exchange (cosim/sim/onboard.py): `poll` of one HIL datagram handed
+        over as the record its frames decode to, without the frames: on an ODOMETRY feed
+        `rec` is `mav.hil.odometry_record`'s tuple, sensor-fed the simulator's
+        [message, payload, ...] (`Estimator.estimate_parts`). Returns the answer as
+        ((t_us, u1..u4) as HIL_ACTUATOR_CONTROLS carries them, the estimate as
+        `Estimator.record` or None on an ODOMETRY feed), or None if it made no tick: what
+        the framed exchange gives, tested to fly the same."""
+        vs = self.status
+        vs.stats["rx_hil"] += 1
+        own = self._est_link is not None
+        if own:
+            if not self.estimator.estimate_parts(rec):
+                return None
+            od = self.estimator.record()
+        else:
+            od = rec
+        if not self._tick(od, own, SIM_SYSID):
+            return None
+        u = vs.u
+        return ((vs.t_us, f32(u[0]), f32(u[1]), f32(u[2]), f32(u[3])), od if own else None)
+
+    @cython.locals(vs=VehicleStatus, s=VehicleState, sp=Setpoint, t_us=cython.longlong,
+                   dt_us=cython.longlong, x=cython.double, y=cython.double, z=cython.double,
+                   qw=cython.double, qx=cython.double, qy=cython.double, qz=cython.double,
+                   vx=cython.double, vy=cython.double, vz=cython.double, p=cython.double,
+                   q=cython.double, r=cython.double, chk=cython.double, frame_id=cython.int,
+                   child=cython.int, quality=cython.int, lost=cython.bint, u=list,
+                   own=cython.bint, imu_ok=cython.bint)
+    def _tick(self, od: tuple, own: bool, sysid: int) -> bool:
+        """The tick on od (`wire.decode_odometry`'s fields) from system `sysid` (`own`: the
+        onboard estimator's): False if it is not the next tick or its values are unusable
+        (counted; nothing else touched), else the tick is run, its motor commands in
+        `status.u` for the answer."""
+        vs = self.status
+        st = vs.stats
         if not 0 <= od[0] < MAX_TIME_US:      # a clock beyond any flight: not a tick
             st["hil_bad_values"] += 1
             return False
         # the lockstep clock: the simulator's, later than the last tick by at most
-        # HIL_MAX_STEP_US (mav/hil.py); the estimator's ODOMETRY was checked as its sensor
-        # datagram (refused ones never get here), and is the vehicle's own system's frame
-        own = self._est_link is not None and self._est_link.made(data)
-        why = tick_refusal(SIM_SYSID if own else data[5], od[0],
-                           vs.t_us if vs.have_state else -1)
+        # HIL_MAX_STEP_US (mav/hil.py)
+        why = tick_refusal(sysid, od[0], vs.t_us if vs.have_state else -1)
         if why is not None:
             st[why] += 1
             return False
@@ -402,10 +442,6 @@ class Onboard:
         if (t_us >= api.next_due or t_us >= gcs.next_due or api.param_queue or gcs.param_queue
                 or vs.hb_now or vs.ext_now or vs.home_now or vs.mission_now):
             self.telemetry.publish(t_us)
-        # HIL_ACTUATOR_CONTROLS (wire.encode_hil_actuator_controls)
-        pl = wire.HIL_CTRL_PACK(t_us, 1, u[0], u[1], u[2], u[3],
-                                HIL_MODE_ARMED if vs.armed else HIL_MODE_DISARMED)
-        self._hil.send(wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
         st["ticks"] += 1
         return True
 
