@@ -27,3 +27,5 @@ cpdef double get_f(object data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
 cpdef long long get_i(object data, Py_ssize_t p0, Py_ssize_t plen, Layout lay,
                       Py_ssize_t k) except? -1
 cpdef double f32(double v) except? -1.0
+cdef int _writable(object out) except -1
+cdef int _readable(object data) except -1

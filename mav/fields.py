@@ -77,16 +77,19 @@ def done(buf: bytearray) -> bytes:
     return bytes(buf)
 
 
-def _writable(out) -> None:
-    """TypeError unless `out` is a bytearray (the only buffer put_f / put_i write into)."""
+def _writable(out) -> int:
+    """TypeError unless `out` is a bytearray (the only buffer put_f / put_i write into).
+    (A C call when compiled, fields.pxd: every field written tests it.)"""
     if type(out) is not bytearray:
         raise TypeError(f"a payload to write is a bytearray, not {type(out).__name__}")
+    return 0
 
 
-def _readable(data) -> None:
+def _readable(data) -> int:
     """TypeError unless `data` is bytes (a received datagram)."""
     if type(data) is not bytes:
         raise TypeError(f"a payload to read is bytes, not {type(data).__name__}")
+    return 0
 
 
 @cython.cfunc

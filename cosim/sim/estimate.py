@@ -108,12 +108,13 @@ class SensorFeed:
             self._log_none()
             return act
         p0, plen = end + _HDR, ans[end + 1]
-        self._log(get_f(ans, p0, plen, _ODO_L, 1), get_f(ans, p0, plen, _ODO_L, 2),
-                  get_f(ans, p0, plen, _ODO_L, 3), get_f(ans, p0, plen, _ODO_L, 4),
-                  get_f(ans, p0, plen, _ODO_L, 5), get_f(ans, p0, plen, _ODO_L, 6),
-                  get_f(ans, p0, plen, _ODO_L, 7), get_f(ans, p0, plen, _ODO_L, 8),
-                  get_f(ans, p0, plen, _ODO_L, 9), get_f(ans, p0, plen, _ODO_L, 10),
-                  get_i(ans, p0, plen, _ODO_L, _QUALITY) < 0)
+        _log_row(self.rows, self.est, self.home[0], self.home[1],
+                 get_f(ans, p0, plen, _ODO_L, 1), get_f(ans, p0, plen, _ODO_L, 2),
+                 get_f(ans, p0, plen, _ODO_L, 3), get_f(ans, p0, plen, _ODO_L, 4),
+                 get_f(ans, p0, plen, _ODO_L, 5), get_f(ans, p0, plen, _ODO_L, 6),
+                 get_f(ans, p0, plen, _ODO_L, 7), get_f(ans, p0, plen, _ODO_L, 8),
+                 get_f(ans, p0, plen, _ODO_L, 9), get_f(ans, p0, plen, _ODO_L, 10),
+                 get_i(ans, p0, plen, _ODO_L, _QUALITY) < 0, False)
         return act
 
     def record_odometry(self, t_us: int, meas) -> list:
@@ -130,42 +131,15 @@ class SensorFeed:
         if od is None:
             self._log_none()
         else:
-            self._log(od[1], od[2], od[3], od[4], od[5], od[6], od[7], od[8], od[9], od[10],
-                      od[16] < 0)
+            _log_row(self.rows, self.est, self.home[0], self.home[1], od[1], od[2], od[3],
+                     od[4], od[5], od[6], od[7], od[8], od[9], od[10], od[16] < 0, False)
         return ans[0]
 
-    @cython.locals(row=bytearray, k=cython.Py_ssize_t)
     def _log_none(self) -> None:
         """An answer without an estimate: NaN logged (counted in `bad_answers`)."""
         self.bad_answers += 1
-        est = self.est
-        est[0] = est[1] = est[2] = math.nan
-        row = new_payload(_ROW_L.size)
-        for k in range(_ROW_L.n):
-            put_f(row, _ROW_L, k, math.nan)
-        self.rows.append(done(row))
-
-    @cython.locals(x=cython.double, y=cython.double, z=cython.double, row=bytearray)
-    def _log(self, x: float, y: float, z: float, qw: float, qx: float, qy: float, qz: float,
-             vx: float, vy: float, vz: float, lost: bool) -> None:
-        """The estimate of the answer (its local frame: x, y shifted to world NED) logged."""
-        x += self.home[0]
-        y += self.home[1]
-        est = self.est
-        est[0], est[1], est[2] = x, y, z
-        roll, pitch, yaw = euler_from_quat(qw, qx, qy, qz)
-        row = new_payload(_ROW_L.size)
-        put_f(row, _ROW_L, 0, x)
-        put_f(row, _ROW_L, 1, y)
-        put_f(row, _ROW_L, 2, z)
-        put_f(row, _ROW_L, 3, vx)
-        put_f(row, _ROW_L, 4, vy)
-        put_f(row, _ROW_L, 5, vz)
-        put_f(row, _ROW_L, 6, roll)
-        put_f(row, _ROW_L, 7, pitch)
-        put_f(row, _ROW_L, 8, yaw)
-        put_f(row, _ROW_L, 9, 1.0 if lost else 0.0)
-        self.rows.append(done(row))
+        _log_row(self.rows, self.est, 0.0, 0.0, math.nan, math.nan, math.nan, 1.0, 0.0, 0.0, 0.0,
+             math.nan, math.nan, math.nan, False, True)
 
     def array(self) -> np.ndarray:
         """The estimate rows of the run so far, (ticks, ESTIMATE_COLUMNS): the spool closed
@@ -174,3 +148,43 @@ class SensorFeed:
 
     def fired(self) -> list[tuple[float, str]]:
         return list(self.suite.fired)
+
+
+@cython.cfunc
+@cython.exceptval(-1)
+@cython.returns(cython.int)
+@cython.locals(rows=list, est=list, home_n=cython.double, home_e=cython.double,
+               x=cython.double, y=cython.double, z=cython.double, qw=cython.double,
+               qx=cython.double, qy=cython.double, qz=cython.double, vx=cython.double,
+               vy=cython.double, vz=cython.double, lost=cython.bint, none=cython.bint,
+               row=bytearray, k=cython.Py_ssize_t)
+def _log_row(rows: list, est: list, home_n: float, home_e: float, x: float, y: float, z: float,
+         qw: float, qx: float, qy: float, qz: float, vx: float, vy: float, vz: float,
+         lost: bool, none: bool) -> int:
+    """One row of the estimate log (ESTIMATE_COLUMNS) appended to `rows`, its position in
+    `est`: the estimate's (x, y in its local frame, shifted by home to world NED), or NaN in
+    every column (`none`: an answer without an estimate). (A C call when compiled: a tick's
+    ten doubles are not boxed.)"""
+    row = new_payload(_ROW_L.size)
+    if none:
+        est[0] = est[1] = est[2] = math.nan
+        for k in range(_ROW_L.n):
+            put_f(row, _ROW_L, k, math.nan)
+        rows.append(done(row))
+        return 0
+    x += home_n
+    y += home_e
+    est[0], est[1], est[2] = x, y, z
+    roll, pitch, yaw = euler_from_quat(qw, qx, qy, qz)
+    put_f(row, _ROW_L, 0, x)
+    put_f(row, _ROW_L, 1, y)
+    put_f(row, _ROW_L, 2, z)
+    put_f(row, _ROW_L, 3, vx)
+    put_f(row, _ROW_L, 4, vy)
+    put_f(row, _ROW_L, 5, vz)
+    put_f(row, _ROW_L, 6, roll)
+    put_f(row, _ROW_L, 7, pitch)
+    put_f(row, _ROW_L, 8, yaw)
+    put_f(row, _ROW_L, 9, 1.0 if lost else 0.0)
+    rows.append(done(row))
+    return 0
