@@ -99,10 +99,11 @@ def test_parts_from_callgrind_inclusive_counts():
     assert incl["_PyEval_EvalFrameDefault"] == 11_495_308_473 and "PROGRAM" not in incl
     parts = bench_instr.parts_per_tick(incl, 1000, 3_000_000.0)
     labels = list(parts)
-    assert parts[labels[0]] == 518_703.574 and parts[labels[5]] == 0.0   # no setpoint symbol
-    assert parts[labels[4]] == 84_917.734
+    assert parts[labels[0]] == 518_703.574 and parts[labels[6]] == 0.0   # no setpoint symbol
+    assert labels[3].startswith("sensor models") and parts[labels[3]] == 0.0   # truth-fed
+    assert parts[labels[5]] == 84_917.734
     master = (2_000_000_000 - 518_703_574 - 214_704_656 - 55_000_000 - 900_000_000) / 1000
-    assert parts[labels[6]] == pytest.approx(master)
+    assert parts[labels[7]] == pytest.approx(master)
     top = sum(v for k, v in parts.items() if not k.startswith(" "))
     assert top == pytest.approx(3_000_000.0)              # the rest closes it
     res = {"now": {"per_tick": 3e6, "ticks": 1000}, "before": {"per_tick": 6e6},

@@ -69,6 +69,8 @@ PART_SYMBOLS = (
     ("plant (FMI stepper + FMU)", r"Stepper_step"),
     ("ODOMETRY encode (simulator)",
      r"__pyx_pw_3mav_3hil_\d+HilSimulatorCodec_\d+(?:encode|record)_odometry"),
+    ("sensor models + their messages (simulator)",
+     r"__pyx_pw_5cosim_3sim_8estimate_\d+SensorFeed_\d+(?:encode|record)_odometry"),
     ("camera + app (Python), of which:", r"__pyx_pw_5cosim_3sim_4tick_\d+Tick_\d+_camera_and_app"),
     ("  app: client poll (telemetry in)", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+poll"),
     ("  app: client setpoint out", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+_setpoint"),
