@@ -15,6 +15,20 @@ from collections import deque
 from typing import Protocol
 
 
+def kernel_drops(links: dict) -> dict[str, int]:
+    """{'dropped_kernel_<name>': count} for each named link that is a UDP socket (or a tap or
+    fault wrapper around one, followed through `inner`) whose kernel drop count can be read
+    (`UdpLink.kernel_drops`); links without it (in memory, other OSes) are left out."""
+    got = {}
+    for name, link in links.items():
+        while not hasattr(link, "kernel_drops") and hasattr(link, "inner"):
+            link = link.inner
+        n = link.kernel_drops() if hasattr(link, "kernel_drops") else None
+        if n is not None:
+            got["dropped_kernel_" + name] = n
+    return got
+
+
 class Link(Protocol):
     def send(self, data: bytes) -> None: ...
 

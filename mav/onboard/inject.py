@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 
+from mav import wire
 from mav.hil import MAX_R_SCALE, MAX_V_DROP
 from mav.onboard.defs import M
 from mav.onboard.status import VehicleStatus
@@ -69,3 +70,21 @@ def battery_failure(vs: VehicleStatus, msg, sysid: int, compid: int) -> bool:
     else:
         return False
     return True
+
+
+def hil_other(vs: VehicleStatus, hil_mav, data: bytes, sysid: int, compid: int) -> str:
+    """A HIL datagram that is not a valid ODOMETRY, handled: a battery fault from the
+    simulator (applied now, on the clock of the previous tick: `battery_failure`), another
+    message (ignored, e.g. a HEARTBEAT) or garbage. Returns the counter it counts in:
+    faults_injected, hil_ignored or dropped_bad_hil."""
+    if wire.frame_end(data, 0) == len(data):
+        try:
+            msg = hil_mav.decode(bytearray(data))
+        except Exception:
+            msg = None
+        if msg is not None and not isinstance(msg, M.MAVLink_unknown):
+            if msg.get_msgId() == M.MAVLINK_MSG_ID_COMMAND_LONG and battery_failure(
+                    vs, msg, sysid, compid):
+                return "faults_injected"
+            return "hil_ignored"
+    return "dropped_bad_hil"

@@ -31,6 +31,7 @@ from mav.battery import BATTERIES, Battery
 from mav.estimator import Estimator
 from mav.fields import f32
 from mav.hil import SIM_SYSID, tick_refusal
+from mav.links import kernel_drops
 from mav.onboard.channels import Chan, LinkInput, Outbox, Stream
 from mav.onboard.commander import Commander
 from mav.onboard.commands import Commands
@@ -53,7 +54,7 @@ from mav.onboard.defs import (
     hz_to_us,
 )
 from mav.onboard.failsafe import Failsafe
-from mav.onboard.inject import battery_failure
+from mav.onboard.inject import hil_other
 from mav.onboard.manual import Manual
 from mav.onboard.mission import Mission
 from mav.onboard.navigator import Navigator
@@ -245,11 +246,10 @@ class Onboard:
         self.parameters.rebuild_keeping_user_values()
 
     def rebooted(self) -> Onboard:
-        """A fresh vehicle on the same links and configuration, as after a reboot (a simulator
-        respawns a crashed vehicle with it): disarmed, on the ground, its clock, local origin
-        and home taken from the next ODOMETRY. Kept, as a reboot keeps them: the airframe in
-        use, the parameters the user set, and the signing replay table (a packet captured
-        before the reboot is still old news)."""
+        """A fresh vehicle on the same links and configuration, as after a reboot (a crash's
+        respawn): disarmed, on the ground, clock, origin and home from the next ODOMETRY.
+        Kept, as a reboot keeps them: the airframe, the user's parameters, and the signing
+        replay table (a packet captured before the reboot is still old news)."""
         ctrl = None if self._ctrl_factory is not None else self.status.ctrl
         if ctrl is not None:
             ctrl.reset()
@@ -264,19 +264,10 @@ class Onboard:
         return new
 
     def count_kernel_drops(self) -> dict[str, int]:
-        """Set `stats['dropped_kernel_<link>']` for each UDP link: datagrams the kernel
-        dropped since the socket was opened because its receive buffer was full (a flood
-        faster than the vehicle drains; Linux's /proc/net/udp, `UdpLink.kernel_drops`). Not
-        counted per tick (it reads a /proc file): the SIL process calls it as it exits. The
-        counts are the sockets' totals, so calling it again replaces them. Links without the
-        counter (in memory, other OSes) are left out. Returns what it set."""
-        got = {}
-        for name, link in (("hil", self._hil), ("api", self._api.link), ("gcs", self._gcs.link)):
-            while not hasattr(link, "kernel_drops") and hasattr(link, "inner"):
-                link = link.inner                # a tap or fault wrapper around the socket
-            n = link.kernel_drops() if hasattr(link, "kernel_drops") else None
-            if n is not None:
-                got["dropped_kernel_" + name] = n
+        """Set `stats['dropped_kernel_<link>']` for each UDP link (`mav.links.kernel_drops`:
+        what the kernel dropped, its receive buffer full). It reads a /proc file, so not per
+        tick: the SIL process calls it as it exits; again, it replaces them. Returns them."""
+        got = kernel_drops({"hil": self._hil, "api": self._api.link, "gcs": self._gcs.link})
         self.stats.update(got)
         return got
 
@@ -294,12 +285,12 @@ class Onboard:
             return False
         vs = self.status
         vs.stats["rx_hil"] += 1
-        try:
+        try:   # (defensive: the decoder is total on bytes, but never crash here)
             od = self._decode_hil(data)
-        except Exception:   # defensive: the decoder is total on bytes, but never crash here
+        except Exception:
             od = None
-        if od is None:
-            self._hil_not_odometry(data)
+        if od is None:   # a battery fault from the simulator (inject.py), another message
+            vs.stats[hil_other(vs, self._hil_mav, data, self.cfg.sysid, self.cfg.compid)] += 1
             return False
         # the estimator's ODOMETRY was checked as its sensor datagram (refused ones never get
         # here), and is the vehicle's own system's frame
@@ -315,13 +306,10 @@ class Onboard:
 
     @cython.locals(vs=VehicleStatus, u=list)
     def step_record(self, rec) -> tuple | None:
-        """MIL's typed HIL exchange (cosim/sim/onboard.py): `poll` of one HIL datagram handed
-        over as the record its frames decode to, without the frames: on an ODOMETRY feed
-        `rec` is `mav.hil.odometry_record`'s tuple, sensor-fed the simulator's
-        [message, payload, ...] (`Estimator.estimate_parts`). Returns the answer as
-        ((t_us, u1..u4) as HIL_ACTUATOR_CONTROLS carries them, the estimate as
-        `Estimator.record` or None on an ODOMETRY feed), or None if it made no tick: what
-        the framed exchange gives, tested to fly the same."""
+        """MIL's typed exchange (cosim/sim/onboard.py): `poll` of the record a HIL datagram's
+        frames decode to (`mav.hil.odometry_record`'s; sensor-fed [message, payload, ...]).
+        The answer as its frames decode: ((t_us, u1..u4), the estimate's `Estimator.record`
+        or None on an ODOMETRY feed); None if no tick."""
         vs = self.status
         vs.stats["rx_hil"] += 1
         own = self._est_link is not None
@@ -345,9 +333,8 @@ class Onboard:
                    own=cython.bint, imu_ok=cython.bint)
     def _tick(self, od: tuple, own: bool, sysid: int) -> bool:
         """The tick on od (`wire.decode_odometry`'s fields) from system `sysid` (`own`: the
-        onboard estimator's): False if it is not the next tick or its values are unusable
-        (counted; nothing else touched), else the tick is run, its motor commands in
-        `status.u` for the answer."""
+        estimator's), its motor commands in `status.u`; False if it is not the next tick or
+        its values are unusable (counted; nothing else touched)."""
         vs = self.status
         st = vs.stats
         if not 0 <= od[0] < MAX_TIME_US:      # a clock beyond any flight: not a tick
@@ -511,24 +498,3 @@ class Onboard:
         b = vs.battery
         if b.consumed_mah + b.lost_mah > vs.bat_warn_mah:   # Battery.used_mah: drawn + lost
             self.failsafe.battery_warning()
-
-    def _hil_not_odometry(self, data: bytes) -> None:
-        """A HIL datagram that is not a valid ODOMETRY: a battery fault from the simulator
-        (`inject.py`, applied now, on the clock of the previous tick), another message or
-        garbage (counted)."""
-        end = wire.frame_end(data, 0)
-        if end == len(data):
-            try:
-                msg = self._hil_mav.decode(bytearray(data))
-            except Exception:
-                msg = None
-            if msg is not None and not isinstance(msg, M.MAVLink_unknown):
-                # the simulator's battery faults (inject.py); anything else, e.g. a HEARTBEAT
-                # or HIL_SENSOR (later), is ignored
-                if msg.get_msgId() == M.MAVLINK_MSG_ID_COMMAND_LONG and battery_failure(
-                        self.status, msg, self.cfg.sysid, self.cfg.compid):
-                    self.stats["faults_injected"] += 1
-                else:
-                    self.stats["hil_ignored"] += 1
-                return
-        self.stats["dropped_bad_hil"] += 1
