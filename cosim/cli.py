@@ -110,7 +110,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--hil-exchange", choices=("auto", "typed", "framed"), default="auto",
                    help="MIL: the HIL exchange in this process as the records its MAVLink "
                         "frames decode to (typed) or as the frames (framed, as SIL's); auto: "
-                        "typed unless the scenario has [faults]; same results")
+                        "typed unless the scenario has [faults] (their hooks act on "
+                        "datagrams); same results")
     r.add_argument("--realtime", action="store_true", help="pace against the wall clock")
     r.add_argument("--speed", type=float, default=1.0, help="real-time speed factor (--realtime)")
     r.add_argument("--out", type=Path, help="run folder (default runs/<scenario>-<mode>)")

@@ -38,11 +38,15 @@ def fly(tmp: Path, scenario: str, exchange: str, *extra: str) -> tuple[Path, dic
 
 
 @pytest.mark.flight
-@pytest.mark.parametrize("extra", [(), ("--set", "sensors.feed=truth")],
-                         ids=["sensor-fed", "truth-fed"])
+@pytest.mark.parametrize("extra", [
+    (),
+    ("--set", "sensors.feed=truth"),
+    ("--set", "sensors.feed=truth", "--set", "onboard.params.TPL_EST_TYPE=1"),
+], ids=["sensor-fed", "truth-fed", "truth-fed-estimator-on"])
 def test_typed_and_framed_fly_bit_for_bit(tmp_path, extra):
     """The seed mission on the sensors and the onboard estimator (the default: the records are
-    the sensor messages and the estimate) and truth-fed (ODOMETRY's fields)."""
+    the sensor messages and the estimate), truth-fed (ODOMETRY's fields), and truth-fed to a
+    vehicle whose estimator is on (it passes ODOMETRY through, as motion capture)."""
     a, sa = fly(tmp_path, "mambo_seed_track.toml", "framed", *extra)
     b, sb = fly(tmp_path, "mambo_seed_track.toml", "typed", *extra)
     names = sorted(p.name for p in a.iterdir() if p.suffix in (".csv", ".tlog"))
@@ -58,7 +62,10 @@ def test_typed_and_framed_fly_bit_for_bit(tmp_path, extra):
     assert sa == sb
     st = sa["onboard_stats"]
     assert st["ticks"] == st["rx_hil"] == sa["ticks"] > 10_000
-    assert sa["exit_reason"] == "mission_complete", sa["exit_reason"]
+    if "onboard.params.TPL_EST_TYPE=1" in extra:   # its estimator never aligns on ODOMETRY
+        assert sa["exit_reason"] == "time_limit" and st["est_imu"] == 0   # alone: not armed
+    else:
+        assert sa["exit_reason"] == "mission_complete", sa["exit_reason"]
 
 
 def test_typed_is_refused_where_it_cannot_apply(tmp_path):

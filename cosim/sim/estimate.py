@@ -7,7 +7,8 @@ It is both the sensor and the codec of the master's tick (cosim/sim/tick.py `Tic
 `measure(y)` (the list the tick records as est_x/y/z, filled in by `decode_actuators` of the
 same tick), `encode_odometry(t_us, meas)` (the sensor datagram; `encode_odometry_lost` is the
 same: a sensor-fed vehicle loses its position through the sensor faults) and
-`decode_actuators(ans)`.
+`decode_actuators(ans)`; for MIL's typed exchange (cosim/sim/onboard.py) `record_odometry`
+and `decode_record`, the same without the frames.
 """
 
 from __future__ import annotations

@@ -39,8 +39,8 @@ class Tick:
     `sinks` are called `(k, t, img)` with each delivered frame, k and t its capture tick and
     time (`frame_y`: the plant outputs at capture), before the app sees it; `record_every`
     ticks make one recorded row; `home` is the vehicle's local origin in world NED (setpoints
-    are recorded in world coordinates); `typed`: `exchange` is the vehicle's typed HIL exchange
-(`OnboardHandle.exchange_record`) and `codec` gives and reads its records."""
+    are recorded in world coordinates); `typed`: `exchange` is the vehicle's typed HIL
+    exchange (`OnboardHandle.exchange_record`) and `codec` gives and reads its records."""
 
     def __init__(self, *, plant, sensor, codec, exchange, gcs_recv, tlog, spool, monitor,
                  h_us: int, app=None, stream=None, ctx=None, cam_every: int = 1, sinks=(),

@@ -6,14 +6,13 @@ Three links (see `mav/links.py`): `hil` (the simulator: ODOMETRY in, HIL_ACTUATO
 Lockstep contract (ARCHITECTURE.md, "Time and order within a tick"): `poll()` does nothing
 unless a HIL datagram is waiting. With a valid ODOMETRY it first drains and handles everything
 queued on `api` and `gcs` (on the vehicle clock of the previous tick), then sets the vehicle
-clock to the ODOMETRY's time_usec, copies the state (the estimator, today), runs modes and
-failsafes and the controller, publishes due telemetry and answers on `hil` with exactly one
-HIL_ACTUATOR_CONTROLS stamped with the same time_usec. Every timer runs on this clock, so a
-run is deterministic; the api/gcs links are read only at HIL time.
+clock to the ODOMETRY's time_usec, copies the state, runs modes, failsafes and the
+controller, publishes due telemetry and answers on `hil` with exactly one
+HIL_ACTUATOR_CONTROLS stamped with the same time_usec (`step_record`: the same, typed). Every
+timer runs on this clock, so a run is deterministic; api/gcs are read only at HIL time.
 
-Embedded style: the state, setpoint and motor-command records are preallocated and updated in
-place; the per-tick path uses the fast codec of `mav/wire.py`; telemetry is only encoded when
-due.
+Embedded style: the records are preallocated and updated in place; the per-tick path uses
+the fast codec of `mav/wire.py`; telemetry is only encoded when due.
 
 The parts (one job each, sharing the `VehicleStatus` record): links.py (link input, signing,
 STATUSTEXT), commander.py (arming, modes), navigator.py (take-off, land, ground detection),
@@ -68,14 +67,13 @@ from mav.types import Setpoint, VehicleState
 M = mavlink2
 
 MAX_TIME_US = 1 << 62        # an ODOMETRY stamped later than this (146,000 years) is refused
-STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs",
-         "dropped_bad_hil", "dropped_bad_api", "dropped_bad_gcs", "dropped_stale_hil",
-         "dropped_jump_hil", "dropped_foreign_hil", "hil_ignored", "hil_bad_values",
-         "unknown_msgs", "unhandled_msgs", "not_for_us", "unsigned_rejected", "badsig_rejected",
-         "setpoints", "rejected_setpoints", "commands", "commands_unsupported", "param_sets",
-         "param_rejected", "param_denied_armed", "drain_deferred", "handler_errors",
-         "odometry_lost", "faults_injected", "inject_denied", "failsafe_imu",
-         "failsafe_est_tilt", "failsafe_est_vel")
+STATS = ("ticks", "rx_hil", "rx_api", "rx_gcs", "tx_api", "tx_gcs", "dropped_bad_hil",
+         "dropped_bad_api", "dropped_bad_gcs", "dropped_stale_hil", "dropped_jump_hil",
+         "dropped_foreign_hil", "hil_ignored", "hil_bad_values", "unknown_msgs", "unhandled_msgs",
+         "not_for_us", "unsigned_rejected", "badsig_rejected", "setpoints", "rejected_setpoints",
+         "commands", "commands_unsupported", "param_sets", "param_rejected", "param_denied_armed",
+         "drain_deferred", "handler_errors", "odometry_lost", "faults_injected", "inject_denied",
+         "failsafe_imu", "failsafe_est_tilt", "failsafe_est_vel")
 
 
 class Onboard:
@@ -221,8 +219,7 @@ class Onboard:
         return self.parameters.warnings
 
     @property
-    def t(self) -> float:
-        """Vehicle clock, s."""
+    def t(self) -> float:                  # the vehicle's clock, s
         return self.status.t_us * 1e-6
 
     @property
@@ -306,23 +303,27 @@ class Onboard:
 
     @cython.locals(vs=VehicleStatus, u=list)
     def step_record(self, rec) -> tuple | None:
-        """MIL's typed exchange (cosim/sim/onboard.py): `poll` of the record a HIL datagram's
-        frames decode to (`mav.hil.odometry_record`'s; sensor-fed [message, payload, ...]).
-        The answer as its frames decode: ((t_us, u1..u4), the estimate's `Estimator.record`
-        or None on an ODOMETRY feed); None if no tick."""
+        """MIL's typed exchange (cosim/sim/onboard.py): `poll` of what a HIL datagram's frames
+        decode to (`mav.hil.odometry_record`'s tuple, or the sensor messages' list); the
+        answer as its frames decode: ((t_us, u1..u4), `Estimator.record` or None), or None."""
         vs = self.status
-        vs.stats["rx_hil"] += 1
-        own = self._est_link is not None
-        if own:
-            if not self.estimator.estimate_parts(rec):
+        st = vs.stats
+        own = type(rec) is list            # the sensor messages, else ODOMETRY's fields
+        if own:   # counted as their frames: after the estimator's step and its ODOMETRY
+            est = self.estimator
+            od = est.record() if self._est_link is not None and est.estimate_parts(rec) else None
+            st["rx_hil"] += 1
+            if od is None:
+                if not est.refused:        # no estimator, or no HIL_SENSOR: not ODOMETRY
+                    st["dropped_bad_hil"] += 1
                 return None
-            od = self.estimator.record()
-        else:
+        else:     # (a vehicle with its estimator passes ODOMETRY through: motion capture)
+            st["rx_hil"] += 1
             od = rec
         if not self._tick(od, own, SIM_SYSID):
             return None
         u = vs.u
-        return ((vs.t_us, f32(u[0]), f32(u[1]), f32(u[2]), f32(u[3])), od if own else None)
+        return (vs.t_us, f32(u[0]), f32(u[1]), f32(u[2]), f32(u[3])), (od if own else None)
 
     @cython.locals(vs=VehicleStatus, s=VehicleState, sp=Setpoint, t_us=cython.longlong,
                    dt_us=cython.longlong, x=cython.double, y=cython.double, z=cython.double,
@@ -433,11 +434,10 @@ class Onboard:
         return True
 
     def _blind(self, s, sp):
-        """Without a position estimate: the controller sees the attitude and rates (the IMU
-        still works) and no horizontal position or velocity error, so it holds level and the
-        heading; the vehicle drifts with its momentum, braked by drag. The altitude is held on
-        the onboard estimator's (sonar, baro: PX4's altitude mode); on a lost ODOMETRY feed
-        it sees no vertical error either (hover thrust)."""
+        """Without a position estimate the controller sees the attitude and rates and no
+        horizontal error: it holds level and heading, drifting (drag brakes it). The altitude
+        is held on the estimator's (sonar, baro: PX4's altitude mode); a lost ODOMETRY feed
+        gives no vertical error either (hover thrust)."""
         b = self._blind_state
         b.t, b.qw, b.qx, b.qy, b.qz, b.p, b.q, b.r = s.t, s.qw, s.qx, s.qy, s.qz, s.p, s.q, s.r
         b.x = sp.x if sp.x == sp.x else s.x
