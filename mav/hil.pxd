@@ -9,3 +9,4 @@ cpdef bytes odometry_of(mav, t_us, double x, double y, double z, double qw, doub
 cpdef tuple odometry_record(t_us, double x, double y, double z, double qw, double qx,
                             double qy, double qz, double vx, double vy, double vz, double p,
                             double q, double r, bint lost)
+cpdef tick_refusal(sysid, t_us, last_us)

@@ -1,6 +1,8 @@
 # Types Cython reads beside mav/onboard/vehicle.py (plain Python): the parts the tick touches
 # as C fields of the vehicle (the rest in its __dict__), so `poll` reaches the shared status
-# record, the state and the setpoint directly.
+# record, the state and the setpoint directly, and calls the HIL checks and f32 as C functions.
+from mav.fields cimport f32
+from mav.hil cimport tick_refusal
 from mav.onboard.status cimport VehicleStatus
 from mav.types cimport Setpoint, VehicleState
 
