@@ -231,8 +231,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="only what the portable numerics cost: the seed mission and E2, native "
                         "and portable in fresh processes, alternately (~1.5 minutes)")
     b.add_argument("--peers", action="store_true",
-                   help="only the lead over a peer: the seed mission against RotorPy side by "
-                        "side (pip install '.[peers]')")
+                   help="only the lead over peers: the seed mission against RotorPy and "
+                        "gym-pybullet-drones side by side (pip install '.[peers]'; "
+                        "gym-pybullet-drones is not on PyPI: its checkout with pip install "
+                        "--no-deps)")
     return p
 
 

@@ -314,7 +314,7 @@ def run(quick: bool = False) -> dict[str, Any]:
         res["numerics"] = bench_numerics(3)
     from cosim.bench.peers import bench_peers
 
-    res["peers"] = bench_peers(*((1, 20.0) if quick else (4,)))   # the lead over RotorPy
+    res["peers"] = bench_peers(*((1, 20.0) if quick else (4,)))   # the lead over peers
     return res
 
 
@@ -420,7 +420,7 @@ def format_report(res: dict[str, Any]) -> str:
 def main(quick: bool = False, json_path: Path | None = None, flood_only: bool = False,
          instructions: bool = False, live_only: bool = False,
          numerics_only: bool = False, peers_only: bool = False) -> int:
-    if peers_only:     # the lead over a peer simulator (bench/peers.py)
+    if peers_only:     # the lead over peer simulators (bench/peers.py)
         from cosim.bench.peers import bench_peers, format_peers
 
         res = {"machine": machine(), "peers": bench_peers(*((1, 20.0) if quick else (4,)))}
