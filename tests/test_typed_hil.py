@@ -15,6 +15,9 @@ from pathlib import Path
 
 import pytest
 
+from cosim.errors import ComponentError
+from cosim.plant.fmu import OUTPUT_NAMES, Y_ON_GROUND, Y_QW, Y_Z
+from cosim.sim.exits import ExitMonitor
 from mav import wire
 from mav.fields import f32
 from mav.hil import SIM_SYSID, HilSimulatorCodec, odometry_record
@@ -105,3 +108,20 @@ def test_odometry_record_is_the_frames_fields():
         assert rec == wire.decode_odometry(frame)
         assert rec == odometry_record(123_456, *m, lost)
     assert frame[5] == SIM_SYSID
+
+
+@pytest.mark.parametrize("i", range(Y_ON_GROUND))
+def test_a_non_finite_state_ends_the_run_before_anything_reads_it(i):
+    """Any non-finite value in the plant's state (on_ground aside) is the plant's failure at
+    the exit check, which runs on the state before the sensors or the vehicle read it: the
+    framed exchange's integer fields (position, velocity) would refuse it, the typed records
+    carry it, so without the check a typed run flew on where the framed one stopped."""
+    mon = ExitMonitor((-3.0, 3.0, -3.0, 3.0), 0.005, None)
+    y = [0.0] * len(OUTPUT_NAMES)
+    y[Y_QW], y[Y_Z], y[Y_ON_GROUND] = 1.0, -1.0, 0.0
+    assert mon.check(0.0, y, 0.0, (0.5,) * 4) is None
+    for bad in (math.nan, math.inf, -math.inf):
+        y_bad = list(y)
+        y_bad[i] = bad
+        with pytest.raises(ComponentError, match="non-finite state"):
+            mon.check(0.0, y_bad, 0.0, (0.5,) * 4)

@@ -88,14 +88,21 @@ class ExitMonitor:
         self.min_clearance: tuple[float, float, str] | None = None   # (m, t s, what)
 
     @cython.locals(d=cython.double, qx=cython.double, qy=cython.double, n=cython.double,
-                   e=cython.double, airborne=cython.bint)
+                   e=cython.double, airborne=cython.bint, s=cython.double,
+                   i=cython.Py_ssize_t)
     def check(self, t: float, y, vz_before: float, u) -> Exit | None:
         """State `y` at t_k+1 = t + h; `vz_before` the vertical speed at t_k; `u` the motor
         commands held over the step. Runs every tick: the common case (flying, nothing to
-        report) is a few comparisons; the named conditions build the exit."""
-        d = y[Y_Z]
-        if d - d != 0.0:                       # NaN or inf
+        report) is a few comparisons; the named conditions build the exit. A state with any
+        non-finite value (on_ground aside) is the plant's failure, before anything reads it:
+        so the run ends alike whether the sensors' frames (whose integer fields would refuse
+        it) or MIL's typed records (which carry it) come next."""
+        s = 0.0
+        for i in range(Y_ON_GROUND):
+            s += y[i]
+        if s - s != 0.0:                       # a NaN or an infinity among them
             raise ComponentError("plant", "non-finite state")
+        d = y[Y_Z]
         airborne = self.airborne
         if not airborne and d < AIRBORNE_Z_M:
             self.airborne = airborne = True
