@@ -23,6 +23,10 @@ cpdef Py_ssize_t frame_end(bytes data, Py_ssize_t i=*) except? -2
 cpdef long msgid_of(bytes data, Py_ssize_t i=*) except? -1
 cpdef bint frame_ok(FastMsg m, bytes data, Py_ssize_t i, Py_ssize_t end) except -1
 cpdef decode_fast(FastMsg m, bytes data, Py_ssize_t i=*, Py_ssize_t end=*)
+# the two 50 Hz telemetry messages, encoded by C calls from the compiled telemetry
+cpdef bytes encode_attitude(mav, time_boot_ms, roll, pitch, yaw, rollspeed, pitchspeed,
+                            yawspeed)
+cpdef bytes encode_local_position_ned(mav, time_boot_ms, x, y, z, vx, vy, vz)
 
 
 cdef class FlatEarth:

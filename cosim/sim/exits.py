@@ -24,6 +24,19 @@ REST_TIMEOUT_S = 3.0       # s on the ground, armed, after flying: LANDED anyway
 
 Exit = tuple[ExitReason, str]
 
+# C copies of the state's indices and the limits the per-tick check compares with (compiled,
+# a comparison of two doubles; Python floats in the interpreted module)
+_N_STATE = cython.declare(cython.Py_ssize_t, Y_ON_GROUND)     # the values checked finite
+_YX = cython.declare(cython.Py_ssize_t, Y_X)
+_YY = cython.declare(cython.Py_ssize_t, Y_Y)
+_YZ = cython.declare(cython.Py_ssize_t, Y_Z)
+_YQX = cython.declare(cython.Py_ssize_t, Y_QX)
+_YQY = cython.declare(cython.Py_ssize_t, Y_QY)
+_YGND = cython.declare(cython.Py_ssize_t, Y_ON_GROUND)
+_AIRBORNE_Z = cython.declare(cython.double, AIRBORNE_Z_M)
+_FLIP_PRE = cython.declare(cython.double, FLIP_PRECHECK)
+_CEILING = cython.declare(cython.double, CEILING_M)
+
 
 def hard_touchdown(vz_mps: float) -> Exit | None:
     if abs(vz_mps) > CRASH_VZ_MPS:
@@ -88,8 +101,9 @@ class ExitMonitor:
         self.min_clearance: tuple[float, float, str] | None = None   # (m, t s, what)
 
     @cython.locals(d=cython.double, qx=cython.double, qy=cython.double, n=cython.double,
-                   e=cython.double, airborne=cython.bint, s=cython.double,
-                   i=cython.Py_ssize_t)
+                   e=cython.double, airborne=cython.bint, s=cython.double, v=cython.double,
+                   i=cython.Py_ssize_t, a=tuple, n0=cython.double, n1=cython.double,
+                   e0=cython.double, e1=cython.double)
     def check(self, t: float, y, vz_before: float, u) -> Exit | None:
         """State `y` at t_k+1 = t + h; `vz_before` the vertical speed at t_k; `u` the motor
         commands held over the step. Runs every tick: the common case (flying, nothing to
@@ -98,20 +112,21 @@ class ExitMonitor:
         so the run ends alike whether the sensors' frames (whose integer fields would refuse
         it) or MIL's typed records (which carry it) come next."""
         s = 0.0
-        for i in range(Y_ON_GROUND):
-            s += y[i]
+        for i in range(_N_STATE):
+            v = y[i]
+            s += v
         if s - s != 0.0:                       # a NaN or an infinity among them
             raise ComponentError("plant", "non-finite state")
-        d = y[Y_Z]
+        d = y[_YZ]
         airborne = self.airborne
-        if not airborne and d < AIRBORNE_Z_M:
+        if not airborne and d < _AIRBORNE_Z:
             self.airborne = airborne = True
         elif not airborne and self.seq is not None and self.seq.state == "refused":
             return ExitReason.APP_ABORTED, f"arming refused: {self.seq.refused}"
         if airborne:
-            if y[Y_ON_GROUND] > 0.5:
+            if y[_YGND] > 0.5:
                 if self.ground_ticks == 0:
-                    self.t_touch = (t + self.h, y[Y_X], y[Y_Y])
+                    self.t_touch = (t + self.h, y[_YX], y[_YY])
                     hard = hard_touchdown(vz_before)
                     if hard:
                         self.touchdown = self.t_touch
@@ -119,19 +134,23 @@ class ExitMonitor:
                 self.ground_ticks += 1
             elif self.ground_ticks:
                 self.ground_ticks = 0
-        qx, qy = y[Y_QX], y[Y_QY]
-        if qx * qx + qy * qy > FLIP_PRECHECK:    # tilted past ~81 deg: flipped() decides
+        qx = y[_YQX]
+        qy = y[_YQY]
+        if qx * qx + qy * qy > _FLIP_PRE:    # tilted past ~81 deg: flipped() decides
             out = flipped(qx, qy)
             if out:
                 return out
         if self.scene is not None:
-            hit = self.clearance(t + self.h, y[Y_X], y[Y_Y], d)
+            hit = self.clearance(t + self.h, y[_YX], y[_YY], d)
             if hit:
                 return hit
         if self.sitl:
             return None
-        n, e, a = y[Y_X], y[Y_Y], self.arena_box
-        if n < a[0] or n > a[1] or e < a[2] or e > a[3] or d < -CEILING_M:
+        n = y[_YX]
+        e = y[_YY]
+        a = self.arena_box
+        n0, n1, e0, e1 = a
+        if n < n0 or n > n1 or e < e0 or e > e1 or d < -_CEILING:
             return left_arena(self.arena, n, e, d)
         if airborne and self.ground_ticks > 0:
             return self.landed(u[0] == 0.0 and u[1] == 0.0 and u[2] == 0.0 and u[3] == 0.0)

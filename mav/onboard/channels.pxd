@@ -1,3 +1,16 @@
 # Types Cython reads beside mav/onboard/channels.py (plain Python): the codec's frame walkers
-# called directly (C calls into mav/wire.py's compiled module) for every datagram read.
+# called directly (C calls into mav/wire.py's compiled module) for every datagram read; a link's
+# record and its streams as C fields, and its send a C call from the compiled telemetry.
 from mav cimport wire
+
+
+cdef class Stream:
+    cdef public object msgid, default_us, interval_us, next_us, emit
+
+
+cdef class Chan:
+    cdef public object name, link, mav, next_due, schedule, signed, peer
+    cdef public list streams, param_queue
+    cdef public dict by_msgid, stats
+    cdef public str tx_key, rx_key, bad_key
+    cpdef send(self, data)

@@ -11,8 +11,10 @@ import math
 from collections.abc import Callable
 from heapq import heappop, heappush
 
+import cython
+
 from mav import wire
-from mav.onboard.channels import Chan, Outbox
+from mav.onboard.channels import Chan, Outbox, Stream
 from mav.onboard.commander import Commander
 from mav.onboard.defs import (
     CAPABILITIES,
@@ -113,6 +115,7 @@ class Telemetry:
         return M.MAV_RESULT_ACCEPTED, msgid
 
     # ------------------------------------------------------------------ per tick
+    @cython.locals(ch=Chan)
     def publish(self, t: int) -> None:
         """Everything due at t on each link: event messages, streams, queued PARAM_VALUEs.
         The vehicle's tick calls it only when something is (its test of next_due, the param
@@ -141,6 +144,7 @@ class Telemetry:
         vs.hb_now = vs.ext_now = vs.home_now = vs.mission_now = False
 
     @staticmethod
+    @cython.locals(ch=Chan, s=Stream)
     def _emit_due(ch: Chan, t: int) -> None:
         """The streams due at t, in the order of `ch.streams`; each then set to its next
         time (one interval on, or one interval from now if it fell behind)."""
