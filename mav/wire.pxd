@@ -2,7 +2,11 @@
 # as C fields, read directly by the compiled encoders and decoders.
 
 from mav cimport crc as _crc
-from mav.fields cimport PyByteArray_AS_STRING, new_payload
+from mav.fields cimport PyByteArray_AS_STRING, PyBytes_AS_STRING, new_payload
+
+
+cdef extern from "Python.h":
+    object PyBytes_FromStringAndSize(char *v, Py_ssize_t n)
 
 
 cdef class FastMsg:

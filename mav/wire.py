@@ -135,7 +135,7 @@ assert _HIL_CTRL.size == HIL_ACTUATOR_CONTROLS.size
 
 
 # ----------------------------------------------------------------------------------- encoding
-@cython.locals(seq=cython.int, n=cython.Py_ssize_t, out=bytearray)
+@cython.locals(seq=cython.int, n=cython.Py_ssize_t, p=cython.p_uchar)
 def frame(mav, m: FastMsg, payload: bytes) -> bytes:
     """Frame a packed payload as MAVLink 2, as `mav.send(msg)` would (and advance mav.seq).
 
@@ -157,9 +157,16 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
         signed += hashlib.sha256(signing.secret_key + signed).digest()[:6]
         signing.timestamp += 1
         return signed
-    out = new_payload(_HDR2 + n + 2)
-    put_frame(out, 0, seq, mav.srcSystem, mav.srcComponent, m, payload, n)
-    return bytes(out)
+    if not cython.compiled:
+        out = new_payload(_HDR2 + n + 2)
+        put_frame(out, 0, seq, mav.srcSystem, mav.srcComponent, m, payload, n)
+        return bytes(out)
+    # compiled: the frame written into a new bytes object, which nothing else holds until it
+    # is returned (no bytearray to copy from)
+    out = PyBytes_FromStringAndSize(cython.NULL, _HDR2 + n + 2)  # noqa: F821
+    p = cython.cast(cython.p_uchar, PyBytes_AS_STRING(out))      # noqa: F821
+    _frame_at(p, out, 0, seq, mav.srcSystem, mav.srcComponent, m, payload, n)
+    return out
 
 
 @cython.locals(n=cython.Py_ssize_t)
@@ -174,7 +181,7 @@ def trimmed_len(payload: bytes) -> int:
     return n
 
 
-@cython.locals(p=cython.p_uchar, q=cython.p_uchar, k=cython.Py_ssize_t)
+@cython.locals(p=cython.p_uchar)
 def put_frame(out: bytearray, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
               payload: bytes, n: int) -> int:
     """Write the unsigned MAVLink 2 frame of payload[:n] at out[at:at + n + 12]: header,
@@ -184,12 +191,28 @@ def put_frame(out: bytearray, at: int, seq: int, sysid: int, compid: int, m: Fas
     _frame_span(out, at, n)
     if cython.compiled:
         p = cython.cast(cython.p_uchar, PyByteArray_AS_STRING(out)) + at  # noqa: F821
+    else:
+        p = memoryview(out)[at:]
+    return _frame_at(p, out, at, seq, sysid, compid, m, payload, n)
+
+
+@cython.cfunc
+@cython.exceptval(-1)
+@cython.returns(cython.int)
+@cython.locals(p=cython.p_uchar, q=cython.p_uchar, at=cython.Py_ssize_t, n=cython.Py_ssize_t,
+               k=cython.Py_ssize_t, payload=bytes, seq=cython.int, sysid=cython.int,
+               compid=cython.int)
+def _frame_at(p, out, at: int, seq: int, sysid: int, compid: int, m: FastMsg, payload: bytes,
+              n: int) -> int:
+    """The frame of payload[:n] at p (out's buffer at `at`, checked by the caller): the
+    payload, then the header and checksum."""
+    if cython.compiled:
         q = cython.cast(cython.p_uchar, cython.cast(cython.p_char, payload))
         for k in range(n):
             p[_HDR2 + k] = q[k]
     else:
-        memoryview(out)[at + _HDR2:at + _HDR2 + n] = payload[:n]
-    return seal_at(out, at, seq, sysid, compid, m, n)
+        p[_HDR2:_HDR2 + n] = payload[:n]
+    return _seal(p, out, at, seq, sysid, compid, m, n)
 
 
 @cython.cfunc
@@ -203,7 +226,7 @@ def _frame_span(out: bytearray, at: int, n: int) -> int:
     return 0
 
 
-@cython.locals(p=cython.p_uchar, mid=cython.long, crc=cython.long)
+@cython.locals(p=cython.p_uchar)
 def seal_at(out: bytearray, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
             n: int) -> int:
     """The header and checksum of the unsigned frame whose n-byte payload is already at
@@ -213,8 +236,20 @@ def seal_at(out: bytearray, at: int, seq: int, sysid: int, compid: int, m: FastM
         p = cython.cast(cython.p_uchar, PyByteArray_AS_STRING(out)) + at  # noqa: F821
     else:
         p = memoryview(out)[at:]
+    return _seal(p, out, at, seq, sysid, compid, m, n)
+
+
+@cython.cfunc
+@cython.exceptval(-1)
+@cython.returns(cython.int)
+@cython.locals(p=cython.p_uchar, at=cython.Py_ssize_t, n=cython.Py_ssize_t, mid=cython.long,
+               crc=cython.long, seq=cython.int, sysid=cython.int, compid=cython.int)
+def _seal(p, out, at: int, seq: int, sysid: int, compid: int, m: FastMsg, n: int) -> int:
+    """The header and checksum at p (out's buffer at `at`) of the n-byte payload after it."""
     p[0] = _MAGIC2
     p[1] = n
+    p[2] = 0                    # incompat_flags: not signed
+    p[3] = 0                    # compat_flags
     p[4] = seq
     p[5] = sysid
     p[6] = compid

@@ -13,6 +13,8 @@ import sys
 import traceback
 from collections.abc import Callable
 
+import cython
+
 from mav import wire
 from mav.onboard.defs import (
     DRAIN_MAX,
@@ -25,6 +27,7 @@ from mav.onboard.defs import (
 from mav.onboard.status import VehicleStatus
 
 _MAGIC2, _MAGIC1 = bytes([wire.MAGIC_V2]), bytes([wire.MAGIC_V1])
+_M_SP = cython.declare(wire.FastMsg, wire.SET_POSITION_TARGET_LOCAL_NED)   # the 200 Hz message
 
 
 class Stream:
@@ -176,7 +179,7 @@ class LinkInput:
         # (what the loop below does with it, minus the loop)
         if not ch.signed and n > 12 and data[0] == wire.MAGIC_V2 and data[7:10] == SP_ID3:
             if wire.frame_end(data, 0) == n:
-                f = wire.decode_fast(wire.SET_POSITION_TARGET_LOCAL_NED, data, 0, n)
+                f = wire.decode_fast(_M_SP, data, 0, n)
                 if f is None:
                     self.stats[ch.bad_key] += 1
                 else:
@@ -200,7 +203,7 @@ class LinkInput:
             msgid = wire.msgid_of(data, i)
             if (msgid == M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED and not ch.signed
                     and data[i] == wire.MAGIC_V2):
-                f = wire.decode_fast(wire.SET_POSITION_TARGET_LOCAL_NED, data, i, end)
+                f = wire.decode_fast(_M_SP, data, i, end)
                 if f is None:
                     st[bad_key] += 1
                 else:

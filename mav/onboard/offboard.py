@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 
+import cython
+
 from mav import wire
 from mav.onboard.channels import Chan, Outbox
 from mav.onboard.commander import Commander
@@ -32,6 +34,7 @@ from mav.onboard.defs import (
 from mav.onboard.moveby import MoveBy
 from mav.onboard.status import VehicleStatus
 from mav.rotations import wrap_pi
+from mav.types import Setpoint
 
 FRAME_GLOBAL_INT = M.MAV_FRAME_GLOBAL_INT                       # altitude AMSL
 FRAME_GLOBAL_REL_ALT_INT = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT  # altitude above home
@@ -68,6 +71,13 @@ class Offboard:
                               msg.afx, msg.afy, msg.afz, msg.yaw, msg.yaw_rate, msg.type_mask,
                               msg.target_system, msg.target_component, msg.coordinate_frame))
 
+    @cython.locals(x=cython.double, y=cython.double, z=cython.double, vx=cython.double,
+                   vy=cython.double, vz=cython.double, yaw=cython.double,
+                   yaw_rate=cython.double, mask=cython.long, frame=cython.long,
+                   pxy=cython.long, vxy=cython.long, use_pxy=cython.bint, use_vxy=cython.bint,
+                   use_pz=cython.bint, use_vz=cython.bint, use_yaw=cython.bint,
+                   use_rate=cython.bint, c=cython.double, s=cython.double, of=Setpoint,
+                   vs=VehicleStatus)
     def on_setpoint(self, ch: Chan, f: tuple) -> None:
         """SET_POSITION_TARGET_LOCAL_NED in wire order (see wire.py)."""
         (_, x, y, z, vx, vy, vz, _ax, _ay, _az, yaw, yaw_rate, mask, tsys, tcomp, frame) = f
