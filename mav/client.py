@@ -30,6 +30,7 @@ import math
 from collections import deque
 from typing import NamedTuple
 
+import cython
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mav import wire
@@ -58,7 +59,7 @@ SIGNING_EPOCH_2024 = 1704067200.0
 
 
 # telemetry decoded by the fast codec (unsigned MAVLink 2); everything else goes to pymavlink
-_SP = wire.SET_POSITION_TARGET_LOCAL_NED
+_SP = cython.declare(wire.FastMsg, wire.SET_POSITION_TARGET_LOCAL_NED)
 _SP_PACK = _SP.st.pack
 _FAST_RX: dict[int, wire.FastMsg] = {
     m.id: m for m in (wire.LOCAL_POSITION_NED, wire.ATTITUDE, wire.HEARTBEAT,
@@ -70,6 +71,11 @@ _FAST_RX: dict[int, wire.FastMsg] = {
 class CommandAck(NamedTuple):
     result: int      # MAV_RESULT
     t: float         # s, client clock when it arrived
+
+
+def _fields_of(msg, fm: wire.FastMsg) -> tuple:
+    """A pymavlink message's fields in wire order: what the fast decoder gives."""
+    return tuple(getattr(msg, name) for name in fm.cls.ordered_fieldnames)
 
 
 class OffboardClient:
@@ -159,6 +165,8 @@ class OffboardClient:
             self.send_heartbeat(t)
         return n
 
+    @cython.locals(n=cython.long, i=cython.Py_ssize_t, size=cython.Py_ssize_t,
+                   end=cython.Py_ssize_t, msgid=cython.long)
     def _datagram(self, data: bytes) -> int:
         st = self.stats
         n = 0
@@ -203,9 +211,7 @@ class OffboardClient:
             mid = msg.get_msgId()
             fm = _FAST_RX.get(mid)
             if fm is not None:     # signed or MAVLink 1: the same handler on the same fields
-                self._fast_handlers[mid](tuple(getattr(msg, name)
-                                               for name in fm.cls.ordered_fieldnames),
-                                         msg.get_srcComponent())
+                self._fast_handlers[mid](_fields_of(msg, fm), msg.get_srcComponent())
                 continue
             h = self._handlers.get(mid)
             if h is not None:

@@ -62,7 +62,8 @@ print("ticks", ticks)
 """
 _IREFS = re.compile(r"I\s+refs:\s+([\d,]+)")
 # the entry points: (label, symbol pattern: the C function Cython makes of the method, or the
-# FMI binding's); "master" is computed (its tick less the others)
+# FMI binding's; a cpdef method called from compiled code is its __pyx_f_ function, from Python
+# its __pyx_pw_ wrapper: the larger counts); "master" is computed (its tick less the others)
 PART_SYMBOLS = (
     ("onboard (vehicle tick + MIL HIL exchange)",
      r"__pyx_pw_5cosim_3sim_7onboard_\d+OnboardHandle_\d+exchange(?:_record)?"),
@@ -71,9 +72,12 @@ PART_SYMBOLS = (
      r"__pyx_pw_3mav_3hil_\d+HilSimulatorCodec_\d+(?:encode|record)_odometry"),
     ("sensor models + their messages (simulator)",
      r"__pyx_pw_5cosim_3sim_8estimate_\d+SensorFeed_\d+(?:encode|record)_odometry"),
-    ("camera + app (Python), of which:", r"__pyx_pw_5cosim_3sim_4tick_\d+Tick_\d+_camera_and_app"),
-    ("  app: client poll (telemetry in)", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+poll"),
-    ("  app: client setpoint out", r"__pyx_pw_3mav_6client_\d+OffboardClient_\d+_setpoint"),
+    ("camera + app (Python), of which:",
+     r"__pyx_(?:pw|f)_5cosim_3sim_4tick_\d+Tick_(?:\d+)?_camera_and_app"),
+    ("  app: client poll (telemetry in)",
+     r"__pyx_(?:pw|f)_3mav_6client_\d+OffboardClient_(?:\d+)?poll"),
+    ("  app: client setpoint out",
+     r"__pyx_(?:pw|f)_3mav_6client_\d+OffboardClient_(?:\d+)?_setpoint"),
 )
 _TAIL = r"__pyx_pw_5cosim_3sim_4tick_\d+Tick_\d+run"   # Tick.run (its _run is a C call)
 _INCL = re.compile(r"^\s*([\d,]+)\s+\([\d. ]+%\)\s+\S*?:(\w+)(?:\.\w+)*(?:'\d+)?(?:\s|$)")

@@ -57,10 +57,14 @@ _TICK_PARTS = (
 )
 MASTER = "master loop itself (record, exit test, taps)"
 # compiled extension types cannot have a class attribute replaced: their instances are timed
-# one by one, wrapped as the function that makes them in a run returns them (module, name)
+# one by one, wrapped as the function that makes them in a run returns them (module, name,
+# and the attribute of what it returns that is the instance, or None: the instance itself)
 _IMMUTABLE = 1 << 8          # Py_TPFLAGS_IMMUTABLETYPE
-MADE_BY = {"QuadCascade": ("mav.control", "make_controller"),
-           "Onboard": ("mav.onboard", "Onboard")}
+MADE_BY = {"QuadCascade": ("mav.control", "make_controller", None),
+           "Onboard": ("mav.onboard", "Onboard", None),
+           "OffboardClient": ("mav.client", "OffboardClient", None),
+           "LinkInput": ("mav.onboard", "Onboard", "input"),
+           "Telemetry": ("mav.onboard", "Onboard", "telemetry")}
 
 
 def _timing_attr(setup: Callable, attr: str, timed: Callable, label: str) -> Callable:
@@ -89,11 +93,11 @@ def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
             # a compiled extension type (immutable: its methods cannot be replaced): wrap the method
             # on each instance its maker returns (an instance attribute; the calls that
             # matter look the method up on the instance)
-            fmod, fname = MADE_BY[cls]
+            fmod, fname, part = MADE_BY[cls]
             owner = importlib.import_module(fmod)
             make = getattr(owner, fname)
             saved.append((owner, fname, make))
-            setattr(owner, fname, _timed_instances(make, meth, timed, label))
+            setattr(owner, fname, _timed_instances(make, meth, timed, label, part))
             continue
         saved.append((c, name, orig))
         if setup is not None:
@@ -103,11 +107,14 @@ def _wrap(label: str, timed: Callable) -> list[tuple[Any, str, Any]]:
     return saved
 
 
-def _timed_instances(make: Callable, attr: str, timed: Callable, label: str) -> Callable:
-    """`make` whose results have their `attr` timed under `label` (an instance attribute)."""
+def _timed_instances(make: Callable, attr: str, timed: Callable, label: str,
+                     part: str | None = None) -> Callable:
+    """`make` whose results (or their `part`) have their `attr` timed under `label` (an
+    instance attribute: a compiled caller's C call of a cpdef method finds it too)."""
     def wrapper(*a: Any, **kw: Any) -> Any:
         obj = make(*a, **kw)
-        setattr(obj, attr, timed(getattr(obj, attr), label))
+        inst = obj if part is None else getattr(obj, part)
+        setattr(inst, attr, timed(getattr(inst, attr), label))
         return obj
     return wrapper
 

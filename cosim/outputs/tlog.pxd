@@ -3,7 +3,8 @@
 
 cdef class Tlog:
     cdef public object path, _f, _write, error
-    cdef public long long t_us, count
+    cdef public bytes _stamp
+    cdef public long long t_us, count, _stamp_us
     cpdef add(self, data)
 
 

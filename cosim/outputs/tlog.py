@@ -20,11 +20,13 @@ class Tlog:
     """A tlog streamed to `path` as the datagrams pass (memory stays flat); `t_us` is the stamp
     the master sets each tick, `count` the datagrams logged."""
 
-    __slots__ = ("path", "t_us", "count", "error", "_f", "_write")
+    __slots__ = ("path", "t_us", "count", "error", "_f", "_write", "_stamp_us", "_stamp")
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self.t_us = 0
+        self._stamp_us = 0                     # the stamp packed last (a tick's datagrams
+        self._stamp = _STAMP.pack(0)           # share it)
         self.count = 0
         self.error: OSError | None = None      # a write that failed (disk full): see close()
         # through pathlib (io.open at call time), not the open builtin a compiled module binds
@@ -33,7 +35,10 @@ class Tlog:
         self._write = self._f.write
 
     def add(self, data: bytes) -> None:
-        self._write(_STAMP.pack(self.t_us) + data)
+        if self.t_us != self._stamp_us:
+            self._stamp = _STAMP.pack(self.t_us)
+            self._stamp_us = self.t_us
+        self._write(self._stamp + data)
         self.count += 1
 
     def close(self) -> None:

@@ -17,3 +17,4 @@ cdef class Tick:
     cdef public long cam_every, record_every, phase
     cdef public double home_n, home_e
     cpdef _run(self, long long k, wind)
+    cpdef _camera_and_app(self, long long k, long long t_us, double t, list y)
