@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cython
+
 
 @dataclass(frozen=True)
 class BatteryParams:
@@ -52,8 +54,9 @@ def cell_ocv(soc: float) -> float:
 class Battery:
     """State of one pack. `step(dt, u1..u4)` each tick; read `voltage`, `current`, ..."""
 
-    __slots__ = ("p", "u_hover", "capacity_mah", "r_internal", "_k_motor", "consumed_mah",
-                 "energy_j", "current", "_v_last", "lost_mah", "r_scale", "v_drop")
+    __slots__ = ("p", "u_hover", "capacity_mah", "r_internal", "_k_motor", "_i_avionics",
+                 "consumed_mah", "energy_j", "current", "_v_last", "lost_mah", "r_scale",
+                 "v_drop")
 
     def __init__(self, p: BatteryParams, u_hover: float) -> None:
         self.p = p
@@ -61,6 +64,7 @@ class Battery:
         self.capacity_mah = p.capacity_mah
         self.r_internal = p.r_internal
         self._k_motor = (p.i_hover - p.i_avionics) / (4.0 * u_hover ** 3)   # A per sum(u^3)
+        self._i_avionics = p.i_avionics
         self.consumed_mah = 0.0     # mAh
         self.energy_j = 0.0         # J
         self.current = p.i_avionics  # A
@@ -74,9 +78,10 @@ class Battery:
         self.capacity_mah = capacity_mah if capacity_mah > 0.0 else self.p.capacity_mah
         self.r_internal = r_internal if r_internal > 0.0 else self.p.r_internal
 
+    @cython.locals(i=cython.double)
     def step(self, dt: float, u1: float, u2: float, u3: float, u4: float) -> None:
         """Advance `dt` seconds with motor commands u1..u4 (0..1)."""
-        i = self.p.i_avionics + self._k_motor * (u1 * u1 * u1 + u2 * u2 * u2 + u3 * u3 * u3
+        i = self._i_avionics + self._k_motor * (u1 * u1 * u1 + u2 * u2 * u2 + u3 * u3 * u3
                                                  + u4 * u4 * u4)
         self.current = i
         self.consumed_mah += i * dt * (1000.0 / 3600.0)

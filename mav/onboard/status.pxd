@@ -1,11 +1,13 @@
 # Types Cython reads beside mav/onboard/status.py (plain Python): the shared record's fields
 # as C fields of the object, read and written directly by the compiled parts.
+from mav.battery cimport Battery
 from mav.types cimport Setpoint, VehicleState
 
 
 cdef class VehicleStatus:
     cdef public dict stats, own, user_params
-    cdef public object ctrl, battery, home, v_prev
+    cdef public object ctrl, home, v_prev
+    cdef public Battery battery
     cdef public list u
     cdef public VehicleState state
     cdef public Setpoint sp, setpoint, of

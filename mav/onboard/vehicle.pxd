@@ -22,3 +22,4 @@ cdef class Onboard:
     cdef public object navigator, manual, mission, vehicle, origin, stats
     cdef public object _decode_hil
     cdef bint _tick(self, tuple od, bint own, long sysid) except -1
+    cpdef _step_modes(self, long long t)
