@@ -1,5 +1,6 @@
 # Types Cython reads beside cosim/sim/tick.py (plain Python): the tick's parts as C fields, so
 # the calls into the compiled log, monitor and links are direct.
+from cosim.outputs.series cimport SeriesSpool
 from cosim.outputs.tlog cimport Tlog
 from cosim.sim.exits cimport ExitMonitor
 
@@ -9,7 +10,8 @@ cdef class Tick:
     cdef public list y, phases, frame_y
     cdef public dict phase_idx
     cdef public object plant_step, measure, encode, encode_lost, decode, exchange, gcs_recv
-    cdef public object spool, app, stream, ctx, hooks, stage
+    cdef public object app, stream, ctx, hooks, stage
+    cdef public SeriesSpool spool
     cdef public tuple sinks
     cdef public Tlog tlog
     cdef public ExitMonitor monitor

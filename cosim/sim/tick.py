@@ -131,8 +131,8 @@ class Tick:
                 self.phases.append(ph)
             self.phase = pi
             spool = self.spool
-            spool.append(spool.pack(t, *y, u1, u2, u3, u4, meas[0], meas[1], meas[2],
-                                    sp[0] + self.home_n, sp[1] + self.home_e, sp[2], pi))
+            spool.append(spool.row(t, y, u1, u2, u3, u4, meas[0], meas[1], meas[2],
+                                   sp[0] + self.home_n, sp[1] + self.home_e, sp[2], pi))
             if len(spool.rows) >= CHUNK:
                 self.stage = "recorder"
                 spool.flush()
