@@ -21,6 +21,8 @@ COMPILED = [
     "cosim.sensors.imu", "cosim.sensors.suite", "cosim.sim.estimate",
     # 3D worlds: the collision check's clearance, every tick
     "cosim.world.clearance",
+    # the line follower's per-tick path (its planner's setpoint, the app's tick)
+    "cosim.apps.planner", "cosim.apps.line_follower",
 ]
 BINDINGS = {
     "cosim.plant._fmi2step": (_HERE / "plant" / "csrc" / "fmi2step.c",

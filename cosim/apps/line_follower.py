@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import cython
 import numpy as np
 
 from cosim.apps.base import (
@@ -86,6 +87,11 @@ GAINS_PER_PX = ("gain_track", "gain_marker", "deriv_gain")
 
 # the phase names the master records, by mission state
 _PHASE = {s: s.value for s in MissionState}
+# what the per-tick path compares with, as module constants (compiled, an Enum member looked up
+# on its class is a call into its metaclass)
+_FOLLOWING = cython.declare(object, MissionState.FOLLOWING)
+_LAND = cython.declare(object, Action.LAND)
+_DONE = cython.declare(object, Action.DONE)
 
 PRESETS = ("released", "paper", "general")
 
@@ -216,10 +222,10 @@ class LineFollowerApp:
             x_ref, y_ref, z_ref, action = self.logic.setpoint(t, c.position)
             st = self.logic.state
             self.phase = _PHASE[st]       # (Enum.value is a Python-level descriptor call)
-            if st is MissionState.FOLLOWING and not self._following_logged:
+            if st is _FOLLOWING and not self._following_logged:
                 self.events.append((t, "following"))
                 self._following_logged = True
-            if action is Action.LAND or action is Action.DONE:
+            if action is _LAND or action is _DONE:
                 seq.land(t, c)
             else:
                 sp = self.setpoint

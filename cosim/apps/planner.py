@@ -89,6 +89,8 @@ from dataclasses import dataclass, replace
 from enum import StrEnum
 from typing import Any
 
+import cython
+
 __all__ = ["MissionState", "Action", "PlannerParams", "MissionLogic"]
 
 
@@ -109,6 +111,19 @@ class Action(StrEnum):
     HOLD = "hold"         # position setpoint (hold while searching)
     LAND = "land"         # land at (x_ref, y_ref) (e.g. AUTO.LAND or descend to z_ref = 0)
     DONE = "done"         # landed; nothing more to do
+
+
+# the members the per-tick setpoint compares and returns, as module constants (compiled, an
+# Enum member looked up on its class is a call into its metaclass: ~0.9k instructions)
+_S_TAKEOFF = cython.declare(object, MissionState.TAKEOFF)
+_S_LOST = cython.declare(object, MissionState.LOST)
+_S_LANDING = cython.declare(object, MissionState.LANDING)
+_S_DONE = cython.declare(object, MissionState.DONE)
+_A_TAKEOFF = cython.declare(object, Action.TAKEOFF)
+_A_FOLLOW = cython.declare(object, Action.FOLLOW)
+_A_HOLD = cython.declare(object, Action.HOLD)
+_A_LAND = cython.declare(object, Action.LAND)
+_A_DONE = cython.declare(object, Action.DONE)
 
 
 @dataclass(frozen=True)
@@ -270,6 +285,8 @@ class MissionLogic:
             self._marker_frame(t, ips, x, y)
 
     # ------------------------------------------------------------------ planner rate
+    @cython.locals(x=cython.double, y=cython.double, z=cython.double, dx=cython.double,
+                   dy=cython.double, c=cython.double, s=cython.double)
     def setpoint(self, t: float, est_xyz: Any) -> tuple[float, float, float, Action]:
         """(x_ref, y_ref, z_ref (m NED), action) for the tick at t (s)."""
         x = est_xyz[0]
@@ -281,35 +298,35 @@ class MissionLogic:
             self._hold_x, self._hold_y = float(x), float(y)
         st = self.state
         p = self.params
-        if st is MissionState.LANDING:
+        if st is _S_LANDING:
             if z > p.landed_z:
-                self._enter(MissionState.DONE, t, "landed")
-                return self._hold_x, self._hold_y, 0.0, Action.DONE
-            return self._hold_x, self._hold_y, 0.0, Action.LAND
-        if st is MissionState.DONE:
-            return self._hold_x, self._hold_y, 0.0, Action.DONE
+                self._enter(_S_DONE, t, "landed")
+                return self._hold_x, self._hold_y, 0.0, _A_DONE
+            return self._hold_x, self._hold_y, 0.0, _A_LAND
+        if st is _S_DONE:
+            return self._hold_x, self._hold_y, 0.0, _A_DONE
         if t - self.t_start >= p.mission_timeout:
-            self._enter(MissionState.LANDING, t, "timeout")
+            self._enter(_S_LANDING, t, "timeout")
             self._hold(float(x), float(y))
-            return self._hold_x, self._hold_y, 0.0, Action.LAND
-        if st is MissionState.TAKEOFF:
+            return self._hold_x, self._hold_y, 0.0, _A_LAND
+        if st is _S_TAKEOFF:
             if self._servo and self._z_lo < z < self._z_hi:   # acquiring the line
                 return (float(x) + self._off_n, float(y) + self._off_e, p.z_hover,
-                        Action.TAKEOFF)
-            return self._hold_x, self._hold_y, p.z_hover, Action.TAKEOFF
-        if st is MissionState.LOST and not self._servo:
-            return self._hold_x, self._hold_y, p.z_hover, Action.HOLD
+                        _A_TAKEOFF)
+            return self._hold_x, self._hold_y, p.z_hover, _A_TAKEOFF
+        if st is _S_LOST and not self._servo:
+            return self._hold_x, self._hold_y, p.z_hover, _A_HOLD
         # FOLLOWING / END_MARKER, LOST while coasting
         if not self._servo:
-            return self._hold_x, self._hold_y, p.z_hover, Action.FOLLOW
+            return self._hold_x, self._hold_y, p.z_hover, _A_FOLLOW
         if not (self._z_lo < z < self._z_hi):
-            return float(x), float(y), p.z_hover, Action.FOLLOW
+            return float(x), float(y), p.z_hover, _A_FOLLOW
         dx = self._der_x if t < self._der_x_until else 0.0
         dy = self._der_y if t < self._der_y_until else 0.0
         c, s = self._cos, self._sin
         return (float(x) + self._off_n + c * dx - s * dy,
                 float(y) + self._off_e + s * dx + c * dy,
-                p.z_hover, Action.FOLLOW)
+                p.z_hover, _A_FOLLOW)
 
     # ------------------------------------------------------------------ internals
     def _enter(self, new: MissionState, t: float, reason: str) -> None:
