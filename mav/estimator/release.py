@@ -126,6 +126,28 @@ _CAL = cython.declare(cython.long, CAL_TICKS)
 _F_BARO = cython.declare(cython.long, F_BARO)
 TR_K = cython.declare(cython.double, TR_PER_TICK)
 VEL_GATE2 = cython.declare(cython.double, VEL_GATE_SD * VEL_GATE_SD)
+# C copies of the constants the per-tick step compares and scales with (compiled, a Python
+# float would be boxed per comparison)
+_TS = cython.declare(cython.double, TS)
+_ACC_THRESHOLD = cython.declare(cython.double, ACC_THRESHOLD)
+_SONAR_MIN = cython.declare(cython.double, SONAR_MIN)
+_SONAR_JUMP = cython.declare(cython.double, SONAR_JUMP)
+_PRS_OFF = cython.declare(cython.double, PRS_OFF)
+_SONAR_OFF = cython.declare(cython.double, SONAR_OFF)
+_OF_Z_MAX = cython.declare(cython.double, OF_Z_MAX)
+_OF_CORRECT = cython.declare(cython.double, OF_CORRECT)
+_ACC_INPUT_GAIN = cython.declare(cython.double, ACC_INPUT_GAIN)
+_OF_PITCH_ROLL_MAX = cython.declare(cython.double, OF_PITCH_ROLL_MAX)
+_OF_PQ_MAX = cython.declare(cython.double, OF_PQ_MAX)
+_OF_PQ_HOV_MAX = cython.declare(cython.double, OF_PQ_HOV_MAX)
+_OF_DPQ_MAX = cython.declare(cython.double, OF_DPQ_MAX)
+_OF_RAW_STEPS = cython.declare(cython.long, OF_RAW_STEPS)
+_INV_ACC0 = cython.declare(cython.double, INV_ACC[0])
+_INV_ACC1 = cython.declare(cython.double, INV_ACC[1])
+_INV_ACC2 = cython.declare(cython.double, INV_ACC[2])
+_INV_GYRO0 = cython.declare(cython.double, INV_GYRO[0])
+_INV_GYRO1 = cython.declare(cython.double, INV_GYRO[1])
+_INV_GYRO2 = cython.declare(cython.double, INV_GYRO[2])
 HGT_GATE2 = cython.declare(cython.double, HGT_GATE_SD * HGT_GATE_SD)
 
 
@@ -290,7 +312,8 @@ class ReleaseEstimator(TemplateEstimator):
                    ps=f64, sph=f64, cph=f64, sth=f64, cth=f64, tth=f64, an=f64, w=f64,
                    s=f64, hpa=f64, u=f64, zp=f64, e=f64, en=cython.bint, zk=f64, vzk=f64,
                    ofx=f64, ofy=f64, alx=f64, aly=f64, ux=f64, uy=f64, dp=f64, dq=f64,
-                   sps=f64, cps=f64, dz=f64, bx=f64, by=f64, k=f64, fields=cython.long)
+                   sps=f64, cps=f64, dz=f64, bx=f64, by=f64, k=f64, fields=cython.long,
+                   prs_f=f64, son_f=f64)
     def _step(self, m: Payload, dt: float, t_us: int, new_flow: bool) -> None:
         st = self.stats
         ax, ay, az, gx, gy, gz = m.f(1), m.f(2), m.f(3), m.f(4), m.f(5), m.f(6)
@@ -314,12 +337,12 @@ class ReleaseEstimator(TemplateEstimator):
             self.alp1 += 0.1 * (ay - self.alp1)
             self.alp2 += 0.1 * (az - self.alp2)
         # 1. preprocessing: imu = inverseIMUGain .* (raw - c - [0 0 g 0 0 0])
-        a0 = self.fir0.step((ax - self.c0) * INV_ACC[0])
-        a1 = self.fir1.step((ay - self.c1) * INV_ACC[1])
-        a2 = self.fir2.step((az - self.c2 - _G) * INV_ACC[2])
-        p = (gx - self.bg0) * INV_GYRO[0]
-        q = (gy - self.bg1) * INV_GYRO[1]
-        r = self.chr.step((gz - self.bg2) * INV_GYRO[2])
+        a0 = self.fir0.step((ax - self.c0) * _INV_ACC0)
+        a1 = self.fir1.step((ay - self.c1) * _INV_ACC1)
+        a2 = self.fir2.step((az - self.c2 - _G) * _INV_ACC2)
+        p = (gx - self.bg0) * _INV_GYRO0
+        q = (gy - self.bg1) * _INV_GYRO1
+        r = self.chr.step((gz - self.bg2) * _INV_GYRO2)
         self.p, self.q, self.r = p, q, r
         # 2. attitude: the Euler rates of the last attitude and this gyro, integrated
         ph, th, ps = self.roll, self.pitch, self.yaw
@@ -328,7 +351,7 @@ class ReleaseEstimator(TemplateEstimator):
         self.pitch = th + (cph * q - sph * r) * dt
         self.yaw = wrap_pi(ps + (sph * q + cph * r) / cth * dt)
         an = _sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-        if (1.0 - ACC_THRESHOLD) * _G < an < (1.0 + ACC_THRESHOLD) * _G:
+        if (1.0 - _ACC_THRESHOLD) * _G < an < (1.0 + _ACC_THRESHOLD) * _G:
             w = self.w_acc
             s = min(1.0, max(-1.0, a0 / _G))
             self.pitch = (1.0 - w) * self.pitch + w * _asin(s)
@@ -364,9 +387,9 @@ class ReleaseEstimator(TemplateEstimator):
             self.zpr, self.vpr = 0.0, 0.0
         prs_f = self.bw_prs.step(self.z_prs)
         son_f = self.bw_son.step(self.z_son)
-        en = (self.son_ok and abs(zp - min(self.z_son, -SONAR_MIN)) <= SONAR_JUMP
-              and self.z_son < -SONAR_MIN
-              and not (abs(prs_f - zp) >= PRS_OFF and abs(son_f - zp) >= SONAR_OFF))
+        en = (self.son_ok and abs(zp - min(self.z_son, -_SONAR_MIN)) <= _SONAR_JUMP
+              and self.z_son < -_SONAR_MIN
+              and not (abs(prs_f - zp) >= _PRS_OFF and abs(son_f - zp) >= _SONAR_OFF))
         zk, vzk = self.zpr, self.vpr
         if en:
             e = self.z_son - zk
@@ -381,28 +404,28 @@ class ReleaseEstimator(TemplateEstimator):
         self.vpr = vzk + dt * u
         self.z, self.z_prev = zk, zk
         # 4. velocity (body axes)
-        if n < OF_RAW_STEPS:
+        if n < _OF_RAW_STEPS:
             ofx, ofy = self.fx, self.fy
         else:
-            ofx, ofy = OF_CORRECT * -zk * self.fx, OF_CORRECT * -zk * self.fy
+            ofx, ofy = _OF_CORRECT * -zk * self.fx, _OF_CORRECT * -zk * self.fy
         sth = _sin(th)
         sph, cph, cth = _sin(ph), _cos(ph), _cos(th)
         alx = a0 - _G * sth                       # the acceleration less gravity, body
         aly = a1 + _G * sph * cth
         ux = uy = 0.0
-        if (ofx != 0.0 or ofy != 0.0) and zk <= OF_Z_MAX:
-            ux, uy = ACC_INPUT_GAIN * alx, ACC_INPUT_GAIN * aly
+        if (ofx != 0.0 or ofy != 0.0) and zk <= _OF_Z_MAX:
+            ux, uy = _ACC_INPUT_GAIN * alx, _ACC_INPUT_GAIN * aly
         pf, qf = self.chp.step(p), self.chq.step(q)
-        dp, dq = (pf - self.pf_prev) / TS, (qf - self.qf_prev) / TS
+        dp, dq = (pf - self.pf_prev) / _TS, (qf - self.qf_prev) / _TS
         self.pf_prev, self.qf_prev = pf, qf
-        en = (self.of_ok and zk <= OF_Z_MAX
+        en = (self.of_ok and zk <= _OF_Z_MAX
               and abs(ofx - self.bx_out) <= self.of_gate and abs(ofy - self.by_out) <= self.of_gate
-              and ((abs(th) <= OF_PITCH_ROLL_MAX and abs(ph) <= OF_PITCH_ROLL_MAX
-                    and abs(p) <= OF_PQ_MAX and abs(q) <= OF_PQ_MAX
-                    and abs(dp) <= OF_DPQ_MAX and abs(dq) <= OF_DPQ_MAX)
-                   or (abs(p) <= OF_PQ_HOV_MAX and abs(q) <= OF_PQ_HOV_MAX)))
+              and ((abs(th) <= _OF_PITCH_ROLL_MAX and abs(ph) <= _OF_PITCH_ROLL_MAX
+                    and abs(p) <= _OF_PQ_MAX and abs(q) <= _OF_PQ_MAX
+                    and abs(dp) <= _OF_DPQ_MAX and abs(dq) <= _OF_DPQ_MAX)
+                   or (abs(p) <= _OF_PQ_HOV_MAX and abs(q) <= _OF_PQ_HOV_MAX)))
         bx, by = self.bx, self.by
-        if self.of_ok and zk <= OF_Z_MAX:
+        if self.of_ok and zk <= _OF_Z_MAX:
             self.tr_vel += TR_K * (max((ofx - bx) * (ofx - bx), (ofy - by) * (ofy - by))
                                    / ((self.pv_ss + self.of_r) * VEL_GATE2) - self.tr_vel)
         if en:
