@@ -112,6 +112,11 @@ def test_the_peer_row_says_how_to_install_a_missing_peer(monkeypatch):
     from cosim.bench import peers
 
     monkeypatch.setitem(sys.modules, "rotorpy", None)       # as if not installed
+    monkeypatch.setitem(sys.modules, "gym_pybullet_drones", None)
     d = peers.bench_peers(1)
-    assert d == {"missing": "RotorPy is not installed: pip install '.[peers]'"}
-    assert peers.format_peers(d) == [f"against a peer: {d['missing']}"]
+    rotorpy = "RotorPy is not installed: pip install '.[peers]'"
+    assert d == {"rounds": 1, "peers": {"gym_pybullet_drones": {"missing": peers.GPD_INSTALL},
+                                        "rotorpy": {"missing": rotorpy}}}
+    assert "not on PyPI" in peers.GPD_INSTALL and "--no-deps" in peers.GPD_INSTALL
+    assert peers.format_peers(d) == [f"  against a peer: {peers.GPD_INSTALL}",
+                                     f"  against a peer: {rotorpy}"]

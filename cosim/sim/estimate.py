@@ -14,6 +14,7 @@ and `decode_record`, the same without the frames.
 from __future__ import annotations
 
 import math
+import struct
 from pathlib import Path
 
 import cython
@@ -23,12 +24,14 @@ from cosim import tempdirs
 from cosim.outputs.series import CHUNK, ESTIMATE_COLUMNS, SeriesSpool
 from cosim.sensors.suite import SensorSuite
 from mav import wire
-from mav.fields import Layout, done, get_f, get_i, new_payload, put_f
+from mav.fields import Layout, get_f, get_i
 from mav.rotations import euler_from_quat
 
 # a row of the estimate (doubles), and the answer's ODOMETRY read in place (fields by index:
 # 0 time_usec, 1-3 x y z, 4-7 q, 8-10 vx vy vz, ..., 60 quality)
-_ROW_L = cython.declare(Layout, Layout(f"<{len(ESTIMATE_COLUMNS)}d"))
+_ROW = struct.Struct(f"<{len(ESTIMATE_COLUMNS)}d")          # a row of the estimate log
+assert _ROW.size == 80
+_NAN_ROW = _ROW.pack(*[math.nan] * len(ESTIMATE_COLUMNS))   # an answer without an estimate
 _ODO = cython.declare(wire.FastMsg, wire.ODOMETRY)
 _ODO_L = cython.declare(Layout, Layout(wire.ODOMETRY.st.format))
 _QUALITY = cython.declare(cython.Py_ssize_t, _ODO_L.n - 1)
@@ -158,7 +161,8 @@ class SensorFeed:
                x=cython.double, y=cython.double, z=cython.double, qw=cython.double,
                qx=cython.double, qy=cython.double, qz=cython.double, vx=cython.double,
                vy=cython.double, vz=cython.double, lost=cython.bint, none=cython.bint,
-               row=bytearray, k=cython.Py_ssize_t)
+               roll=cython.double, pitch=cython.double, yaw=cython.double,
+               flag=cython.double, p=cython.p_char)
 def _log_row(rows: list, est: list, home_n: float, home_e: float, x: float, y: float, z: float,
          qw: float, qx: float, qy: float, qz: float, vx: float, vy: float, vz: float,
          lost: bool, none: bool) -> int:
@@ -166,26 +170,31 @@ def _log_row(rows: list, est: list, home_n: float, home_e: float, x: float, y: f
     `est`: the estimate's (x, y in its local frame, shifted by home to world NED), or NaN in
     every column (`none`: an answer without an estimate). (A C call when compiled: a tick's
     ten doubles are not boxed.)"""
-    row = new_payload(_ROW_L.size)
     if none:
         est[0] = est[1] = est[2] = math.nan
-        for k in range(_ROW_L.n):
-            put_f(row, _ROW_L, k, math.nan)
-        rows.append(done(row))
+        rows.append(_NAN_ROW)
         return 0
     x += home_n
     y += home_e
     est[0], est[1], est[2] = x, y, z
     roll, pitch, yaw = euler_from_quat(qw, qx, qy, qz)
-    put_f(row, _ROW_L, 0, x)
-    put_f(row, _ROW_L, 1, y)
-    put_f(row, _ROW_L, 2, z)
-    put_f(row, _ROW_L, 3, vx)
-    put_f(row, _ROW_L, 4, vy)
-    put_f(row, _ROW_L, 5, vz)
-    put_f(row, _ROW_L, 6, roll)
-    put_f(row, _ROW_L, 7, pitch)
-    put_f(row, _ROW_L, 8, yaw)
-    put_f(row, _ROW_L, 9, 1.0 if lost else 0.0)
-    rows.append(done(row))
+    flag = 1.0 if lost else 0.0
+    if not cython.compiled:
+        rows.append(_ROW.pack(x, y, z, vx, vy, vz, roll, pitch, yaw, flag))
+        return 0
+    # compiled: the ten doubles written as _ROW packs them (struct's own packer) into a new
+    # bytes object, which nothing else holds until it is appended
+    row = PyBytes_FromStringAndSize(cython.NULL, 80)     # noqa: F821
+    p = PyBytes_AS_STRING(row)                            # noqa: F821
+    PyFloat_Pack8(x, p, 1)                                # noqa: F821
+    PyFloat_Pack8(y, p + 8, 1)                            # noqa: F821
+    PyFloat_Pack8(z, p + 16, 1)                           # noqa: F821
+    PyFloat_Pack8(vx, p + 24, 1)                          # noqa: F821
+    PyFloat_Pack8(vy, p + 32, 1)                          # noqa: F821
+    PyFloat_Pack8(vz, p + 40, 1)                          # noqa: F821
+    PyFloat_Pack8(roll, p + 48, 1)                        # noqa: F821
+    PyFloat_Pack8(pitch, p + 56, 1)                       # noqa: F821
+    PyFloat_Pack8(yaw, p + 64, 1)                         # noqa: F821
+    PyFloat_Pack8(flag, p + 72, 1)                        # noqa: F821
+    rows.append(row)
     return 0
