@@ -5,8 +5,7 @@
 cdef class MissionLogic:
     cdef dict __dict__
     cdef object __weakref__
-    cdef public object params, state, reason, _lost_xy
-    cdef public list transitions, _land_hist
+    cdef public object params, state, reason, _lost_xy, transitions, _land_hist
     cdef public double t_start, t_state, _z_lo, _z_hi, _hold_x, _hold_y, _off_n, _off_e
     cdef public double _cos, _sin, _der_x, _der_y, _der_x_until, _der_y_until
     cdef public double _prev_ex, _prev_ey, _t_hold

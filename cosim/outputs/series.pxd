@@ -8,7 +8,7 @@ from mav.wire cimport PyBytes_FromStringAndSize
 cdef class SeriesSpool:
     cdef public object path, pack, append, error, _f
     cdef public Py_ssize_t ncols
-    cdef public list rows, held
+    cdef public object rows, held
     cdef public long long ticks, held_bytes
     cpdef bytes row(self, double t, list y, double u1, double u2, double u3, double u4,
                     double m0, double m1, double m2, double s0, double s1, double s2,

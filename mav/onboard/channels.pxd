@@ -10,8 +10,7 @@ cdef class Stream:
 
 
 cdef class Chan:
-    cdef public object name, link, mav, next_due, schedule, signed, peer
-    cdef public list streams, param_queue
+    cdef public object name, link, mav, next_due, schedule, signed, peer, streams, param_queue
     cdef public dict by_msgid, stats
     cdef public str tx_key, rx_key, bad_key
     cpdef send(self, data)

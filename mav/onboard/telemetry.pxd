@@ -11,8 +11,7 @@ from mav.rotations cimport euler_from_quat, rotate_body_to_world
 cdef class Telemetry:
     cdef dict __dict__
     cdef public VehicleStatus vs
-    cdef public list chans
-    cdef public object out, cmd, params, geo, sysid, origin_alt_m, mission, g_mps2
+    cdef public object chans, out, cmd, params, geo, sysid, origin_alt_m, mission, g_mps2
     cdef public object estimator, _emitters
     cpdef publish(self, t)
     cpdef _time_boot_ms(self)
