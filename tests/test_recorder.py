@@ -69,7 +69,8 @@ def test_scenario_holds_typed_world_and_camera():
 def test_a_ticks_row_is_packed_as_pack_packs_it(tmp_path):
     """SeriesSpool.row (the tick's row, written without a tuple when compiled) gives the bytes
     of `pack` for the same values, NaNs, infinities, signed zeros and subnormals included;
-    a y that is not all floats goes through `pack`, its numbers alike and its errors struct's."""
+    anything else (a y that is not a list of floats, a value that is not a number) goes
+    through `pack`: its numbers alike, its errors struct's."""
     spool = SeriesSpool(tmp_path / "r.f64")
     rng = random.Random(3)
     n = len(OUTPUT_NAMES)
@@ -78,6 +79,9 @@ def test_a_ticks_row_is_packed_as_pack_packs_it(tmp_path):
         y[rng.randrange(n)] = rng.choice([math.nan, math.inf, -math.inf, -0.0, 5e-324])
         tail = [rng.uniform(-10.0, 10.0) for _ in range(10)] + [rng.randrange(7)]
         assert spool.row(0.005 * k, y, *tail) == spool.pack(0.005 * k, *y, *tail)
+    assert spool.row(1.0, tuple(y), *tail) == spool.pack(1.0, *y, *tail)    # not a list
+    with pytest.raises(struct.error):                                      # not a number
+        spool.row(1.0, y, *tail[:-1], "x")
     y[0] = 3
     assert spool.row(1.0, y, *tail) == spool.pack(1.0, *y, *tail)
     y[0] = "x"

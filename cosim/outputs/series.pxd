@@ -10,6 +10,4 @@ cdef class SeriesSpool:
     cdef public Py_ssize_t ncols
     cdef public object rows, held
     cdef public long long ticks, held_bytes
-    cpdef bytes row(self, double t, list y, double u1, double u2, double u3, double u4,
-                    double m0, double m1, double m2, double s0, double s1, double s2,
-                    double ph)
+    cpdef bytes row(self, t, y, u1, u2, u3, u4, m0, m1, m2, s0, s1, s2, ph)

@@ -41,6 +41,14 @@ READ_BLOCK = 8192          # rows per block when reading back (~2 MB)
 HELD_MAX = 1 << 30         # bytes of rows held in memory when the spool's disk is full
 
 
+@cython.cfunc
+@cython.inline
+@cython.returns(cython.bint)
+def _num(x) -> bool:
+    """A value `pack` takes as it is (its float, or an int's)."""
+    return type(x) is float or type(x) is int
+
+
 class SeriesSpool:
     """Rows in, float64 blocks out to `path`. The per-tick call is `append(pack(*values))`:
     `pack` turns one row's `ncols` numbers into its float64 bytes in one C call (3x cheaper
@@ -59,24 +67,29 @@ class SeriesSpool:
         # unbuffered: a write that fails leaves nothing behind in a buffer to fail again
         self._f = open(self.path, "wb", buffering=0)  # noqa: SIM115 (closed in finish())
 
-    @cython.locals(n=cython.Py_ssize_t, i=cython.Py_ssize_t, p=cython.p_char)
+    @cython.locals(n=cython.Py_ssize_t, i=cython.Py_ssize_t, p=cython.p_char, yl=list)
     def row(self, t: float, y: list, u1: float, u2: float, u3: float, u4: float, m0: float,
             m1: float, m2: float, s0: float, s1: float, s2: float, ph: float) -> bytes:
         """One tick's row of SERIES_COLUMNS as `pack` makes it: t, the plant's outputs y, the
         motor commands, the estimate, the setpoint, the phase index. Compiled, y's floats are
         written straight into the row (struct's own packer, PyFloat_Pack8), without a tuple of
-        the values; a y that is not all floats, or of another length, goes through `pack`."""
-        n = len(y)
-        if cython.compiled and n + 12 == self.ncols:
+        the values; anything else (a y that is not a list of floats or of another length, a
+        value that is not a float or an int) goes through `pack`, its result and its errors."""
+        if (cython.compiled and type(y) is list and len(y) + 12 == self.ncols
+                and _num(t) and _num(u1) and _num(u2) and _num(u3) and _num(u4) and _num(m0)
+                and _num(m1) and _num(m2) and _num(s0) and _num(s1) and _num(s2)
+                and _num(ph)):
+            yl = y
+            n = len(yl)
             for i in range(n):
-                if type(y[i]) is not float:
+                if type(yl[i]) is not float:
                     break
             else:
                 out = PyBytes_FromStringAndSize(cython.NULL, 8 * (n + 12))    # noqa: F821
                 p = PyBytes_AS_STRING(out)                                     # noqa: F821
                 PyFloat_Pack8(t, p, 1)                                         # noqa: F821
                 for i in range(n):
-                    PyFloat_Pack8(y[i], p + 8 * (i + 1), 1)                    # noqa: F821
+                    PyFloat_Pack8(yl[i], p + 8 * (i + 1), 1)                   # noqa: F821
                 p += 8 * (n + 1)
                 PyFloat_Pack8(u1, p, 1)                                        # noqa: F821
                 PyFloat_Pack8(u2, p + 8, 1)                                    # noqa: F821
