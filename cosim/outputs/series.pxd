@@ -4,6 +4,9 @@
 from mav.fields cimport PyBytes_AS_STRING, PyFloat_Pack8
 from mav.wire cimport PyBytes_FromStringAndSize
 
+cdef int pack10(char *p, double a, double b, double c, double d, double e, double f, double g,
+                double h, double i, double j) except -1
+
 
 cdef class SeriesSpool:
     cdef public object path, pack, append, error, _f

@@ -41,6 +41,23 @@ READ_BLOCK = 8192          # rows per block when reading back (~2 MB)
 HELD_MAX = 1 << 30         # bytes of rows held in memory when the spool's disk is full
 
 
+def pack10(p, a: float, b: float, c: float, d: float, e: float, f: float, g: float,
+           h: float, i: float, j: float) -> int:
+    """Ten doubles written at the C buffer p as `struct.pack("<10d", ...)` writes them
+    (struct's own packer); compiled callers only (series.pxd), on a buffer they made."""
+    PyFloat_Pack8(a, p, 1)            # noqa: F821
+    PyFloat_Pack8(b, p + 8, 1)        # noqa: F821
+    PyFloat_Pack8(c, p + 16, 1)       # noqa: F821
+    PyFloat_Pack8(d, p + 24, 1)       # noqa: F821
+    PyFloat_Pack8(e, p + 32, 1)       # noqa: F821
+    PyFloat_Pack8(f, p + 40, 1)       # noqa: F821
+    PyFloat_Pack8(g, p + 48, 1)       # noqa: F821
+    PyFloat_Pack8(h, p + 56, 1)       # noqa: F821
+    PyFloat_Pack8(i, p + 64, 1)       # noqa: F821
+    PyFloat_Pack8(j, p + 72, 1)       # noqa: F821
+    return 0
+
+
 @cython.cfunc
 @cython.inline
 @cython.returns(cython.bint)
@@ -91,16 +108,7 @@ class SeriesSpool:
                 for i in range(n):
                     PyFloat_Pack8(yl[i], p + 8 * (i + 1), 1)                   # noqa: F821
                 p += 8 * (n + 1)
-                PyFloat_Pack8(u1, p, 1)                                        # noqa: F821
-                PyFloat_Pack8(u2, p + 8, 1)                                    # noqa: F821
-                PyFloat_Pack8(u3, p + 16, 1)                                   # noqa: F821
-                PyFloat_Pack8(u4, p + 24, 1)                                   # noqa: F821
-                PyFloat_Pack8(m0, p + 32, 1)                                   # noqa: F821
-                PyFloat_Pack8(m1, p + 40, 1)                                   # noqa: F821
-                PyFloat_Pack8(m2, p + 48, 1)                                   # noqa: F821
-                PyFloat_Pack8(s0, p + 56, 1)                                   # noqa: F821
-                PyFloat_Pack8(s1, p + 64, 1)                                   # noqa: F821
-                PyFloat_Pack8(s2, p + 72, 1)                                   # noqa: F821
+                pack10(p, u1, u2, u3, u4, m0, m1, m2, s0, s1, s2)
                 PyFloat_Pack8(ph, p + 80, 1)                                   # noqa: F821
                 return out
         return self.pack(t, *y, u1, u2, u3, u4, m0, m1, m2, s0, s1, s2, ph)

@@ -186,15 +186,6 @@ def _log_row(rows: list, est: list, home_n: float, home_e: float, x: float, y: f
     # bytes object, which nothing else holds until it is appended
     row = PyBytes_FromStringAndSize(cython.NULL, 80)     # noqa: F821
     p = PyBytes_AS_STRING(row)                            # noqa: F821
-    PyFloat_Pack8(x, p, 1)                                # noqa: F821
-    PyFloat_Pack8(y, p + 8, 1)                            # noqa: F821
-    PyFloat_Pack8(z, p + 16, 1)                           # noqa: F821
-    PyFloat_Pack8(vx, p + 24, 1)                          # noqa: F821
-    PyFloat_Pack8(vy, p + 32, 1)                          # noqa: F821
-    PyFloat_Pack8(vz, p + 40, 1)                          # noqa: F821
-    PyFloat_Pack8(roll, p + 48, 1)                        # noqa: F821
-    PyFloat_Pack8(pitch, p + 56, 1)                       # noqa: F821
-    PyFloat_Pack8(yaw, p + 64, 1)                         # noqa: F821
-    PyFloat_Pack8(flag, p + 72, 1)                        # noqa: F821
+    pack10(p, x, y, z, vx, vy, vz, roll, pitch, yaw, flag)   # noqa: F821
     rows.append(row)
     return 0
