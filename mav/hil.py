@@ -53,7 +53,7 @@ MAX_V_DROP = 100.0         # V, battery sag: the largest fixed drop
 # ODOMETRY payload = time_usec and the 13 measured values, then a tail that is the same every
 # tick (covariances [NaN, 0, ...], frame ids, reset counter, estimator type, quality): the
 # frame of a tick is a copy of a template frame holding that tail, written in place (the head
-# with mav/fields.py, the header and checksum with wire.seal_at)
+# with mav/fields.py, the header and checksum with wire.put_frame)
 _ODO_PAYLOAD = wire.ODOMETRY.st.pack(0, *(0.0,) * 13, math.nan, *(0.0,) * 20, math.nan,
                                      *(0.0,) * 20, mavlink2.MAV_FRAME_LOCAL_NED,
                                      mavlink2.MAV_FRAME_LOCAL_NED, 0, 1, 100)
@@ -98,7 +98,7 @@ def odometry_of(mav, t_us: int, x: float, y: float, z: float, qw: float, qx: flo
         return wire.frame(mav, _ODO_MSG, bytes(out[_HDR:_HDR + _ODO_N]))
     seq = mav.seq
     mav.seq = (seq + 1) & 0xFF
-    wire.seal_at(out, 0, seq, mav.srcSystem, mav.srcComponent, _ODO_MSG, _ODO_N)
+    wire.put_frame(out, 0, seq, mav.srcSystem, mav.srcComponent, _ODO_MSG, None, _ODO_N)
     return done(out)
 
 

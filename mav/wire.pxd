@@ -21,8 +21,6 @@ cpdef bytes frame(mav, FastMsg m, bytes payload)
 cdef Py_ssize_t trimmed_len(bytes payload) except -1
 cdef int put_frame(bytearray out, Py_ssize_t at, int seq, int sysid, int compid, FastMsg m,
                    bytes payload, Py_ssize_t n) except -1
-cdef int seal_at(bytearray out, Py_ssize_t at, int seq, int sysid, int compid, FastMsg m,
-                 Py_ssize_t n) except -1
 cpdef Py_ssize_t frame_end(bytes data, Py_ssize_t i=*) except? -2
 cpdef long msgid_of(bytes data, Py_ssize_t i=*) except? -1
 cpdef bint frame_ok(FastMsg m, bytes data, Py_ssize_t i, Py_ssize_t end) except -1

@@ -161,8 +161,7 @@ def frame(mav, m: FastMsg, payload: bytes) -> bytes:
         out = new_payload(_HDR2 + n + 2)
         put_frame(out, 0, seq, mav.srcSystem, mav.srcComponent, m, payload, n)
         return bytes(out)
-    # compiled: the frame written into a new bytes object, which nothing else holds until it
-    # is returned (no bytearray to copy from)
+    # compiled: written into a new bytes object, which nothing else holds until it is returned
     out = PyBytes_FromStringAndSize(cython.NULL, _HDR2 + n + 2)  # noqa: F821
     p = cython.cast(cython.p_uchar, PyBytes_AS_STRING(out))      # noqa: F821
     _frame_at(p, out, 0, seq, mav.srcSystem, mav.srcComponent, m, payload, n)
@@ -185,8 +184,9 @@ def trimmed_len(payload: bytes) -> int:
 def put_frame(out: bytearray, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
               payload: bytes, n: int) -> int:
     """Write the unsigned MAVLink 2 frame of payload[:n] at out[at:at + n + 12]: header,
-    payload, checksum (IndexError when that is not inside out and payload)."""
-    if n < 0 or n > len(payload):
+    payload, checksum (IndexError when that is not inside out and payload). `payload` None:
+    its n bytes are already at out[at + 10:] (written in place: mav/hil.py's ODOMETRY)."""
+    if payload is not None and (n < 0 or n > len(payload)):
         raise IndexError(f"put_frame: {n} bytes of a {len(payload)}-byte payload")
     _frame_span(out, at, n)
     if cython.compiled:
@@ -194,25 +194,6 @@ def put_frame(out: bytearray, at: int, seq: int, sysid: int, compid: int, m: Fas
     else:
         p = memoryview(out)[at:]
     return _frame_at(p, out, at, seq, sysid, compid, m, payload, n)
-
-
-@cython.cfunc
-@cython.exceptval(-1)
-@cython.returns(cython.int)
-@cython.locals(p=cython.p_uchar, q=cython.p_uchar, at=cython.Py_ssize_t, n=cython.Py_ssize_t,
-               k=cython.Py_ssize_t, payload=bytes, seq=cython.int, sysid=cython.int,
-               compid=cython.int)
-def _frame_at(p, out, at: int, seq: int, sysid: int, compid: int, m: FastMsg, payload: bytes,
-              n: int) -> int:
-    """The frame of payload[:n] at p (out's buffer at `at`, checked by the caller): the
-    payload, then the header and checksum."""
-    if cython.compiled:
-        q = cython.cast(cython.p_uchar, cython.cast(cython.p_char, payload))
-        for k in range(n):
-            p[_HDR2 + k] = q[k]
-    else:
-        p[_HDR2:_HDR2 + n] = payload[:n]
-    return _seal(p, out, at, seq, sysid, compid, m, n)
 
 
 @cython.cfunc
@@ -226,26 +207,23 @@ def _frame_span(out: bytearray, at: int, n: int) -> int:
     return 0
 
 
-@cython.locals(p=cython.p_uchar)
-def seal_at(out: bytearray, at: int, seq: int, sysid: int, compid: int, m: FastMsg,
-            n: int) -> int:
-    """The header and checksum of the unsigned frame whose n-byte payload is already at
-    out[at + 10:at + 10 + n] (a payload written in place: mav/hil.py's ODOMETRY)."""
-    _frame_span(out, at, n)
-    if cython.compiled:
-        p = cython.cast(cython.p_uchar, PyByteArray_AS_STRING(out)) + at  # noqa: F821
-    else:
-        p = memoryview(out)[at:]
-    return _seal(p, out, at, seq, sysid, compid, m, n)
-
-
 @cython.cfunc
 @cython.exceptval(-1)
 @cython.returns(cython.int)
-@cython.locals(p=cython.p_uchar, at=cython.Py_ssize_t, n=cython.Py_ssize_t, mid=cython.long,
-               crc=cython.long, seq=cython.int, sysid=cython.int, compid=cython.int)
-def _seal(p, out, at: int, seq: int, sysid: int, compid: int, m: FastMsg, n: int) -> int:
-    """The header and checksum at p (out's buffer at `at`) of the n-byte payload after it."""
+@cython.locals(p=cython.p_uchar, q=cython.p_uchar, at=cython.Py_ssize_t, n=cython.Py_ssize_t,
+               k=cython.Py_ssize_t, mid=cython.long, crc=cython.long, seq=cython.int,
+               sysid=cython.int, compid=cython.int)
+def _frame_at(p, out, at: int, seq: int, sysid: int, compid: int, m: FastMsg, payload, n: int
+              ) -> int:
+    """The frame at p (out's buffer at `at`, checked by the caller) of payload[:n] (None: the
+    n bytes already after the header): the payload, the header, the checksum."""
+    if payload is not None:
+        if cython.compiled:
+            q = cython.cast(cython.p_uchar, cython.cast(cython.p_char, payload))
+            for k in range(n):
+                p[_HDR2 + k] = q[k]
+        else:
+            p[_HDR2:_HDR2 + n] = payload[:n]
     p[0] = _MAGIC2
     p[1] = n
     p[2] = 0                    # incompat_flags: not signed
