@@ -10,7 +10,7 @@ from __future__ import annotations
 import cython
 
 from cosim.errors import ComponentError
-from cosim.plant.fmu import Y_ON_GROUND, Y_QX, Y_QY, Y_X, Y_Y, Y_Z
+from cosim.plant.fmu import Y_ON_GROUND, Y_QX, Y_QY, Y_VZ, Y_X, Y_Y, Y_Z
 from cosim.scenario.records import ExitReason
 from cosim.world.clearance import sphere_clearance
 
@@ -26,7 +26,10 @@ Exit = tuple[ExitReason, str]
 
 # C copies of the state's indices and the limits the per-tick check compares with (compiled,
 # a comparison of two doubles; Python floats in the interpreted module)
-_N_STATE = cython.declare(cython.Py_ssize_t, Y_ON_GROUND)     # the values checked finite
+# the values checked finite: position and velocity, what the vehicle must have (and what the
+# framed exchange's integer fields refuse when not finite); a plant mapped from another FMU
+# may leave outputs it lacks (rotor speeds, accelerations) NaN
+_N_STATE = cython.declare(cython.Py_ssize_t, Y_VZ + 1)
 _YX = cython.declare(cython.Py_ssize_t, Y_X)
 _YY = cython.declare(cython.Py_ssize_t, Y_Y)
 _YZ = cython.declare(cython.Py_ssize_t, Y_Z)
@@ -107,10 +110,10 @@ class ExitMonitor:
     def check(self, t: float, y, vz_before: float, u) -> Exit | None:
         """State `y` at t_k+1 = t + h; `vz_before` the vertical speed at t_k; `u` the motor
         commands held over the step. Runs every tick: the common case (flying, nothing to
-        report) is a few comparisons; the named conditions build the exit. A state with any
-        non-finite value (on_ground aside) is the plant's failure, before anything reads it:
-        so the run ends alike whether the sensors' frames (whose integer fields would refuse
-        it) or MIL's typed records (which carry it) come next."""
+        report) is a few comparisons; the named conditions build the exit. A position or
+        velocity that is not finite is the plant's failure, before anything reads it: so the
+        run ends alike whether the sensors' frames (whose integer fields would refuse it) or
+        MIL's typed records (which carry it) come next."""
         s = 0.0
         for i in range(_N_STATE):
             v = y[i]
