@@ -153,3 +153,38 @@ def test_the_default_plant_extracts_only_what_it_needs(tmp_path, monkeypatch):
 def test_the_shipped_scenarios_still_load():
     for path in sorted((ROOT / "scenarios").glob("*.toml")):
         load_scenario(path)
+
+
+def test_model_description_parsed_once_per_version_of_the_file(tmp_path, monkeypatch):
+    """A study's worker flies one FMU run after run: its model description is parsed once
+    (fmufile.model_description), and again when the file at that path is replaced."""
+    import fmpy
+
+    calls = []
+    real = fmpy.read_model_description
+
+    def counting(path, validate=True):
+        calls.append(path)
+        return real(path, validate=validate)
+
+    monkeypatch.setattr(fmpy, "read_model_description", counting)
+    monkeypatch.setattr(fmufile, "_MD", {})
+    fmu = tmp_path / "Quadrotor.fmu"
+    fmu.write_bytes(fb.fmu_path().read_bytes())
+    first = fmufile.model_description(fmu)
+    assert fmufile.model_description(fmu) is first and len(calls) == 1
+    assert fmufile.model_description(fmu, validate=False) is not first   # another parse
+    assert len(calls) == 2
+    st = fmu.stat()
+    fmu.unlink()                                   # replaced: a new file at the same path
+    fmu.write_bytes(fb.fmu_path().read_bytes())
+    os.utime(fmu, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))
+    again = fmufile.model_description(fmu)
+    assert again is not first and again.guid == first.guid and len(calls) == 3
+    for i in range(fmufile._MD_KEEP + 2):          # the newest kept, memory bounded
+        other = tmp_path / f"q{i}.fmu"
+        other.write_bytes(fmu.read_bytes())
+        fmufile.model_description(other)
+    assert len(fmufile._MD) == fmufile._MD_KEEP
+    with pytest.raises(FileNotFoundError):
+        fmufile.model_description(tmp_path / "missing.fmu")

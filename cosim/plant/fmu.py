@@ -173,7 +173,7 @@ class Plant(FmuPlant):
         fast: bool = True,
         stepper: bool | None = None,
     ) -> None:
-        from fmpy import calloc, free, read_model_description
+        from fmpy import calloc, free
         from fmpy.fmi2 import (
             FMU2Slave,
             fmi2CallbackAllocateMemoryTYPE,
@@ -200,7 +200,7 @@ class Plant(FmuPlant):
 
             fmu_path = _default_fmu_path()
         self.fmu_path = pathlib.Path(fmu_path)
-        md = read_model_description(str(self.fmu_path))
+        md = fmufile.model_description(self.fmu_path)
         vr = {v.name: v.valueReference for v in md.modelVariables}
         missing = [n for n in (*INPUT_NAMES, *OUTPUT_NAMES) if n not in vr]
         if missing:

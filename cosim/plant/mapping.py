@@ -192,12 +192,10 @@ def parse_plant(v: dict, vehicle, base_dir: Path, has_wind: bool) -> PlantSpec |
 
 def read_description(path: Path, where: str, given: Any):
     """The model description of a Co-Simulation FMU (ScenarioError if it is none)."""
-    from fmpy import read_model_description
-
     if not path.is_file():
         raise ScenarioError(where, given, f"an existing .fmu file (looked for {path})")
     try:
-        md = read_model_description(str(path), validate=False)
+        md = fmufile.model_description(path, validate=False)
     except Exception as exc:         # not a zip, no or a malformed modelDescription.xml
         raise ScenarioError(where, given, f"an FMU with a readable modelDescription.xml "
                                           f"({type(exc).__name__}: {exc})") from None
