@@ -125,8 +125,8 @@ class Estimator:
         b.take(parts)
         return self._estimate(b, SIM_SYSID)
 
-    @cython.locals(e=TemplateEstimator, b=hs.Bundle, imu=hs.Payload)
-    def _estimate(self, b, sysid: int) -> bool:
+    @cython.locals(e=TemplateEstimator, imu=hs.Payload)
+    def _estimate(self, b: hs.Bundle, sysid: int) -> bool:
         """The estimate's step on the messages in `b`, HIL_SENSOR's sent by system `sysid`."""
         st = self.stats
         if b.bad:

@@ -316,7 +316,7 @@ class ReleaseEstimator(TemplateEstimator):
                    prs_f=f64, son_f=f64)
     def _step(self, m: Payload, dt: float, t_us: int, new_flow: bool) -> None:
         st = self.stats
-        ax, ay, az, gx, gy, gz = m.f(1), m.f(2), m.f(3), m.f(4), m.f(5), m.f(6)
+        ax, ay, az, gx, gy, gz = self.ra0, self.ra1, self.ra2, self.rg0, self.rg1, self.rg2
         n = self.n
         self.n = n + 1
         if n < _CAL:                 # at rest: the calibration c, and the checks' figures
@@ -361,7 +361,7 @@ class ReleaseEstimator(TemplateEstimator):
         if n >= _CAL and abs(an - _G) < self.acc_gate:
             self._watch_tilt(self.alp0, self.alp1, self.alp2)
         # 3. altitude. The pressure altitude (reference: the mean at rest)
-        fields = m.i(14)
+        fields = self.rfields
         if (fields & _F_BARO) == _F_BARO:
             hpa = m.f(10)
             if not (_finite(hpa) and 300.0 < hpa < 1200.0):

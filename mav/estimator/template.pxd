@@ -17,6 +17,8 @@ cdef class TemplateEstimator:
     cdef public double p0_hpa, pzz, pzv, pvv, pzb, pvb, pbb, bz, pvx, pvy
     cdef public bint lost
     cdef public double tr_tilt, tr_vel, tr_hgt, sg2
+    cdef double ra0, ra1, ra2, rg0, rg1, rg2      # the reading _imu_ok passed
+    cdef long rfields
     cdef public long fail
     cdef public double w_acc, acc_gate, w_mag, decl, q_acc, q_ab, abl_lim, r_baro, baro_gate
     cdef public double r_rng

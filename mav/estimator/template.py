@@ -131,6 +131,8 @@ class TemplateEstimator:
         self.rng_us = -(1 << 62)                           # last sonar fused
         self.gps_us = 0                                    # last GPS fix fused
         self.imu_us = -1                                   # last IMU reading used
+        self.ra0 = self.ra1 = self.ra2 = self.rg0 = self.rg1 = self.rg2 = 0.0
+        self.rfields = 0
         self.rng_rej_since = -1
         self.gps_rej_since = -1                            # fixes gated out since
         self.lost = False
@@ -139,21 +141,15 @@ class TemplateEstimator:
         self.sg2 = 0.0                # at rest (alignment): the gyro's mean squared norm
 
     def configure(self, own: dict[str, float]) -> None:
-        self.w_acc = own["TPL_ACC_W"]
-        self.acc_gate = own["TPL_ACC_GATE"]
-        self.w_mag = own["TPL_MAG_W"]
-        self.decl = math.radians(own["EKF2_MAG_DECL"])
-        self.q_acc = own["TPL_ACC_NOISE"] ** 2
-        self.q_ab = own["EKF2_ACC_B_NOISE"] ** 2
+        self.w_acc, self.acc_gate = own["TPL_ACC_W"], own["TPL_ACC_GATE"]
+        self.w_mag, self.decl = own["TPL_MAG_W"], math.radians(own["EKF2_MAG_DECL"])
+        self.q_acc, self.q_ab = own["TPL_ACC_NOISE"] ** 2, own["EKF2_ACC_B_NOISE"] ** 2
         self.abl_lim = own["EKF2_ABL_LIM"]
-        self.r_baro = own["TPL_BARO_NOISE"] ** 2
-        self.baro_gate = own["TPL_BARO_GATE"]
-        self.r_rng = own["TPL_RNG_NOISE"] ** 2
-        self.rng_gate = own["TPL_RNG_GATE"]
+        self.r_baro, self.baro_gate = own["TPL_BARO_NOISE"] ** 2, own["TPL_BARO_GATE"]
+        self.r_rng, self.rng_gate = own["TPL_RNG_NOISE"] ** 2, own["TPL_RNG_GATE"]
         self.of_q, self.of_r = own["TPL_OF_Q"], own["TPL_OF_R"]
         self.of_qmin, self.of_gate = own["EKF2_OF_QMIN"], own["TPL_OF_GATE"]
-        self.noaid_us = int(own["TPL_NOAID_TOUT"] * 1e6)
-        self.w_gps = own["TPL_GPS_W"]
+        self.noaid_us, self.w_gps = int(own["TPL_NOAID_TOUT"] * 1e6), own["TPL_GPS_W"]
 
     # ------------------------------------------------------------------ one tick
     @cython.locals(dt=f64, fused=cython.bint)
@@ -220,18 +216,22 @@ class TemplateEstimator:
         if lost != self.lost:
             self.lost = lost
 
-    @cython.locals(fields=cython.long)
+    @cython.locals(fields=cython.long, a0=f64, a1=f64, a2=f64, g0=f64, g1=f64, g2=f64)
     def _imu_ok(self, m: Payload) -> bool:
         """HIL_SENSOR carries a new, finite, in-range accelerometer and gyro reading (else it
-        is counted, est_rej_imu, and nothing of it is used)."""
+        is counted, est_rej_imu, and nothing of it is used). A reading that passes is kept
+        for the step that uses it (ra0-ra2, rg0-rg2, rfields: each field read once)."""
         fields = m.i(14)                  # fields_updated: what this message carries new
-        if ((fields & _F_IMU) == _F_IMU
-                and _finite(m.f(1) + m.f(2) + m.f(3) + m.f(4) + m.f(5) + m.f(6))
-                and abs(m.f(1)) < ACC_MAX and abs(m.f(2)) < ACC_MAX and abs(m.f(3)) < ACC_MAX
-                and abs(m.f(4)) < GYRO_MAX and abs(m.f(5)) < GYRO_MAX
-                and abs(m.f(6)) < GYRO_MAX):
-            self.imu_us = self.t_us
-            return True
+        if (fields & _F_IMU) == _F_IMU:
+            a0, a1, a2, g0, g1, g2 = m.f(1), m.f(2), m.f(3), m.f(4), m.f(5), m.f(6)
+            if (_finite(a0 + a1 + a2 + g0 + g1 + g2)
+                    and abs(a0) < ACC_MAX and abs(a1) < ACC_MAX and abs(a2) < ACC_MAX
+                    and abs(g0) < GYRO_MAX and abs(g1) < GYRO_MAX and abs(g2) < GYRO_MAX):
+                self.ra0, self.ra1, self.ra2 = a0, a1, a2
+                self.rg0, self.rg1, self.rg2 = g0, g1, g2
+                self.rfields = fields
+                self.imu_us = self.t_us
+                return True
         self.stats["est_rej_imu"] += 1
         return False
 
@@ -255,8 +255,8 @@ class TemplateEstimator:
         st = self.stats
         if not self._imu_ok(m):
             return
-        ax, ay, az, gx, gy, gz = m.f(1), m.f(2), m.f(3), m.f(4), m.f(5), m.f(6)
-        fields = m.i(14)
+        ax, ay, az, gx, gy, gz = self.ra0, self.ra1, self.ra2, self.rg0, self.rg1, self.rg2
+        fields = self.rfields
         n = self.n
         self.n = n + 1
         if n < _CAL:                               # at rest: gyro bias and initial attitude

@@ -36,6 +36,25 @@ from mav.onboard.status import VehicleStatus
 from mav.rotations import wrap_pi
 from mav.types import Setpoint
 
+# a 200 Hz setpoint's constants as C values (compiled: on_setpoint checks it in C, not with
+# a Python int or float made per comparison)
+_IGN_VX = cython.declare(cython.long, IGN_VX)
+_IGN_VY = cython.declare(cython.long, IGN_VY)
+_IGN_VZ = cython.declare(cython.long, IGN_VZ)
+_IGN_X = cython.declare(cython.long, IGN_X)
+_IGN_Y = cython.declare(cython.long, IGN_Y)
+_IGN_YAW_RATE = cython.declare(cython.long, IGN_YAW_RATE)
+_IGN_YAW = cython.declare(cython.long, IGN_YAW)
+_IGN_Z = cython.declare(cython.long, IGN_Z)
+_FRAME_BODY_NED = cython.declare(cython.long, FRAME_BODY_NED)
+_FRAME_BODY_OFFSET_NED = cython.declare(cython.long, FRAME_BODY_OFFSET_NED)
+_FRAME_LOCAL_NED = cython.declare(cython.long, FRAME_LOCAL_NED)
+_SP_MAX_POS_M = cython.declare(cython.double, SP_MAX_POS_M)
+_SP_MAX_VEL_MPS = cython.declare(cython.double, SP_MAX_VEL_MPS)
+_SP_MAX_YAW_RAD = cython.declare(cython.double, SP_MAX_YAW_RAD)
+_SP_MAX_YAW_RATE = cython.declare(cython.double, SP_MAX_YAW_RATE)
+_NAN = cython.declare(cython.double, NAN)
+
 FRAME_GLOBAL_INT = M.MAV_FRAME_GLOBAL_INT                       # altitude AMSL
 FRAME_GLOBAL_REL_ALT_INT = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT  # altitude above home
 FRAME_GLOBAL_TERRAIN_ALT_INT = M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT
@@ -83,44 +102,44 @@ class Offboard:
         (_, x, y, z, vx, vy, vz, _ax, _ay, _az, yaw, yaw_rate, mask, tsys, tcomp, frame) = f
         if tsys != self.sysid or tcomp not in (0, self.compid):
             return self.reject("target", f"setpoint for system {tsys}/{tcomp} rejected")
-        if frame == FRAME_BODY_NED:
-            mask |= IGN_X | IGN_Y | IGN_Z          # PX4: position is ignored in BODY_NED
-        elif frame == FRAME_BODY_OFFSET_NED:
+        if frame == _FRAME_BODY_NED:
+            mask |= _IGN_X | _IGN_Y | _IGN_Z          # PX4: position is ignored in BODY_NED
+        elif frame == _FRAME_BODY_OFFSET_NED:
             return self.relative_move(x, y, z, yaw, mask)
-        elif frame != FRAME_LOCAL_NED:
+        elif frame != _FRAME_LOCAL_NED:
             return self.reject("frame", f"setpoint frame {frame} unsupported (1, 8 or 9)")
-        pxy = mask & (IGN_X | IGN_Y)
-        vxy = mask & (IGN_VX | IGN_VY)
+        pxy = mask & (_IGN_X | _IGN_Y)
+        vxy = mask & (_IGN_VX | _IGN_VY)
         use_pxy, use_vxy = pxy == 0, vxy == 0
-        use_pz, use_vz = not mask & IGN_Z, not mask & IGN_VZ
-        use_yaw, use_rate = not mask & IGN_YAW, not mask & IGN_YAW_RATE
-        if (pxy not in (0, IGN_X | IGN_Y) or vxy not in (0, IGN_VX | IGN_VY)
+        use_pz, use_vz = not mask & _IGN_Z, not mask & _IGN_VZ
+        use_yaw, use_rate = not mask & _IGN_YAW, not mask & _IGN_YAW_RATE
+        if (pxy not in (0, _IGN_X | _IGN_Y) or vxy not in (0, _IGN_VX | _IGN_VY)
                 or not (use_pxy or use_vxy) or not (use_pz or use_vz)):
             return self.reject("mask", f"setpoint type_mask 0x{mask:04X} unsupported")
-        if use_pxy and not (abs(x) <= SP_MAX_POS_M and abs(y) <= SP_MAX_POS_M) or (
-                use_pz and not abs(z) <= SP_MAX_POS_M):
+        if use_pxy and not (abs(x) <= _SP_MAX_POS_M and abs(y) <= _SP_MAX_POS_M) or (
+                use_pz and not abs(z) <= _SP_MAX_POS_M):
             return self.reject("range", "setpoint position not finite or out of range")
-        if use_vxy and not (abs(vx) <= SP_MAX_VEL_MPS and abs(vy) <= SP_MAX_VEL_MPS) or (
-                use_vz and not abs(vz) <= SP_MAX_VEL_MPS):
+        if use_vxy and not (abs(vx) <= _SP_MAX_VEL_MPS and abs(vy) <= _SP_MAX_VEL_MPS) or (
+                use_vz and not abs(vz) <= _SP_MAX_VEL_MPS):
             return self.reject("range", "setpoint velocity not finite or out of range")
-        if use_yaw and not abs(yaw) <= SP_MAX_YAW_RAD or (
-                use_rate and not abs(yaw_rate) <= SP_MAX_YAW_RATE):
+        if use_yaw and not abs(yaw) <= _SP_MAX_YAW_RAD or (
+                use_rate and not abs(yaw_rate) <= _SP_MAX_YAW_RATE):
             return self.reject("range", "setpoint yaw not finite or out of range")
-        if frame == FRAME_BODY_NED and use_vxy:
+        if frame == _FRAME_BODY_NED and use_vxy:
             yaw_now = self.cmd.heading()
             c, s = math.cos(yaw_now), math.sin(yaw_now)
             vx, vy = c * vx - s * vy, s * vx + c * vy
         vs = self.vs
         self.moveby.stop()
         of = vs.of
-        of.x = x if use_pxy else NAN
-        of.y = y if use_pxy else NAN
-        of.z = z if use_pz else NAN
-        of.vx = vx if use_vxy else NAN
-        of.vy = vy if use_vxy else NAN
-        of.vz = vz if use_vz else NAN
-        of.yaw = wrap_pi(yaw) if use_yaw else NAN
-        of.yaw_rate = yaw_rate if use_rate else NAN
+        of.x = x if use_pxy else _NAN
+        of.y = y if use_pxy else _NAN
+        of.z = z if use_pz else _NAN
+        of.vx = vx if use_vxy else _NAN
+        of.vy = vy if use_vxy else _NAN
+        of.vz = vz if use_vz else _NAN
+        of.yaw = wrap_pi(yaw) if use_yaw else _NAN
+        of.yaw_rate = yaw_rate if use_rate else _NAN
         vs.of_last_us = vs.t_us
         vs.stats["setpoints"] += 1
 

@@ -27,7 +27,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from mav import wire
 from mav.airframe import Airframe, get_airframe
 from mav.battery import BATTERIES, Battery
-from mav.estimator import Estimator
+from mav.estimator.core import Estimator
 from mav.fields import f32
 from mav.hil import SIM_SYSID, tick_refusal
 from mav.links import kernel_drops
@@ -301,7 +301,7 @@ class Onboard:
         self._hil.send(wire.frame(self._hil_mav, wire.HIL_ACTUATOR_CONTROLS, pl))
         return True
 
-    @cython.locals(vs=VehicleStatus, u=list)
+    @cython.locals(vs=VehicleStatus, u=list, est=Estimator)
     def step_record(self, rec) -> tuple | None:
         """MIL's typed exchange (cosim/sim/onboard.py): `poll` of what a HIL datagram's frames
         decode to (`mav.hil.odometry_record`'s tuple, or the sensor messages' list); the
@@ -396,18 +396,18 @@ class Onboard:
             self.commander.hold_here()
         # 3. modes, failsafes, ground detection, controller: on an estimate that moved on
         # (the onboard estimator's with a usable IMU reading this tick; failsafe.IMU_FAIL_US)
-        fs = self.failsafe
-        imu_ok = not own or self.estimator.impl.imu_us == t_us
-        if own and self.estimator.impl.resets != self._est_resets:   # (no reading may do it)
-            self._est_resets = self.estimator.impl.resets
+        fs, impl = self.failsafe, self.estimator.impl
+        imu_ok = not own or impl.imu_us == t_us
+        if own and impl.resets != self._est_resets:   # (no reading may do it)
+            self._est_resets = impl.resets
             self.outbox.statustext("Estimator reset: its state was not finite",
                                    M.MAV_SEVERITY_CRITICAL)
         if imu_ok:
-            if fs.blind_us >= 0 or fs.est_fail != self.estimator.impl.fail:
-                fs.imu_ok(self.estimator.impl)
+            if fs.blind_us >= 0 or fs.est_fail != impl.fail:
+                fs.imu_ok(impl)
             self._step_modes(t_us)
         else:
-            fs.imu_missing(t_us, self.estimator.impl, self.vehicle)
+            fs.imu_missing(t_us, impl, self.vehicle)
         u = vs.u
         if vs.armed:
             if fs.blind_us >= 0:
