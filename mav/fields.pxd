@@ -1,12 +1,17 @@
 # Types Cython reads beside mav/fields.py (plain Python): a payload's layout as C arrays and
 # its fields written and read as C calls (struct's own float packers from Python.h).
 
+from libc.string cimport memset
+
 cdef extern from "Python.h":
     int PyFloat_Pack4(double x, char *p, int le) except -1
     int PyFloat_Pack8(double x, char *p, int le) except -1
     double PyFloat_Unpack4(const char *p, int le) except? -1.0
     double PyFloat_Unpack8(const char *p, int le) except? -1.0
     char *PyByteArray_AS_STRING(object b)
+    Py_ssize_t PyByteArray_GET_SIZE(object b)
+    bytearray PyByteArray_FromStringAndSize(char *v, Py_ssize_t n)
+    bytes PyBytes_FromStringAndSize(char *v, Py_ssize_t n)
     char *PyBytes_AS_STRING(object b)
 
 

@@ -60,9 +60,17 @@ class Layout:
         self.n, self.size = n, at - base
 
 
+@cython.locals(b=bytearray)
 def new_payload(n: int) -> bytearray:
-    """A zeroed payload of n bytes to write with put_f / put_i, then hand to `done`."""
-    return bytearray(n)
+    """A zeroed payload of n bytes to write with put_f / put_i, then hand to `done`.
+    (Compiled: made by the C API, not by a call of the bytearray type, ~6x the work.)"""
+    if not cython.compiled:
+        return bytearray(n)
+    if n < 0:
+        raise ValueError("negative count")                      # as bytearray(n)
+    b = PyByteArray_FromStringAndSize(cython.NULL, n)           # noqa: F821 (fields.pxd)
+    memset(PyByteArray_AS_STRING(b), 0, n)                      # noqa: F821
+    return b
 
 
 def copy_of(template: bytes) -> bytearray:
@@ -72,9 +80,12 @@ def copy_of(template: bytes) -> bytearray:
 
 
 def done(buf: bytearray) -> bytes:
-    """The bytes of a payload written in place."""
+    """The bytes of a payload written in place (compiled: copied by the C API)."""
     _writable(buf)
-    return bytes(buf)
+    if not cython.compiled:
+        return bytes(buf)
+    return PyBytes_FromStringAndSize(PyByteArray_AS_STRING(buf),   # noqa: F821 (fields.pxd)
+                                     PyByteArray_GET_SIZE(buf))    # noqa: F821
 
 
 def _writable(out) -> int:
