@@ -66,7 +66,8 @@ MADE_BY = {"QuadCascade": ("mav.control", "make_controller", None),
            "OffboardClient": ("mav.client", "OffboardClient", None),
            "LineFollowerApp": ("cosim.apps.line_follower", "LineFollowerApp", None),
            "LinkInput": ("mav.onboard", "Onboard", "input"),
-           "Telemetry": ("mav.onboard", "Onboard", "telemetry")}
+           "Telemetry": ("mav.onboard", "Onboard", "telemetry"),
+           "Estimator": ("mav.onboard", "Onboard", "estimator")}
 
 
 def _timing_attr(setup: Callable, attr: str, timed: Callable, label: str) -> Callable:
