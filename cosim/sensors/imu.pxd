@@ -3,7 +3,7 @@
 
 cdef class Gauss:
     cdef public object rng
-    cdef public list buf
+    cdef public double[::1] buf       # the block of draws (imu.py: _block)
     cdef public Py_ssize_t i
     cpdef Py_ssize_t at(self, Py_ssize_t n) except -1
     cpdef list take(self, Py_ssize_t n)

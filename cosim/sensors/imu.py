@@ -21,7 +21,7 @@ class Gauss:
 
     def __init__(self, seed: int, sensor: int) -> None:
         self.rng = np.random.default_rng([seed, 11, sensor])
-        self.buf: list[float] = []
+        self.buf = _block(np.empty(0))
         self.i = 0
 
     @cython.locals(i=cython.Py_ssize_t, j=cython.Py_ssize_t)
@@ -31,16 +31,23 @@ class Gauss:
         i = self.i
         j = i + n
         if j > len(self.buf):
-            self.buf = self.rng.standard_normal(BLOCK).tolist()
+            self.buf = _block(self.rng.standard_normal(BLOCK))
             i, j = 0, n
         self.i = j
         return i
 
-    @cython.locals(i=cython.Py_ssize_t)
+    @cython.locals(i=cython.Py_ssize_t, k=cython.Py_ssize_t)
     def take(self, n: int) -> list[float]:
         """The next n samples (n <= BLOCK)."""
         i = self.at(n)
-        return self.buf[i:i + n]
+        return [self.buf[k] for k in range(i, i + n)]
+
+
+def _block(draws: np.ndarray):
+    """A block of draws as `Gauss.buf` holds it: compiled, the numpy array itself, read as C
+    doubles through a typed memoryview (imu.pxd); interpreted, a list of Python floats (numpy
+    scalars would otherwise flow on into the readings). The same float64 values either way."""
+    return draws if cython.compiled else draws.tolist()
 
 
 class Imu3:
@@ -65,10 +72,10 @@ class Imu3:
         self.gauss = gauss
         self.o0 = self.o1 = self.o2 = 0.0
 
-    @cython.locals(i=cython.Py_ssize_t, buf=list, b0=cython.double, b1=cython.double,
-                   b2=cython.double, a1=cython.double, a2=cython.double, y0=cython.double,
-                   y1=cython.double, y2=cython.double, v=cython.double, n0=cython.double,
-                   n1=cython.double, n2=cython.double)
+    @cython.locals(i=cython.Py_ssize_t, buf=cython.double[::1], b0=cython.double,
+                   b1=cython.double, b2=cython.double, a1=cython.double, a2=cython.double,
+                   y0=cython.double, y1=cython.double, y2=cython.double, v=cython.double,
+                   n0=cython.double, n1=cython.double, n2=cython.double)
     def read(self, u0: float, u1: float, u2: float, bias0: float, bias1: float, bias2: float,
              lim: float) -> None:
         """The reading in o0, o1, o2."""

@@ -186,7 +186,7 @@ class SensorSuite:
                    vbx=cython.double, vby=cython.double, d=cython.double, h=cython.double,
                    fn=cython.double, c=cython.double, tilt=cython.double, ok=cython.bint,
                    ix=cython.double, iy=cython.double, send=cython.bint, i=cython.Py_ssize_t,
-                   buf=list, acc=Imu3, gyr=Imu3, parts=list, n0=cython.double,
+                   buf=cython.double[::1], acc=Imu3, gyr=Imu3, parts=list, n0=cython.double,
                    n1=cython.double, n2=cython.double, lo=cython.long, hi=cython.long)
     def read(self, t_us: int, y) -> list:
         """The readings of y(t_k) as (message, payload less its stamp) pairs, flat (the delay
