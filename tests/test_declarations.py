@@ -19,9 +19,9 @@ from onesource import switch as compiled
 
 ROOT = Path(__file__).resolve().parent.parent
 _CLASS = re.compile(r"^cdef class (\w+)")
-# a field line: `cdef [public|readonly] TYPE name[, name...]` (TYPE may be `long long`; a
-# method has a parenthesis)
-_FIELD = re.compile(r"^\s+cdef\s+(?:public\s+|readonly\s+)?([\w\s.*,\[\]]+)$")
+# a field line: `cdef [public|readonly] TYPE name[, name...]` (TYPE may be `long long` or a
+# typed memoryview `double[::1]`; a method has a parenthesis), a trailing comment left out
+_FIELD = re.compile(r"^\s+cdef\s+(?:public\s+|readonly\s+)?([\w\s.*,:\[\]]+)$")
 
 
 def pxd_fields(pxd: Path) -> dict[str, set[str]]:
@@ -39,7 +39,7 @@ def pxd_fields(pxd: Path) -> dict[str, set[str]]:
         if not line.startswith(" "):
             cls = None
             continue
-        m = _FIELD.match(line)
+        m = _FIELD.match(line.split("#", 1)[0].rstrip())
         if m:
             first, *more = re.sub(r"\[[^]]*\]", "", m.group(1)).split(",")
             out[cls].update(n.strip() for n in [first.split()[-1], *more] if n.strip())
